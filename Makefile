@@ -1,0 +1,37 @@
+# gsrmr: two commands on a fresh machine (Python 3.11, pip, gcc):
+#   make demo   set up .venv, then run the main job
+#   make test   set up .venv, then lint (ruff) and run every test (pytest)
+# .venv is created or refreshed by tools/bootstrap.sh; a second run reuses it in about a second.
+
+VENV ?= .venv
+PY := $(VENV)/bin/python
+# Each run gets its own ROS domain and localhost-only discovery (tests pick per-test domains too).
+ROS_DOMAIN_ID ?= $(shell echo $$(( $$$$ % 100 + 1 )))
+export ROS_DOMAIN_ID
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+PYTEST_ARGS ?=
+
+.PHONY: venv test lint pytest demo bench clean
+
+venv:
+	@VENV=$(VENV) bash tools/bootstrap.sh
+
+lint: venv
+	$(VENV)/bin/ruff check .
+
+pytest: venv
+	$(PY) -m pytest $(PYTEST_ARGS)
+
+test: venv
+	@echo "make test: ROS_DOMAIN_ID=$(ROS_DOMAIN_ID) ROS_AUTOMATIC_DISCOVERY_RANGE=$(ROS_AUTOMATIC_DISCOVERY_RANGE)"
+	$(VENV)/bin/ruff check .
+	$(PY) -m pytest $(PYTEST_ARGS)
+
+demo: venv
+	$(VENV)/bin/gsrmr-demo $(DEMO_ARGS)
+
+bench: venv
+	@for b in bench/*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+
+clean:
+	rm -rf $(VENV) build install log *.egg-info .pytest_cache .ruff_cache

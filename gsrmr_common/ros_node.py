@@ -1,0 +1,62 @@
+"""Small rclpy helpers every gsrmr node uses: a main() wrapper and parameter declaration.
+
+Imports rclpy; keep pure logic elsewhere.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+import sys
+from typing import Any
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+
+
+def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
+    """Init rclpy, build the node, spin until SIGINT/SIGTERM or shutdown, clean up; return an exit code.
+
+    The pattern of ``ros2/examples``: Ctrl-C ends the spin with KeyboardInterrupt or
+    ExternalShutdownException, both a normal exit (code 0).
+    """
+    argv = list(sys.argv if args is None else args)
+    node: Node | None = None
+    try:
+        rclpy.init(args=argv)
+        node = factory()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            on_shutdown = getattr(node, "on_shutdown", None)
+            if callable(on_shutdown):
+                on_shutdown()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+def declare(node: Node, name: str, default: Any, description: str, *, min_value: float | None = None,
+            max_value: float | None = None, read_only: bool = False, constraints: str = "") -> Any:
+    """Declare a parameter with a descriptor (description, range) and return its current value.
+
+    Ranges are enforced by rclpy both for launch-time overrides and for later ``set_parameters``
+    calls (the request is refused with a reason naming the range).
+    """
+    descriptor = ParameterDescriptor(description=description, read_only=read_only,
+                                     additional_constraints=constraints)
+    if min_value is not None or max_value is not None:
+        if isinstance(default, bool):
+            raise TypeError(f"parameter {name}: a bool takes no range")
+        if isinstance(default, int):
+            lo = int(min_value) if min_value is not None else -(2**62)
+            hi = int(max_value) if max_value is not None else 2**62
+            descriptor.integer_range = [IntegerRange(from_value=lo, to_value=hi, step=0)]
+        else:
+            lo_f = float(min_value) if min_value is not None else -sys.float_info.max
+            hi_f = float(max_value) if max_value is not None else sys.float_info.max
+            descriptor.floating_point_range = [FloatingPointRange(from_value=lo_f, to_value=hi_f, step=0.0)]
+    return node.declare_parameter(name, default, descriptor).value

