@@ -21,6 +21,24 @@ CONSOLE_SCRIPTS = [
     # foundation: DDS link check between the robot and the workstation
     "gsrmr-link-echo = gsrmr_common.link_check:echo_main",
     "gsrmr-link-probe = gsrmr_common.link_check:probe_main",
+    # scheduler (GSCLO): library CLI
+    "gsrmr-schedule = gsrmr_server.scheduling.cli:main",
+    # Gaussian-splatting engine
+    "gsrmr-train = gsrmr_server.splatting.cli:train_main",
+    "gsrmr-render = gsrmr_server.splatting.cli:render_main",
+    # LIMO base: driver node and byte-exact mock base
+    "gsrmr-limo-base = gsrmr_robot.limo.node:main",
+    "gsrmr-mock-limo = gsrmr_robot.limo.mock:main",
+    # simulated world: headless recorder, mock camera node, route follower node
+    "gsrmr-sim = gsrmr_server.world.cli:main",
+    "gsrmr-mock-camera = gsrmr_server.world.camera_node:main",
+    "gsrmr-route-follower = gsrmr_server.world.route_follower:main",
+    # node suite, experiments and the main job
+    "gsrmr-robot = gsrmr_robot.robot_node:main",
+    "gsrmr-server = gsrmr_server.server_node:main",
+    "gsrmr-scheduler = gsrmr_server.scheduler_node:main",
+    "gsrmr-experiments = gsrmr_server.experiments.cli:main",
+    "gsrmr-demo = gsrmr_server.demo:main",
 ]
 
 setup(
