@@ -1,0 +1,147 @@
+"""nerfstudio ``transforms.json`` datasets: the one reader and writer of the format in gsrmr.
+
+The world recorder writes round-1 frames with :func:`write_dataset`; the GS trainer reads them with
+:func:`read_dataset`. Layout (nerfstudio "data/nerfstudio" convention)::
+
+    DIR/transforms.json
+    DIR/images/frame_00000.png      RGB, 8 bit
+    DIR/depths/frame_00000.png      optional, uint16 millimetres (0 = no depth)
+
+``transforms.json`` holds shared intrinsics ``fl_x fl_y cx cy w h`` (pixels; pixel centres at +0.5,
+the COLMAP/nerfstudio convention), ``camera_model: "OPENCV"`` with zero distortion, and per frame
+``file_path``, optional ``depth_file_path`` and ``transform_matrix``: camera→world in OpenGL/Blender
+axes (x right, y up, z back). Frames may also carry their own ``fl_x``… keys (nerfstudio allows
+per-frame intrinsics) and gsrmr adds the robot pose as ``gsrmr_pose`` = [a_m, b_m, theta_rad] when known.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from gsrmr_common.camera import Camera, Intrinsics, opencv_w2c_to_opengl_c2w, opengl_c2w_to_opencv_w2c
+
+DEPTH_SCALE_M = 1e-3  # depth PNG unit: millimetres
+
+
+@dataclass
+class DatasetFrame:
+    """One training view: OpenCV camera, RGB float32 image in [0, 1] (H×W×3), optional depth [m]."""
+
+    camera: Camera
+    image: np.ndarray
+    depth_m: np.ndarray | None = None
+    pose: tuple[float, float, float] | None = None  # robot (a_m, b_m, theta_rad) if known
+    file_path: str = ""
+
+
+def _intrinsics_dict(k: Intrinsics) -> dict:
+    return {"fl_x": k.fx, "fl_y": k.fy, "cx": k.cx, "cy": k.cy, "w": k.width, "h": k.height}
+
+
+def write_dataset(root: str | Path, frames: list[DatasetFrame]) -> Path:
+    """Write frames as a nerfstudio dataset under ``root``; returns the transforms.json path."""
+    root = Path(root)
+    (root / "images").mkdir(parents=True, exist_ok=True)
+    if not frames:
+        raise ValueError("write_dataset: no frames")
+    shared = frames[0].camera.intrinsics
+    meta: dict = {"camera_model": "OPENCV", **_intrinsics_dict(shared),
+                  "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0, "frames": []}
+    for i, frame in enumerate(frames):
+        img = np.asarray(frame.image)
+        if img.ndim != 3 or img.shape[2] != 3:
+            raise ValueError(f"frame {i}: image must be H×W×3, got {img.shape}")
+        if (img.shape[1], img.shape[0]) != (frame.camera.width, frame.camera.height):
+            raise ValueError(f"frame {i}: image {img.shape[1]}×{img.shape[0]} does not match its camera "
+                             f"{frame.camera.width}×{frame.camera.height}")
+        rel = f"images/frame_{i:05d}.png"
+        u8 = img if img.dtype == np.uint8 else np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)
+        cv2.imwrite(str(root / rel), cv2.cvtColor(u8, cv2.COLOR_RGB2BGR))
+        entry: dict = {"file_path": rel,
+                       "transform_matrix": opencv_w2c_to_opengl_c2w(frame.camera.world_to_camera).tolist()}
+        if frame.camera.intrinsics != shared:
+            entry.update(_intrinsics_dict(frame.camera.intrinsics))
+        if frame.depth_m is not None:
+            (root / "depths").mkdir(exist_ok=True)
+            drel = f"depths/frame_{i:05d}.png"
+            depth = np.nan_to_num(np.asarray(frame.depth_m, dtype=np.float64), nan=0.0, posinf=0.0)
+            mm = np.clip(np.round(depth / DEPTH_SCALE_M), 0, 65535).astype(np.uint16)
+            cv2.imwrite(str(root / drel), mm)
+            entry["depth_file_path"] = drel
+        if frame.pose is not None:
+            entry["gsrmr_pose"] = [float(v) for v in frame.pose]
+        meta["frames"].append(entry)
+    if any("depth_file_path" in f for f in meta["frames"]):
+        meta["depth_unit_scale_factor"] = DEPTH_SCALE_M
+    out = root / "transforms.json"
+    out.write_text(json.dumps(meta, indent=1))
+    return out
+
+
+def _frame_intrinsics(meta: dict, entry: dict, name: str) -> Intrinsics:
+    keys = ("fl_x", "fl_y", "cx", "cy", "w", "h")
+    values = {}
+    for key in keys:
+        value = entry.get(key, meta.get(key))
+        if value is None:
+            raise ValueError(f"{name}: missing intrinsics key {key!r}")
+        if not isinstance(value, int | float) or not math.isfinite(value):
+            raise ValueError(f"{name}: intrinsics key {key!r} is not a finite number")
+        values[key] = value
+    return Intrinsics(float(values["fl_x"]), float(values["fl_y"]), float(values["cx"]), float(values["cy"]),
+                      int(values["w"]), int(values["h"]))
+
+
+def read_dataset(root: str | Path, *, load_images: bool = True) -> list[DatasetFrame]:
+    """Read a nerfstudio dataset (``root`` is the folder or its transforms.json).
+
+    Images are returned as float32 RGB in [0, 1]; depth in metres when present. Images whose size
+    differs from the stated w×h are rejected with a clear error.
+    """
+    root = Path(root)
+    path = root if root.is_file() else root / "transforms.json"
+    if not path.exists():
+        raise FileNotFoundError(f"no transforms.json at {path}")
+    meta = json.loads(path.read_text())
+    base = path.parent
+    frames_meta = meta.get("frames")
+    if not isinstance(frames_meta, list) or not frames_meta:
+        raise ValueError(f"{path}: 'frames' must be a non-empty list")
+    depth_scale = float(meta.get("depth_unit_scale_factor", DEPTH_SCALE_M))
+    out: list[DatasetFrame] = []
+    for i, entry in enumerate(frames_meta):
+        name = f"{path}: frame {i}"
+        if "file_path" not in entry or "transform_matrix" not in entry:
+            raise ValueError(f"{name}: needs 'file_path' and 'transform_matrix'")
+        c2w = np.asarray(entry["transform_matrix"], dtype=np.float64)
+        if c2w.shape == (3, 4):
+            c2w = np.vstack([c2w, [0.0, 0.0, 0.0, 1.0]])
+        if c2w.shape != (4, 4) or not np.all(np.isfinite(c2w)):
+            raise ValueError(f"{name}: transform_matrix must be a finite 4×4 (or 3×4)")
+        k = _frame_intrinsics(meta, entry, name)
+        camera = Camera(k, opengl_c2w_to_opencv_w2c(c2w))
+        image = np.zeros((0, 0, 3), np.float32)
+        depth = None
+        if load_images:
+            img_path = base / entry["file_path"]
+            bgr = cv2.imread(str(img_path), cv2.IMREAD_COLOR)
+            if bgr is None:
+                raise ValueError(f"{name}: cannot read image {img_path}")
+            if bgr.shape[:2] != (k.height, k.width):
+                raise ValueError(f"{name}: image is {bgr.shape[1]}×{bgr.shape[0]}, transforms.json says "
+                                 f"{k.width}×{k.height}")
+            image = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB).astype(np.float32) / 255.0
+            if "depth_file_path" in entry:
+                raw = cv2.imread(str(base / entry["depth_file_path"]), cv2.IMREAD_UNCHANGED)
+                if raw is None:
+                    raise ValueError(f"{name}: cannot read depth {entry['depth_file_path']}")
+                depth = raw.astype(np.float32) * depth_scale
+        pose = entry.get("gsrmr_pose")
+        out.append(DatasetFrame(camera, image, depth, tuple(pose) if pose else None, entry["file_path"]))
+    return out
