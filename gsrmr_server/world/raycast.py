@@ -1,0 +1,398 @@
+"""The "real" camera of the simulated world: colour and depth by ray casting textured solids.
+
+One ray per pixel centre (``gsrmr_common.camera.Camera.ray_directions_camera``, OpenCV axes, pixel
+centres at +0.5), scaled so that its camera-frame z component is 1: the ray parameter at a hit *is*
+the depth (camera-space z, metres), the convention of 3DGS/gsplat depth maps. Misses get depth +inf.
+
+Primitives (map frame, metres): the room (an axis-aligned box seen from inside: floor, walls,
+ceiling), boxes with a yaw about +z, upright cylinders. Shading is Lambertian and view-independent,
+so a degree-0/1 SH Gaussian-splatting model can reproduce it:
+``rgb = albedo · (ambient + Σ_lights colour·intensity·max(0, n·l)·attenuation·visibility) · region gain``
+with point-light attenuation 1 / (1 + (d / range_m)²) and optional hard shadows (one shadow ray per
+light that has ``shadows: true``, cast against boxes and cylinders). Albedo textures are procedural
+(flat, checker, 2-octave value noise, sine stripes) at ``scale_m`` metres — moderate-frequency detail.
+
+The kernel is numba-compiled (``cache=True``), single-threaded; see ``bench/world.py`` for timings.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from gsrmr_common.camera import Camera
+from gsrmr_server.world.scene import TEXTURES, Material, Scene, Shape, WorldState
+
+_EPS = 1e-6
+_SHADOW_BIAS = 1e-4
+
+# ----------------------------------------------------------------------------------------------
+# packing scene objects into flat arrays for the kernel
+
+
+class MaterialTable:
+    """Materials as an (K, 8) float64 table: texture code, colour rgb, colour2 rgb, scale_m."""
+
+    def __init__(self) -> None:
+        self.rows: list[list[float]] = []
+        self.index: dict[Material, int] = {}
+
+    def add(self, m: Material) -> int:
+        """Index of material ``m`` (added on first use)."""
+        if m not in self.index:
+            self.index[m] = len(self.rows)
+            self.rows.append([float(TEXTURES.index(m.texture)), *m.color, *m.color2, m.scale_m])
+        return self.index[m]
+
+    def array(self) -> np.ndarray:
+        """The table (at least one row so numba sees a 2-D array)."""
+        return np.array(self.rows or [[0.0] * 8], dtype=np.float64).reshape(-1, 8)
+
+
+def pack_shapes(shapes: tuple[Shape, ...] | list[Shape],
+                mats: MaterialTable) -> tuple[np.ndarray, np.ndarray]:
+    """(boxes (N, 9): cx cy cz hx hy hz cos sin mat; cylinders (M, 6): cx cy z0 z1 r mat)."""
+    boxes, cyls = [], []
+    for s in shapes:
+        mat = float(mats.add(s.material))
+        if s.shape == "box":
+            hx, hy, hz = (0.5 * v for v in s.size)
+            boxes.append([s.position[0], s.position[1], s.base_z_m + hz, hx, hy, hz,
+                          math.cos(s.yaw_rad), math.sin(s.yaw_rad), mat])
+        else:
+            cyls.append([s.position[0], s.position[1], s.base_z_m, s.base_z_m + s.size[2], s.radius_m, mat])
+    return (np.array(boxes, dtype=np.float64).reshape(-1, 9), np.array(cyls, dtype=np.float64).reshape(-1, 6))
+
+
+def pack_lights(state: WorldState) -> tuple[np.ndarray, np.ndarray]:
+    """(lights (L, 9): type vx vy vz r g b range shadows; regions (R, 9): min3 max3 gain3)."""
+    lights = [[0.0 if lt.type == "directional" else 1.0, *lt.vector, *(c * lt.intensity for c in lt.color),
+               lt.range_m, 1.0 if lt.shadows else 0.0] for lt in state.lights]
+    regions = [[*lo, *hi, *gain] for lo, hi, gain in state.regions]
+    return (np.array(lights, dtype=np.float64).reshape(-1, 9),
+            np.array(regions, dtype=np.float64).reshape(-1, 9))
+
+
+def world_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """(origin (3,), H×W×3 world ray directions whose camera-frame z is 1) — ray t equals depth."""
+    c2w = camera.camera_to_world
+    dirs = camera.ray_directions_camera() @ c2w[:3, :3].T
+    return np.ascontiguousarray(c2w[:3, 3]), np.ascontiguousarray(dirs)
+
+
+# ----------------------------------------------------------------------------------------------
+# numba kernel
+
+
+@numba.njit(cache=True, inline="always")
+def _hash01(i: int, j: int, seed: int) -> float:
+    h = (i * 374761393 + j * 668265263 + seed * 1442695041) & 0xFFFFFFFF
+    h = ((h ^ (h >> 13)) * 1274126177) & 0xFFFFFFFF
+    h = h ^ (h >> 16)
+    return h / 4294967296.0
+
+
+@numba.njit(cache=True)
+def _value_noise(u: float, v: float, seed: int) -> float:
+    i0 = math.floor(u)
+    j0 = math.floor(v)
+    fu = u - i0
+    fv = v - j0
+    su = fu * fu * (3.0 - 2.0 * fu)
+    sv = fv * fv * (3.0 - 2.0 * fv)
+    a = _hash01(int(i0), int(j0), seed)
+    b = _hash01(int(i0) + 1, int(j0), seed)
+    c = _hash01(int(i0), int(j0) + 1, seed)
+    d = _hash01(int(i0) + 1, int(j0) + 1, seed)
+    return (a * (1 - su) + b * su) * (1 - sv) + (c * (1 - su) + d * su) * sv
+
+
+@numba.njit(cache=True)
+def _albedo(mats: np.ndarray, m: int, u: float, v: float, out: np.ndarray) -> None:
+    tex = int(mats[m, 0])
+    s = mats[m, 7]
+    if tex == 0:
+        w = 0.0
+    elif tex == 1:
+        w = float((math.floor(u / s) + math.floor(v / s)) % 2)
+    elif tex == 2:
+        w = 0.65 * _value_noise(u / s, v / s, m) + 0.35 * _value_noise(2.0 * u / s, 2.0 * v / s, m + 101)
+        w = min(1.0, max(0.0, 1.5 * (w - 0.5) + 0.5))
+    else:
+        w = 0.5 + 0.5 * math.sin(2.0 * math.pi * u / s)
+    for k in range(3):
+        out[k] = mats[m, 1 + k] * (1.0 - w) + mats[m, 4 + k] * w
+
+
+@numba.njit(cache=True)
+def _hit_box(b: np.ndarray, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float,
+             tmax: float, res: np.ndarray) -> bool:
+    """Nearest hit in (eps, tmax); res = t, nx, ny, nz, u, v."""
+    c, s = b[6], b[7]
+    px = c * (ox - b[0]) + s * (oy - b[1])
+    py = -s * (ox - b[0]) + c * (oy - b[1])
+    pz = oz - b[2]
+    lx = c * dx + s * dy
+    ly = -s * dx + c * dy
+    lz = dz
+    p = (px, py, pz)
+    d = (lx, ly, lz)
+    h = (b[3], b[4], b[5])
+    tnear = -1e30
+    tfar = 1e30
+    axis = 0
+    sign = 1.0
+    for k in range(3):
+        if abs(d[k]) < 1e-12:
+            if abs(p[k]) > h[k]:
+                return False
+            continue
+        t1 = (-h[k] - p[k]) / d[k]
+        t2 = (h[k] - p[k]) / d[k]
+        if t1 > t2:
+            t1, t2 = t2, t1
+        if t1 > tnear:
+            tnear = t1
+            axis = k
+            sign = -1.0 if d[k] > 0 else 1.0
+        if t2 < tfar:
+            tfar = t2
+    if tnear > tfar or tnear <= _EPS or tnear >= tmax:
+        return False
+    hx = p[0] + tnear * d[0] + h[0]
+    hy = p[1] + tnear * d[1] + h[1]
+    hz = p[2] + tnear * d[2] + h[2]
+    nlx = sign if axis == 0 else 0.0
+    nly = sign if axis == 1 else 0.0
+    res[0] = tnear
+    res[1] = c * nlx - s * nly
+    res[2] = s * nlx + c * nly
+    res[3] = sign if axis == 2 else 0.0
+    if axis == 0:
+        res[4] = hy
+        res[5] = hz
+    elif axis == 1:
+        res[4] = hx
+        res[5] = hz
+    else:
+        res[4] = hx
+        res[5] = hy
+    return True
+
+
+@numba.njit(cache=True)
+def _hit_cyl(cy: np.ndarray, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float,
+             tmax: float, res: np.ndarray) -> bool:
+    px = ox - cy[0]
+    py = oy - cy[1]
+    r = cy[4]
+    best = tmax
+    found = False
+    a = dx * dx + dy * dy
+    if a > 1e-18:
+        bq = 2.0 * (px * dx + py * dy)
+        cq = px * px + py * py - r * r
+        disc = bq * bq - 4.0 * a * cq
+        if disc >= 0.0:
+            t = (-bq - math.sqrt(disc)) / (2.0 * a)
+            if _EPS < t < best:
+                z = oz + t * dz
+                if cy[2] <= z <= cy[3]:
+                    best = t
+                    found = True
+                    hx = px + t * dx
+                    hy = py + t * dy
+                    res[0] = t
+                    res[1] = hx / r
+                    res[2] = hy / r
+                    res[3] = 0.0
+                    res[4] = (math.atan2(hy, hx) + math.pi) * r
+                    res[5] = z - cy[2]
+    if abs(dz) > 1e-12:
+        for cap in range(2):
+            zc = cy[3] if cap == 0 else cy[2]
+            t = (zc - oz) / dz
+            if _EPS < t < best:
+                hx = px + t * dx
+                hy = py + t * dy
+                if hx * hx + hy * hy <= r * r:
+                    best = t
+                    found = True
+                    res[0] = t
+                    res[1] = 0.0
+                    res[2] = 0.0
+                    res[3] = 1.0 if cap == 0 else -1.0
+                    res[4] = hx + r
+                    res[5] = hy + r
+    return found
+
+
+@numba.njit(cache=True)
+def _occluded(boxes: np.ndarray, cyls: np.ndarray, ox: float, oy: float, oz: float, dx: float, dy: float,
+              dz: float, tmax: float, scratch: np.ndarray) -> bool:
+    for i in range(boxes.shape[0]):
+        if _hit_box(boxes[i], ox, oy, oz, dx, dy, dz, tmax, scratch):
+            return True
+    for i in range(cyls.shape[0]):  # noqa: SIM110 - numba cannot compile any() over a generator
+        if _hit_cyl(cyls[i], ox, oy, oz, dx, dy, dz, tmax, scratch):
+            return True
+    return False
+
+
+@numba.njit(cache=True)
+def render_kernel(origin: np.ndarray, dirs: np.ndarray, boxes: np.ndarray, cyls: np.ndarray,
+                  room: np.ndarray, has_room: bool, mats: np.ndarray, lights: np.ndarray,
+                  regions: np.ndarray, ambient: float, background: np.ndarray,
+                  out_rgb: np.ndarray, out_depth: np.ndarray) -> None:
+    """Ray cast every pixel: writes out_rgb (H×W×3 float32 in [0, 1]) and out_depth (H×W, +inf on miss)."""
+    H, W = dirs.shape[0], dirs.shape[1]
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    res = np.empty(6)
+    best = np.empty(6)
+    scratch = np.empty(6)
+    alb = np.empty(3)
+    for y in range(H):
+        for x in range(W):
+            dx, dy, dz = dirs[y, x, 0], dirs[y, x, 1], dirs[y, x, 2]
+            tbest = np.inf
+            mat = -1
+            for i in range(boxes.shape[0]):
+                if _hit_box(boxes[i], ox, oy, oz, dx, dy, dz, tbest, res):
+                    tbest = res[0]
+                    mat = int(boxes[i, 8])
+                    best[:] = res
+            for i in range(cyls.shape[0]):
+                if _hit_cyl(cyls[i], ox, oy, oz, dx, dy, dz, tbest, res):
+                    tbest = res[0]
+                    mat = int(cyls[i, 5])
+                    best[:] = res
+            if has_room:
+                # exit point of the room box (camera inside)
+                texit = np.inf
+                axis = -1
+                upper = False
+                for k in range(3):
+                    dk = dx if k == 0 else (dy if k == 1 else dz)
+                    ok = ox if k == 0 else (oy if k == 1 else oz)
+                    if dk > 1e-12:
+                        t = (room[3 + k] - ok) / dk
+                        if t < texit:
+                            texit, axis, upper = t, k, True
+                    elif dk < -1e-12:
+                        t = (room[k] - ok) / dk
+                        if t < texit:
+                            texit, axis, upper = t, k, False
+                if axis >= 0 and _EPS < texit < tbest:
+                    tbest = texit
+                    hx, hy, hz = ox + texit * dx, oy + texit * dy, oz + texit * dz
+                    best[0] = texit
+                    best[1] = 0.0
+                    best[2] = 0.0
+                    best[3] = 0.0
+                    best[1 + axis] = -1.0 if upper else 1.0
+                    if axis == 2:
+                        mat = int(room[6]) if not upper else int(room[8])
+                        best[4] = hx
+                        best[5] = hy
+                    else:
+                        mat = int(room[7])
+                        best[4] = hy if axis == 0 else hx
+                        best[5] = hz
+            if mat < 0:
+                out_depth[y, x] = np.inf
+                for k in range(3):
+                    out_rgb[y, x, k] = background[k]
+                continue
+            out_depth[y, x] = tbest
+            _albedo(mats, mat, best[4], best[5], alb)
+            nx, ny, nz = best[1], best[2], best[3]
+            px, py, pz = ox + tbest * dx, oy + tbest * dy, oz + tbest * dz
+            lr = ambient
+            lg = ambient
+            lb = ambient
+            for li in range(lights.shape[0]):
+                if lights[li, 0] == 0.0:
+                    lx, ly, lz = -lights[li, 1], -lights[li, 2], -lights[li, 3]
+                    dist = np.inf
+                    att = 1.0
+                else:
+                    lx, ly, lz = lights[li, 1] - px, lights[li, 2] - py, lights[li, 3] - pz
+                    dist = math.sqrt(lx * lx + ly * ly + lz * lz)
+                    if dist < 1e-9:
+                        continue
+                    lx, ly, lz = lx / dist, ly / dist, lz / dist
+                    q = dist / lights[li, 7]
+                    att = 1.0 / (1.0 + q * q)
+                ndl = nx * lx + ny * ly + nz * lz
+                if ndl <= 0.0:
+                    continue
+                if lights[li, 8] > 0.0:
+                    sx = px + _SHADOW_BIAS * nx
+                    sy = py + _SHADOW_BIAS * ny
+                    sz = pz + _SHADOW_BIAS * nz
+                    if _occluded(boxes, cyls, sx, sy, sz, lx, ly, lz, dist, scratch):
+                        continue
+                w = ndl * att
+                lr += lights[li, 4] * w
+                lg += lights[li, 5] * w
+                lb += lights[li, 6] * w
+            gr = 1.0
+            gg = 1.0
+            gb = 1.0
+            for ri in range(regions.shape[0]):
+                if (regions[ri, 0] <= px <= regions[ri, 3] and regions[ri, 1] <= py <= regions[ri, 4]
+                        and regions[ri, 2] <= pz <= regions[ri, 5]):
+                    gr *= regions[ri, 6]
+                    gg *= regions[ri, 7]
+                    gb *= regions[ri, 8]
+            out_rgb[y, x, 0] = min(1.0, alb[0] * lr * gr)
+            out_rgb[y, x, 1] = min(1.0, alb[1] * lg * gg)
+            out_rgb[y, x, 2] = min(1.0, alb[2] * lb * gb)
+
+
+# ----------------------------------------------------------------------------------------------
+# public API
+
+
+def render_shapes(camera: Camera, shapes: tuple[Shape, ...] | list[Shape], state: WorldState,
+                  room: np.ndarray | None = None, mats: MaterialTable | None = None,
+                  background: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Ray cast ``shapes`` (plus an optional packed room) lit by ``state``: (rgb H×W×3 f32, depth H×W f32)."""
+    mats = mats or MaterialTable()
+    boxes, cyls = pack_shapes(shapes, mats)
+    lights, regions = pack_lights(state)
+    origin, dirs = world_rays(camera)
+    rgb = np.empty((camera.height, camera.width, 3), np.float32)
+    depth = np.empty((camera.height, camera.width), np.float32)
+    render_kernel(origin, dirs, boxes, cyls, room if room is not None else np.zeros(9), room is not None,
+                  mats.array(), lights, regions, float(state.ambient), np.asarray(background, np.float64),
+                  rgb, depth)
+    return rgb, depth
+
+
+class RayCastWorld:
+    """The real world of a box/cylinder scene in one round; ``render(camera, t_s)`` → (rgb, depth).
+
+    ``round_index`` 1 ignores the scene's events; 2 applies them by round time ``t_s``.
+    """
+
+    def __init__(self, scene: Scene, round_index: int = 1) -> None:
+        self.scene = scene
+        self.round_index = int(round_index)
+
+    def state(self, t_s: float) -> WorldState:
+        """The real world's state at round time ``t_s``."""
+        return self.scene.state_at(self.round_index, t_s)
+
+    def render(self, camera: Camera, t_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Colour (H×W×3 float32 in [0, 1]) and depth (H×W float32, camera z in metres, +inf = nothing)."""
+        state = self.state(t_s)
+        mats = MaterialTable()
+        room = None
+        if self.scene.room is not None:
+            r = self.scene.room
+            room = np.array([*r.min_m, *r.max_m, mats.add(r.floor), mats.add(r.walls), mats.add(r.ceiling)],
+                            dtype=np.float64)
+        return render_shapes(camera, state.objects, state, room, mats, self.scene.background)
