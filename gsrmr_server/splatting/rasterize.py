@@ -1,0 +1,295 @@
+"""Numba tile rasterizer: binning, front-to-back forward compositing and its exact backward pass.
+
+Input Gaussians are *packed* in depth order (camera z ascending, ties broken by Gaussian index), one
+row each: ``(mx, my, conic_a, conic_b, conic_c, opacity, r, g, b, depth_z, radius, log(255·opacity))``.
+Pixel (u, v) is sampled at its centre (u + 0.5, v + 0.5).
+
+Compositing (3DGS): Gaussian i reaches pixel p only when p's centre lies inside its 3-sigma square box
+(|dx| ≤ radius and |dy| ≤ radius; this makes the image independent of the tile size) and
+α = min(0.99, o·exp(−σ)), σ = ½ dᵀ·conic·d, is ≥ 1/255. Front to back: if T·(1 − α) < 1e-4 the pixel
+stops *before* blending that Gaussian; otherwise C += T·α·c, T ← T·(1 − α). Finally
+C += T·background, alpha = 1 − T, depth = Σ T·α·z / alpha (0 where alpha is 0).
+
+Tiles are :data:`TILE`×:data:`TILE` pixels; a Gaussian is listed in every tile its opacity-limited box
+(from :mod:`~gsrmr_server.splatting.project`) touches. Tiles run in parallel (``prange``); the backward
+pass gives every thread its own gradient buffer, so it is race-free and deterministic for a given
+thread count.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+import torch
+
+TILE = 16
+ALPHA_MAX = 0.99
+ALPHA_MIN = 1.0 / 255.0
+T_MIN = 1e-4
+PACK_WIDTH = 12
+
+
+@nb.njit(cache=True)
+def bin_kernel(box, tile, tiles_x, tiles_y):
+    """Tile lists from per-Gaussian pixel boxes (rows already in depth order).
+
+    Returns (offsets of length tiles_x·tiles_y + 1, flat list of packed-row indices); each tile's
+    slice is in depth order because rows are visited in order (a counting sort by tile).
+    """
+    n_tiles = tiles_x * tiles_y
+    counts = np.zeros(n_tiles + 1, np.int64)
+    m = box.shape[0]
+    for k in range(m):
+        for ty in range(box[k, 2] // tile, box[k, 3] // tile + 1):
+            for tx in range(box[k, 0] // tile, box[k, 1] // tile + 1):
+                counts[ty * tiles_x + tx + 1] += 1
+    offsets = np.cumsum(counts)
+    fill = offsets[:-1].copy()
+    lst = np.empty(offsets[-1], np.int32)
+    for k in range(m):
+        for ty in range(box[k, 2] // tile, box[k, 3] // tile + 1):
+            for tx in range(box[k, 0] // tile, box[k, 1] // tile + 1):
+                t = ty * tiles_x + tx
+                lst[fill[t]] = k
+                fill[t] += 1
+    return offsets, lst
+
+
+@nb.njit(parallel=True, cache=True, fastmath=False)
+def forward_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, bg, out_rgb, out_alpha, out_depth,
+                   out_t, out_last):
+    """Composite every pixel; writes rgb, alpha, depth, final transmittance and last list position.
+
+    Gaussian-major inside a tile: each listed Gaussian updates only the pixels of its
+    opacity-limited box (outside it α < 1/255 anyway), in depth order; the tile stops early when
+    every pixel has reached T < 1e-4.
+    """
+    n_tiles = offsets.shape[0] - 1
+    for t in nb.prange(n_tiles):
+        ty, tx = t // tiles_x, t % tiles_x
+        x0, y0 = tx * tile, ty * tile
+        x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
+        tw = x1 - x0
+        npix = tw * (y1 - y0)
+        start, end = offsets[t], offsets[t + 1]
+        trans = np.ones(npix)
+        col = np.zeros((npix, 4))
+        last = np.full(npix, start)
+        done = np.zeros(npix, np.bool_)
+        n_done = 0
+        for j in range(start, end):
+            k = lst[j]
+            mx, my = packed[k, 0], packed[k, 1]
+            ca, cb, cc = packed[k, 2], packed[k, 3], packed[k, 4]
+            opac, rad, cut = packed[k, 5], packed[k, 10], packed[k, 11]
+            for v in range(max(box[k, 2], y0), min(box[k, 3] + 1, y1)):
+                dy = v + 0.5 - my
+                if abs(dy) > rad:
+                    continue
+                row = (v - y0) * tw - x0
+                for u in range(max(box[k, 0], x0), min(box[k, 1] + 1, x1)):
+                    p = row + u
+                    if done[p]:
+                        continue
+                    dx = u + 0.5 - mx
+                    if abs(dx) > rad:
+                        continue
+                    sig = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                    if sig < 0.0 or sig > cut:
+                        continue
+                    alpha = min(ALPHA_MAX, opac * math.exp(-sig))
+                    if alpha < ALPHA_MIN:
+                        continue
+                    tp = trans[p]
+                    t_next = tp * (1.0 - alpha)
+                    if t_next < T_MIN:
+                        done[p] = True
+                        n_done += 1
+                        continue
+                    w = alpha * tp
+                    col[p, 0] += w * packed[k, 6]
+                    col[p, 1] += w * packed[k, 7]
+                    col[p, 2] += w * packed[k, 8]
+                    col[p, 3] += w * packed[k, 9]
+                    trans[p] = t_next
+                    last[p] = j + 1
+            if n_done == npix:
+                break
+        for v in range(y0, y1):
+            for u in range(x0, x1):
+                p = (v - y0) * tw + (u - x0)
+                tp = trans[p]
+                out_rgb[v, u, 0] = col[p, 0] + tp * bg[0]
+                out_rgb[v, u, 1] = col[p, 1] + tp * bg[1]
+                out_rgb[v, u, 2] = col[p, 2] + tp * bg[2]
+                a = 1.0 - tp
+                out_alpha[v, u] = a
+                out_depth[v, u] = col[p, 3] / a if a > 1e-8 else 0.0
+                out_t[v, u] = tp
+                out_last[v, u] = last[p]
+
+
+@nb.njit(parallel=True, cache=True, fastmath=False)
+def backward_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, bg, final_t, last_pos, g_rgb,
+                    g_alpha, n_chunks, grads):
+    """Gradients of the loss w.r.t. each packed row, given dL/d rgb (H×W×3) and dL/d alpha (H×W).
+
+    ``grads`` is (n_chunks, M, 9): d/d (mx, my, conic_a, conic_b, conic_c, opacity, r, g, b);
+    chunk c handles tiles c, c + n_chunks, … so threads never write the same buffer. Walks each
+    tile's list back to front, undoing the transmittance (T_i = T_{i+1} / (1 − α_i)) as 3DGS does.
+    """
+    n_tiles = offsets.shape[0] - 1
+    for ch in nb.prange(n_chunks):
+        gbuf = grads[ch]
+        for t in range(ch, n_tiles, n_chunks):
+            ty, tx = t // tiles_x, t % tiles_x
+            x0, y0 = tx * tile, ty * tile
+            x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
+            tw = x1 - x0
+            npix = tw * (y1 - y0)
+            start = offsets[t]
+            trans = np.empty(npix)
+            t_final = np.empty(npix)
+            acc = np.empty((npix, 3))
+            dcol = np.empty((npix, 3))
+            dalpha_out = np.empty(npix)
+            last = np.empty(npix, np.int64)
+            jmax = start
+            for v in range(y0, y1):
+                for u in range(x0, x1):
+                    p = (v - y0) * tw + (u - x0)
+                    tf = final_t[v, u]
+                    trans[p] = tf
+                    t_final[p] = tf
+                    for c in range(3):
+                        acc[p, c] = tf * bg[c]
+                        dcol[p, c] = g_rgb[v, u, c]
+                    dalpha_out[p] = g_alpha[v, u]
+                    last[p] = last_pos[v, u]
+                    jmax = max(jmax, last_pos[v, u])
+            for j in range(jmax - 1, start - 1, -1):
+                k = lst[j]
+                mx, my = packed[k, 0], packed[k, 1]
+                ca, cb, cc = packed[k, 2], packed[k, 3], packed[k, 4]
+                opac, rad, cut = packed[k, 5], packed[k, 10], packed[k, 11]
+                c0, c1, c2 = packed[k, 6], packed[k, 7], packed[k, 8]
+                for v in range(max(box[k, 2], y0), min(box[k, 3] + 1, y1)):
+                    dy = v + 0.5 - my
+                    if abs(dy) > rad:
+                        continue
+                    row = (v - y0) * tw - x0
+                    for u in range(max(box[k, 0], x0), min(box[k, 1] + 1, x1)):
+                        p = row + u
+                        if j >= last[p]:
+                            continue
+                        dx = u + 0.5 - mx
+                        if abs(dx) > rad:
+                            continue
+                        sig = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                        if sig < 0.0 or sig > cut:
+                            continue
+                        gauss = math.exp(-sig)
+                        raw = opac * gauss
+                        alpha = min(ALPHA_MAX, raw)
+                        if alpha < ALPHA_MIN:
+                            continue
+                        one_m = 1.0 - alpha
+                        t_i = trans[p] / one_m
+                        w = t_i * alpha
+                        d0, d1, d2 = dcol[p, 0], dcol[p, 1], dcol[p, 2]
+                        gbuf[k, 6] += w * d0
+                        gbuf[k, 7] += w * d1
+                        gbuf[k, 8] += w * d2
+                        d_alpha = (d0 * (t_i * c0 - acc[p, 0] / one_m) + d1 * (t_i * c1 - acc[p, 1] / one_m)
+                                   + d2 * (t_i * c2 - acc[p, 2] / one_m) + dalpha_out[p] * t_final[p] / one_m)
+                        acc[p, 0] += w * c0
+                        acc[p, 1] += w * c1
+                        acc[p, 2] += w * c2
+                        trans[p] = t_i
+                        if raw >= ALPHA_MAX:
+                            continue
+                        gbuf[k, 5] += gauss * d_alpha
+                        d_sig = -alpha * d_alpha
+                        gbuf[k, 0] -= d_sig * (ca * dx + cb * dy)
+                        gbuf[k, 1] -= d_sig * (cb * dx + cc * dy)
+                        gbuf[k, 2] += d_sig * 0.5 * dx * dx
+                        gbuf[k, 3] += d_sig * dx * dy
+                        gbuf[k, 4] += d_sig * 0.5 * dy * dy
+
+
+def depth_order(depth: np.ndarray) -> np.ndarray:
+    """Positions sorting ``depth`` (all > 0) ascending, ties by position, via one uint64 key sort.
+
+    Positive float32 bit patterns order like the floats, so (bits << 32 | position) is a unique key:
+    the result equals a stable argsort, which is what 3DGS's radix sort gives on duplicated Gaussians.
+    """
+    bits = np.ascontiguousarray(depth, dtype=np.float32).view(np.uint32).astype(np.uint64)
+    keys = (bits << np.uint64(32)) | np.arange(depth.shape[0], dtype=np.uint64)
+    keys.sort()
+    return (keys & np.uint64(0xFFFFFFFF)).astype(np.int64)
+
+
+def pack(means2d, conic, opacity, colors, depth, radius) -> np.ndarray:
+    """M×:data:`PACK_WIDTH` float64 rows in the layout the kernels read."""
+    m = means2d.shape[0]
+    out = np.empty((m, PACK_WIDTH), np.float64)
+    out[:, 0:2] = means2d
+    out[:, 2:5] = conic
+    out[:, 5] = opacity
+    out[:, 6:9] = colors
+    out[:, 9] = depth
+    out[:, 10] = radius
+    with np.errstate(divide="ignore"):
+        out[:, 11] = np.log(255.0 * np.asarray(opacity, np.float64)) + 1e-9
+    return out
+
+
+def rasterize_packed(packed: np.ndarray, box: np.ndarray, width: int, height: int, background: np.ndarray,
+                     tile: int = TILE):
+    """Forward pass over depth-ordered packed rows; returns (rgb, alpha, depth, final_T, last, bins)."""
+    tiles_x, tiles_y = (width + tile - 1) // tile, (height + tile - 1) // tile
+    box = np.ascontiguousarray(box, np.int64)
+    offsets, lst = bin_kernel(box, tile, tiles_x, tiles_y)
+    rgb = np.empty((height, width, 3), np.float32)
+    alpha = np.empty((height, width), np.float32)
+    depth = np.empty((height, width), np.float32)
+    final_t = np.empty((height, width), np.float64)
+    last = np.empty((height, width), np.int64)
+    bg = np.asarray(background, np.float64)
+    forward_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, bg,
+                   rgb, alpha, depth, final_t, last)
+    return rgb, alpha, depth, final_t, last, (box, offsets, lst, tiles_x, tile)
+
+
+class RasterizeFunction(torch.autograd.Function):
+    """Differentiable rasterization of depth-ordered Gaussians (inputs already culled and sorted).
+
+    Differentiable inputs: means2d M×2 px, conic M×3, colors M×3, opacity M. Non-differentiable:
+    depth M, radius M, box M×4 (pixel ranges), background 3, width, height. Outputs rgb H×W×3 and
+    alpha H×W in the dtype of ``means2d``."""
+
+    @staticmethod
+    def forward(ctx, means2d, conic, colors, opacity, depth, radius, box, background, width, height):
+        packed = pack(means2d.detach().numpy(), conic.detach().numpy(), opacity.detach().numpy(),
+                      colors.detach().numpy(), depth.detach().numpy(), radius.detach().numpy())
+        bg = np.asarray(background, np.float64)
+        rgb, alpha, _, final_t, last, bins = rasterize_packed(packed, box, width, height, bg)
+        ctx.saved = (packed, bins, bg, final_t, last, width, height)
+        ctx.dtype = means2d.dtype
+        return torch.from_numpy(rgb).to(means2d.dtype), torch.from_numpy(alpha).to(means2d.dtype)
+
+    @staticmethod
+    def backward(ctx, g_rgb, g_alpha):
+        packed, (box, offsets, lst, tiles_x, tile), bg, final_t, last, width, height = ctx.saved
+        n_chunks = max(1, nb.get_num_threads())
+        grads = np.zeros((n_chunks, packed.shape[0], 9), np.float64)
+        g_rgb_np = np.ascontiguousarray(g_rgb.detach().numpy(), np.float64) if g_rgb is not None \
+            else np.zeros((height, width, 3))
+        g_a_np = np.ascontiguousarray(g_alpha.detach().numpy(), np.float64) if g_alpha is not None \
+            else np.zeros((height, width))
+        backward_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, bg, final_t, last, g_rgb_np,
+                        g_a_np, n_chunks, grads)
+        g = torch.from_numpy(grads.sum(axis=0)).to(ctx.dtype)
+        return g[:, 0:2], g[:, 2:5], g[:, 6:9], g[:, 5], None, None, None, None, None, None

@@ -1,0 +1,83 @@
+"""Public forward renderer: ``render(model, camera, background) -> RenderOutput``.
+
+Camera: :class:`gsrmr_common.camera.Camera` (OpenCV axes, world→camera 4×4, pixel centres at +0.5).
+Pipeline: numba projection and culling (near plane :data:`~gsrmr_server.splatting.project.NEAR_M`) →
+uint64 depth/index key sort → SH colour of the visible Gaussians → numba tile binning → parallel
+numba compositing. Conventions are listed in :mod:`~gsrmr_server.splatting.project` and
+:mod:`~gsrmr_server.splatting.rasterize`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gsrmr_common.camera import Camera
+from gsrmr_server.splatting.model import GaussianModel
+from gsrmr_server.splatting.project import NEAR_M, project_numpy
+from gsrmr_server.splatting.rasterize import TILE, depth_order, pack, rasterize_packed
+from gsrmr_server.splatting.sh import C0, eval_sh_numpy
+
+MAX_PIXELS = 4096 * 4096
+
+
+@dataclass
+class RenderOutput:
+    """Rendered view: ``rgb`` H×W×3 float32 in [0, 1], ``alpha`` H×W (1 − final transmittance),
+    ``depth`` H×W camera-space z in metres (alpha-normalised expected depth; 0 where nothing was hit),
+    and ``num_visible``, the Gaussians that survived culling."""
+
+    rgb: np.ndarray
+    alpha: np.ndarray
+    depth: np.ndarray
+    num_visible: int
+
+
+def gaussian_colors(model: GaussianModel, index: np.ndarray, camera_center_w: np.ndarray,
+                    degree: int | None = None) -> np.ndarray:
+    """Colours max(0, SH(dir) + 0.5) of the Gaussians ``index``, dir = normalise(mean − centre)."""
+    degree = model.sh_degree if degree is None else min(degree, model.sh_degree)
+    sh = model.sh[index]
+    if degree == 0:
+        return np.maximum(sh[:, 0, :].astype(np.float64) * C0 + 0.5, 0.0)
+    dirs = model.means[index].astype(np.float64) - camera_center_w
+    dirs /= np.maximum(np.linalg.norm(dirs, axis=1, keepdims=True), 1e-12)
+    return eval_sh_numpy(sh.astype(np.float64), dirs, degree)
+
+
+def _check_background(background) -> np.ndarray:
+    bg = np.asarray(background, dtype=np.float64).reshape(-1)
+    if bg.size == 1:
+        bg = np.repeat(bg, 3)
+    if bg.shape != (3,) or not np.all(np.isfinite(bg)):
+        raise ValueError(f"background must be 3 finite values (RGB in [0, 1]), got {background!r}")
+    return bg
+
+
+def render(model: GaussianModel, camera: Camera, background=(0.0, 0.0, 0.0), *, near_m: float = NEAR_M,
+           sh_degree: int | None = None, tile: int = TILE) -> RenderOutput:
+    """Render ``model`` seen by ``camera`` over a flat ``background`` colour (RGB in [0, 1]).
+
+    ``sh_degree`` caps the SH degree used (None = the model's). Raises ValueError for an image larger
+    than :data:`MAX_PIXELS` or a non-finite background; NaN parameters are culled (never NaN output).
+    """
+    bg = _check_background(background)
+    width, height = camera.width, camera.height
+    if width * height > MAX_PIXELS:
+        raise ValueError(f"render: {width}×{height} exceeds the {MAX_PIXELS}-pixel limit")
+    k = camera.intrinsics
+    intr = (k.fx, k.fy, k.cx, k.cy)
+    geom, box = project_numpy(model.means, model.quats, model.log_scales, model.opacity_logits,
+                              camera.world_to_camera, intr, width, height, near_m)
+    visible = np.nonzero((box[:, 0] <= box[:, 1]) & (box[:, 2] <= box[:, 3]))[0]
+    order = visible[depth_order(geom[visible, 6])]
+    colors = gaussian_colors(model, order, camera.center_world, sh_degree)
+    bad = ~np.all(np.isfinite(colors), axis=1) | ~np.all(np.isfinite(geom[order]), axis=1)
+    if bad.any():  # NaN SH or means: drop them instead of painting NaN
+        order, colors = order[~bad], colors[~bad]
+    g = geom[order]
+    packed = pack(g[:, 0:2], g[:, 2:5], g[:, 5], colors, g[:, 6], g[:, 7])
+    rgb, alpha, depth, _, _, _ = rasterize_packed(packed, box[order], width, height, bg, tile)
+    np.clip(rgb, 0.0, 1.0, out=rgb)
+    return RenderOutput(rgb, alpha, depth, int(order.shape[0]))
