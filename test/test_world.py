@@ -1,0 +1,347 @@
+"""Simulated world: scene validation, ray-cast geometry, occlusion mask, route, recorder, CLI (no ROS)."""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from gsrmr_common.camera import CameraMount, camera_from_pose
+from gsrmr_common.nerfstudio import read_dataset
+from gsrmr_server.world import cli
+from gsrmr_server.world.kinematics import drive_route, lap_time_s, start_pose, unicycle_step
+from gsrmr_server.world.points import make_world
+from gsrmr_server.world.raycast import RayCastWorld
+from gsrmr_server.world.recorder import Round2Record, record_round1, record_round2, with_resolution
+from gsrmr_server.world.route import LoopPath, PurePursuit
+from gsrmr_server.world.scene import SceneError, load_scene, parse_scene, resolve_scene_path
+from gsrmr_server.world.virtual import VirtualViewSource, agent_pose, mr_image
+
+MINIMAL = {"route": {"waypoints": [[0, 0], [1, 0], [1, 1]]}}
+
+
+def _scene(**extra: object) -> dict:
+    data = copy.deepcopy(MINIMAL)
+    data.update(copy.deepcopy(extra))
+    return data
+
+
+# ---------------------------------------------------------------------------------------------- scene
+
+
+def test_minimal_scene_gets_documented_defaults():
+    s = parse_scene(_scene())
+    k = s.camera.intrinsics
+    assert (k.width, k.height) == (320, 240)
+    assert math.isclose(2 * math.atan(0.5 * k.width / k.fx), math.radians(70.0))
+    assert s.camera.mount.height_m == 0.15 and math.isclose(s.camera.mount.pitch_rad, math.radians(5))
+    assert s.camera.rate_hz == 10.0 and s.slot_s == 0.1 and s.slots == 288
+    assert s.room is not None and s.objects == () and s.events == ()
+
+
+@pytest.mark.parametrize(("patch", "message"), [
+    ({"objects": [{"position": [0, 0]}, {"position": [1, 1]},
+                  {"position": [0, 1], "size": [0.1, -0.2, 0.3]}]},
+     "objects[2].size: must be 3 positive numbers"),
+    ({"objects": [{"position": [0, 0], "colour": [1, 0, 0]}]}, "objects[0].colour: unknown key"),
+    ({"camera": {"mount": {"pitch_deg": 95}}}, "camera.mount.pitch_deg: must be ≤ 80"),
+    ({"camera": {"widht": 100}}, "camera.widht: unknown key"),
+    ({"lights": [{"type": "point"}]}, "lights[0].position: is required for a point light"),
+    ({"objects": [{"position": [0, 0], "material": {"color": [2, 0, 0]}}]},
+     "objects[0].material.color: must be 3 numbers in [0, 1]"),
+    ({"objects": [{"position": [0, 0], "material": {"texture": "marble"}}]},
+     "objects[0].material.texture: must be one of"),
+    ({"events": [{"type": "move", "object": "ghost", "from_s": 1.0, "position": [0, 0]}]},
+     "events[0].object: no object with id 'ghost'"),
+    ({"events": [{"type": "light", "light": "ambient", "from_s": 2.0, "to_s": 1.0}]},
+     "events[0].to_s: must be > from_s"),
+    ({"virtual_agents": [{"position": [0, 0], "path": {"waypoints": [[0, 0]]}}]},
+     "virtual_agents[0].path.waypoints: needs at least 2 waypoints"),
+    ({"objects": [{"id": "a", "position": [0, 0]}, {"id": "a", "position": [1, 0]}]},
+     "objects[1].id: duplicate id 'a'"),
+    ({"teleporter": True}, "teleporter: unknown key"),
+])
+def test_bad_scene_values_are_errors_naming_the_key(patch, message):
+    with pytest.raises(SceneError) as info:
+        parse_scene(_scene(**patch))
+    assert str(info.value).startswith(message), str(info.value)
+
+
+def test_missing_route_and_bad_route_entries_name_the_key():
+    with pytest.raises(SceneError, match=r"^route: is required"):
+        parse_scene({})
+    with pytest.raises(SceneError, match=r"^route\.waypoints\[1\]: must be 2 numbers"):
+        parse_scene({"route": {"waypoints": [[0, 0], [1, "x"], [1, 1]]}})
+
+
+def test_scene_file_errors_carry_the_file_and_key(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(_scene(ambient=-1)))
+    with pytest.raises(SceneError, match=r"bad\.yaml: ambient: must be ≥ 0"):
+        load_scene(str(bad))
+
+
+def test_shipped_scenes_load_by_name():
+    sandbox = load_scene("sandbox")
+    assert resolve_scene_path("sandbox").name == "sandbox.yaml"
+    assert len(sandbox.agents) == 2 and any(a.path is not None for a in sandbox.agents)
+    assert any(a.path is None for a in sandbox.agents)
+    assert sandbox.slots == 288 and sandbox.slot_s == 0.1
+    assert {ev.type for ev in sandbox.events} >= {"move", "light", "add", "region_light"}
+    assert math.dist(sandbox.server_position_m[:2], (0.0, 0.0)) == pytest.approx(10.0, abs=1.0)
+    garden = load_scene("garden")
+    assert garden.points is not None and Path(garden.points.path).exists()
+
+
+def test_events_apply_only_in_round_two_and_only_in_their_span():
+    s = load_scene("sandbox")
+    lamp = {lt.id: lt for lt in s.lights}["lamp"]
+    at = {lt.id: lt for lt in s.state_at(2, 18.0).lights}["lamp"]
+    assert at.intensity == pytest.approx(3.0 * lamp.intensity)
+    assert {lt.id: lt for lt in s.state_at(2, 21.0).lights}["lamp"].intensity == lamp.intensity
+    assert {lt.id: lt for lt in s.state_at(1, 18.0).lights}["lamp"].intensity == lamp.intensity
+    moved = {o.id: o for o in s.state_at(2, 10.0).objects}["crate_b"]
+    assert moved.position == (-1.5, 0.7)
+    assert "dropped_bag" in {o.id for o in s.state_at(2, 25.0).objects}
+    assert "dropped_bag" not in {o.id for o in s.state_at(2, 22.0).objects}
+
+
+# ---------------------------------------------------------------------------------------------- ray casting
+
+
+def _box_scene(**extra: object):
+    data = _scene(room=None, ambient=1.0, background=[0, 0, 0],
+                  objects=[{"id": "b", "position": [2.0, 0.0], "size": [0.2, 0.4, 0.3],
+                            "material": {"texture": "flat", "color": [0.5, 0.5, 0.5]}}],
+                  camera={"width": 160, "height": 120,
+                          "mount": {"pitch_deg": 0, "forward_m": 0, "height_m": 0.15}})
+    data.update(extra)
+    return parse_scene(data)
+
+
+def test_box_edges_land_on_the_pixels_the_camera_model_predicts():
+    s = _box_scene()
+    k = s.camera.intrinsics
+    cam = camera_from_pose(0.0, 0.0, 0.0, s.camera.mount, k)
+    rgb, depth = RayCastWorld(s).render(cam)
+    # Front face x = 1.9 m, y in [-0.2, 0.2], z in [0, 0.3]; camera at z = 0.15 looking along +x, so
+    # only the front face is visible.
+    corners = np.array([[1.9, 0.2, 0.3], [1.9, -0.2, 0.0]])
+    uv, z = cam.project(corners)
+    assert np.allclose(z, 1.9)
+    u_lo, u_hi = sorted(uv[:, 0])
+    v_lo, v_hi = sorted(uv[:, 1])
+    uc = np.arange(k.width) + 0.5  # pixel centres
+    vc = np.arange(k.height) + 0.5
+    inside = ((uc[None, :] > u_lo) & (uc[None, :] < u_hi)) & ((vc[:, None] > v_lo) & (vc[:, None] < v_hi))
+    hit = np.isfinite(depth)
+    assert hit.sum() > 100
+    np.testing.assert_array_equal(hit, inside)
+    assert np.allclose(depth[hit], 1.9, atol=1e-5)
+    # world +y (left of the robot) is image left (small u); world +z is image up (small v)
+    assert uv[0, 0] < k.cx < uv[1, 0] and uv[0, 1] < k.cy < uv[1, 1]
+    assert np.allclose(rgb[hit], 0.5, atol=1e-6) and np.all(rgb[~hit] == 0)
+
+
+def test_floor_depth_back_projects_onto_the_floor_plane_with_a_pitched_camera():
+    s = parse_scene(_scene(camera={"width": 96, "height": 72, "mount": {"pitch_deg": 12, "height_m": 0.3}}))
+    cam = camera_from_pose(0.5, -0.2, 0.7, s.camera.mount, s.camera.intrinsics)
+    _, depth = RayCastWorld(s).render(cam)
+    rays = cam.ray_directions_camera() * depth[..., None]  # camera-frame points (z = depth)
+    world = rays.reshape(-1, 3) @ cam.camera_to_world[:3, :3].T + cam.center_world
+    bottom = world.reshape(72, 96, 3)[-10:]  # lower rows see the floor
+    assert np.allclose(bottom[..., 2], 0.0, atol=1e-6)
+    uv, _ = cam.project(bottom.reshape(-1, 3))
+    expected_u = np.tile(np.arange(96) + 0.5, 10)
+    assert np.allclose(uv[:, 0], expected_u, atol=1e-6)
+
+
+def test_directional_light_shadow_darkens_the_floor_behind_a_box():
+    data = _scene(ambient=0.3, room={"min": [-5, -5, 0], "max": [5, 5, 3],
+                                     "floor": {"texture": "flat", "color": [0.5, 0.5, 0.5]}},
+                  lights=[{"type": "directional", "direction": [1, 0, -1], "intensity": 0.7,
+                           "shadows": True}],
+                  objects=[{"position": [1.5, 0.0], "size": [0.2, 0.6, 0.5]}],
+                  camera={"width": 80, "height": 60, "mount": {"pitch_deg": 30, "height_m": 1.5}})
+    s = parse_scene(data)
+    world = RayCastWorld(s)
+    cam = camera_from_pose(3.5, 0.0, math.pi, s.camera.mount, s.camera.intrinsics)  # looking back at it
+    rgb, _ = world.render(cam)
+    # floor point in the shadow (the light travels along +x, so behind the box) vs a lit one at the side
+    shadow_pt, lit_pt = np.array([[1.8, 0.0, 0.0]]), np.array([[1.8, 0.7, 0.0]])
+    (us, vs), (ul, vl) = cam.project(shadow_pt)[0][0], cam.project(lit_pt)[0][0]
+    dark, lit = rgb[int(vs), int(us)], rgb[int(vl), int(ul)]
+    assert np.allclose(dark, 0.5 * 0.3, atol=1e-3)
+    assert np.allclose(lit, 0.5 * (0.3 + 0.7 * math.cos(math.radians(45))), atol=1e-3)
+
+
+# ---------------------------------------------------------------------------------------------- virtual view
+
+
+def _agent_scene(agent_x: float):
+    return _box_scene(virtual_agents=[{"id": "ghost", "shape": "cylinder", "position": [agent_x, 0.0],
+                                       "radius_m": 0.1, "height_m": 0.2,
+                                       "material": {"texture": "flat", "color": [1, 0, 0]}}],
+                      lights=[])
+
+
+def test_virtual_agent_behind_a_real_box_is_hidden_and_in_front_is_shown():
+    for agent_x, expect_visible in ((3.0, False), (1.0, True)):
+        s = _agent_scene(agent_x)
+        world = RayCastWorld(s)
+        cam = camera_from_pose(0.0, 0.0, 0.0, s.camera.mount, s.camera.intrinsics)
+        real, _ = world.render(cam)
+        v, d = VirtualViewSource(s, world).render(cam)
+        assert set(np.unique(d)) <= {0.0, 1.0} and d.dtype == np.float32 and v.dtype == np.float32
+        assert np.all(v[d == 1.0] == 0.0)
+        virtual_px = d == 0.0
+        if expect_visible:
+            assert virtual_px.sum() > 20
+            assert np.allclose(v[virtual_px], [1.0, 0.0, 0.0])
+            m = mr_image(real, v, d)
+            assert np.allclose(m[virtual_px], [1.0, 0.0, 0.0])
+            assert np.allclose(m[~virtual_px], real[~virtual_px])
+        else:
+            assert virtual_px.sum() == 0
+    # the hidden agent is really in view (only occluded): without the box it shows
+    s = parse_scene({**_scene(room=None), "virtual_agents": [{"shape": "cylinder", "position": [3.0, 0.0]}],
+                     "camera": {"width": 160, "height": 120,
+                                "mount": {"pitch_deg": 0, "forward_m": 0, "height_m": 0.15}}})
+    cam = camera_from_pose(0.0, 0.0, 0.0, s.camera.mount, s.camera.intrinsics)
+    assert (VirtualViewSource(s, RayCastWorld(s)).render(cam)[1] == 0).sum() > 0
+
+
+def test_moving_agent_goes_there_and_back():
+    s = load_scene("sandbox")
+    walker = next(a for a in s.agents if a.path is not None)
+    x0, y0, _ = agent_pose(walker, 0.0)
+    x1, _, yaw1 = agent_pose(walker, 1.4 / 0.2)  # end of the 1.4 m segment
+    x2, _, yaw2 = agent_pose(walker, 2 * 1.4 / 0.2)
+    assert (x0, y0) == pytest.approx((-0.7, 0.55)) and x1 == pytest.approx(0.7) and x2 == pytest.approx(-0.7)
+    assert math.cos(yaw2 - yaw1) < 0
+
+
+# ---------------------------------------------------------------------------------------------- route
+
+
+def test_sandbox_route_lap_takes_about_29_seconds():
+    for name in ("sandbox", "garden"):
+        lap = lap_time_s(load_scene(name).route)
+        assert lap == pytest.approx(28.8, abs=0.6), (name, lap)
+
+
+def test_unicycle_step_is_exact_on_a_circle():
+    pose = (0.0, 0.0, 0.0)
+    for _ in range(100):
+        pose = unicycle_step(pose, 0.5, 2 * math.pi / 10.0, 0.1)  # one full turn in 10 s
+    assert pose == pytest.approx((0.0, 0.0, 0.0), abs=1e-9)
+    assert unicycle_step((1.0, 2.0, math.pi / 2), 0.3, 0.0, 2.0) == pytest.approx((1.0, 2.6, math.pi / 2))
+
+
+def test_pure_pursuit_converges_to_the_path_from_an_offset_start():
+    route = load_scene("sandbox").route
+    path = LoopPath(route.waypoints)
+    x, y = path.point_at(0.0)
+    drive = drive_route(route, 100, 0.1, pose0=(x + 0.3, y - 0.25, 0.5))
+    ends = drive.poses[-10:]
+    dense = path.points_at(np.linspace(0, path.length_m, 2000))
+    dist = np.min(np.hypot(dense[:, 0][None] - ends[:, 0:1], dense[:, 1][None] - ends[:, 1:2]), axis=1)
+    assert np.all(dist < 0.03), dist
+    assert np.all(drive.controls[:, 0] <= route.speed_mps + 1e-12)
+    v, w, s = PurePursuit().command(path, (x, y, path.heading_at(0.0)), 0.0)
+    assert v == pytest.approx(0.3) and abs(w) < 1e-6 and s == pytest.approx(0.0, abs=0.02)
+
+
+# ---------------------------------------------------------------------------------------------- recorder
+
+
+@pytest.fixture(scope="module")
+def small_sandbox():
+    return with_resolution(load_scene("sandbox"), 64, 48)
+
+
+def test_round_one_writes_a_nerfstudio_dataset_that_reads_back(tmp_path, small_sandbox):
+    out = record_round1(small_sandbox, tmp_path / "r1", frames=8)
+    frames = read_dataset(out)
+    assert len(frames) == 8
+    world = RayCastWorld(small_sandbox, 1)
+    poses = np.array([f.pose for f in frames])
+    assert np.ptp(poses[:, 0]) > 1.0 and np.ptp(poses[:, 1]) > 1.0  # spread over the lap
+    for f in frames[::3]:
+        cam = camera_from_pose(*f.pose, small_sandbox.camera.mount, small_sandbox.camera.intrinsics)
+        assert np.allclose(f.camera.world_to_camera, cam.world_to_camera, atol=1e-9)
+        assert f.camera.intrinsics.fx == pytest.approx(cam.intrinsics.fx)
+        rgb, depth = world.render(cam)
+        assert np.abs(f.image - rgb).max() <= 0.5 / 255 + 1e-6
+        assert f.depth_m is not None and np.allclose(f.depth_m, depth, atol=6e-4)
+
+
+@pytest.fixture(scope="module")
+def round2(tmp_path_factory, small_sandbox):
+    return Round2Record(record_round2(small_sandbox, tmp_path_factory.mktemp("r2"), seed=3))
+
+
+def test_round_two_record_has_t_slots_with_virtual_view_and_mask(round2, small_sandbox):
+    assert len(round2) == 288 and round2.slot_s == 0.1
+    assert np.allclose(round2.times_s, np.arange(288) * 0.1)
+    assert round2.server_position_m == small_sandbox.server_position_m
+    virtual_slots = 0
+    for t in range(0, 288, 8):
+        slot = round2[t]
+        assert slot.image.shape == (48, 64, 3) and slot.virtual.shape == (48, 64, 3)
+        assert slot.mask.shape == (48, 64) and set(np.unique(slot.mask)) <= {0.0, 1.0}
+        assert np.all(slot.virtual[slot.mask == 1.0] == 0.0)
+        virtual_slots += int((slot.mask == 0).any())
+        assert np.allclose(slot.camera.world_to_camera,
+                           camera_from_pose(*slot.pose, round2.mount, round2.intrinsics).world_to_camera)
+    assert virtual_slots >= 5
+    # the start is jittered (seeded) but near the route start
+    assert math.dist(round2.poses[0][:2], start_pose(small_sandbox.route)[:2]) < 0.05
+
+
+def test_round_two_events_change_the_images_at_the_scripted_slots(round2, small_sandbox):
+    mapped = RayCastWorld(small_sandbox, 1)  # the world of round 1 at the same poses
+    diff = np.zeros(len(round2))
+    for t in range(len(round2)):
+        slot = round2[t]
+        diff[t] = np.abs(slot.image - mapped.render(slot.camera, slot.time_s)[0]).mean()
+    times = round2.times_s
+    quiet = times < 3.0
+    assert diff[quiet].max() < 1.0 / 255  # uint8 quantisation only
+    for ev in small_sandbox.events:
+        span = (times >= ev.from_s) & (times < min(ev.to_s, ev.from_s + 12.0))
+        assert diff[span].max() > 0.01, (ev.type, diff[span].max())
+    # bursts: most slots stay close to the mapped world
+    assert np.mean(diff < 0.005) > 0.4
+
+
+# ---------------------------------------------------------------------------------------------- garden, CLI
+
+
+def test_garden_points_world_renders_with_depth_and_an_occluding_mask():
+    s = with_resolution(load_scene("garden"), 96, 72)
+    world = make_world(s, 1)
+    x, y = LoopPath(s.route.waypoints).point_at(0.0)
+    cam = camera_from_pose(x, y, math.pi / 2, s.camera.mount, s.camera.intrinsics)
+    rgb, depth = world.render(cam)  # type: ignore[attr-defined]
+    assert np.isfinite(depth).mean() > 0.5 and rgb.std() > 0.05
+    _, d = VirtualViewSource(s, world).render(cam, real_depth_m=depth)
+    assert set(np.unique(d)) <= {0.0, 1.0}
+
+
+def test_cli_records_round_one_and_reports_bad_scenes(tmp_path, capsys):
+    assert cli.main(["record", "--scene", "sandbox", "--round", "1", "--out", str(tmp_path / "ds"),
+                     "--frames", "3", "--width", "40", "--height", "30", "--quiet"]) == 0
+    frames = read_dataset(tmp_path / "ds")
+    assert len(frames) == 3 and frames[0].image.shape == (30, 40, 3)
+    assert cli.main(["record", "--scene", "no_such_scene", "--round", "1", "--out", str(tmp_path / "x")]) == 2
+    assert "no scene named 'no_such_scene'" in capsys.readouterr().err
+
+
+def test_mount_default_matches_the_documented_camera():
+    s = load_scene("sandbox")
+    assert s.camera.mount == CameraMount(height_m=0.15, pitch_rad=math.radians(5), forward_m=0.1, left_m=0.0)
