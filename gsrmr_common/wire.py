@@ -1,0 +1,117 @@
+"""Wire formats shared by the robot, the server and the scheduler (pure: no rclpy import).
+
+The ROS nodes convert these plain records to and from standard messages (see ``gsrmr_common.ros_wire``);
+this module owns the rules, so robot and server cannot disagree.
+
+Slot clock
+----------
+Slot ``k`` covers ROS time ``[k·τ, (k+1)·τ)`` (``τ = slot_s``, time in nanoseconds since the clock's
+epoch). Every upload is stamped with its slot's start time, so the stamp *is* the slot index:
+``k = slot_index(stamp_ns, slot_ns)``. Robot and server only have to agree on τ (a parameter of both).
+
+Pose key (x_t = 0): ``(a_m, b_m, theta_rad)`` as three float64 = 192 bits of payload, in the ``map``
+frame (REP-103: x forward, y left, z up; θ counter-clockwise from +x). Carried as
+``geometry_msgs/Vector3Stamped`` with ``vector = (a, b, θ)``, ``header.frame_id = "map"`` and
+``header.stamp`` = slot start.
+
+Image (x_t = 1): ``sensor_msgs/CompressedImage`` with ``format = "rgb8; jpeg compressed bgr8"`` (the
+image_transport convention), ``header.stamp`` = slot start, ``header.frame_id`` = the camera optical
+frame. The robot also sends the pose key in image slots (192 extra bits) so the server can measure the
+GS loss L_t at that pose.
+
+Schedule: ``std_msgs/Float64MultiArray``; ``data`` = ``[first_slot, slot_s, seq, slots]`` followed by
+``x[slots]`` (0 = pose key, 1 = image) and ``power_w[slots]`` (transmit power, watts). ``layout.dim``
+labels the three consecutive blocks ``meta``, ``x``, ``power_w`` with their sizes (``stride`` = size).
+``first_slot`` is an absolute slot index (exact in float64 up to 2^53).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+
+POSE_KEY_BITS = 192
+JPEG_FORMAT = "rgb8; jpeg compressed bgr8"
+MAP_FRAME = "map"
+SCHEDULE_META = ("first_slot", "slot_s", "seq", "slots")
+# Refuse uploads whose size or claimed dimensions are absurd before decoding them.
+MAX_IMAGE_PIXELS = 4096 * 4096
+MAX_COMPRESSED_BYTES = 8 * 1024 * 1024
+
+
+def slot_ns(slot_s: float) -> int:
+    """Slot length in integer nanoseconds (τ must be positive and finite)."""
+    if not (math.isfinite(slot_s) and slot_s > 0):
+        raise ValueError(f"slot_s must be a positive finite number of seconds, got {slot_s}")
+    return round(slot_s * 1e9)
+
+
+def slot_index(stamp_ns: int, slot_len_ns: int) -> int:
+    """Absolute slot index of a time stamp: the slot whose start is nearest (stamps are slot starts)."""
+    return (int(stamp_ns) + slot_len_ns // 2) // slot_len_ns
+
+
+def slot_start_ns(index: int, slot_len_ns: int) -> int:
+    """Start time of absolute slot ``index`` in nanoseconds."""
+    return int(index) * slot_len_ns
+
+
+@dataclass(frozen=True)
+class PoseKey:
+    """A pose key: robot pose in ``map`` (metres, radians) for absolute slot ``slot``."""
+
+    slot: int
+    a_m: float
+    b_m: float
+    theta_rad: float
+
+    def is_valid(self) -> bool:
+        """False for NaN or inf components (a corrupt key is never rendered)."""
+        return all(math.isfinite(v) for v in (self.a_m, self.b_m, self.theta_rad))
+
+
+@dataclass
+class ScheduleMsg:
+    """A schedule as sent on the wire: slots ``first_slot … first_slot + len(x) − 1``."""
+
+    first_slot: int
+    slot_s: float
+    seq: int
+    x: np.ndarray  # int8, 1 = image, 0 = pose key
+    power_w: np.ndarray  # float64, watts
+
+    def lookup(self, slot: int) -> tuple[int, float] | None:
+        """(x, power_w) for an absolute slot, or None when the schedule does not cover it."""
+        i = slot - self.first_slot
+        if 0 <= i < len(self.x):
+            return int(self.x[i]), float(self.power_w[i])
+        return None
+
+    def to_data(self) -> list[float]:
+        """Flat float64 list for ``Float64MultiArray.data``."""
+        n = len(self.x)
+        if len(self.power_w) != n:
+            raise ValueError("schedule: x and power_w differ in length")
+        return [float(self.first_slot), float(self.slot_s), float(self.seq), float(n),
+                *np.asarray(self.x, dtype=np.float64).tolist(), *np.asarray(self.power_w, np.float64).tolist()]
+
+    @classmethod
+    def from_data(cls, data: list[float] | np.ndarray) -> ScheduleMsg:
+        """Parse ``Float64MultiArray.data``; raises ValueError on any inconsistency."""
+        arr = np.asarray(data, dtype=np.float64)
+        if arr.size < 4 or not np.all(np.isfinite(arr)):
+            raise ValueError("schedule: data must hold 4 finite meta values")
+        n = int(arr[3])
+        if arr[3] != n or n < 0 or arr.size != 4 + 2 * n:
+            raise ValueError(f"schedule: data has {arr.size} values, meta says {arr[3]} slots")
+        x = arr[4:4 + n]
+        power = arr[4 + n:]
+        if not np.all((x == 0) | (x == 1)):
+            raise ValueError("schedule: x must be 0 or 1")
+        if np.any(power < 0):
+            raise ValueError("schedule: power_w must be >= 0")
+        if not arr[1] > 0:
+            raise ValueError("schedule: slot_s must be > 0")
+        return cls(int(arr[0]), float(arr[1]), int(arr[2]), x.astype(np.int8), power.copy())

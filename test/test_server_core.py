@@ -1,0 +1,79 @@
+"""Pure tests of the server's uplink bookkeeping, the loss map and the wire formats."""
+
+import math
+
+import numpy as np
+import pytest
+
+from gsrmr_common.wire import PoseKey, ScheduleMsg, slot_index, slot_ns, slot_start_ns
+from gsrmr_server.loss_map import LossMap
+from gsrmr_server.uplink import UplinkAssembler
+
+
+def test_slot_clock_roundtrip_and_tolerance():
+    tau = slot_ns(0.1)
+    assert tau == 100_000_000
+    for k in (0, 1, 17_000_000_000):
+        start = slot_start_ns(k, tau)
+        assert slot_index(start, tau) == k
+        assert slot_index(start + tau // 2 - 1, tau) == k  # a stamp a bit late still maps to its slot
+    with pytest.raises(ValueError):
+        slot_ns(0.0)
+
+
+def test_schedule_roundtrip_and_rejects_inconsistent_data():
+    msg = ScheduleMsg(1_000_000_123, 0.1, 7, np.array([1, 0, 0, 1], np.int8), np.array([0.5, 1e-6, 0.0, 2.0]))
+    back = ScheduleMsg.from_data(msg.to_data())
+    assert back.first_slot == msg.first_slot and back.seq == 7 and back.slot_s == 0.1
+    np.testing.assert_array_equal(back.x, msg.x)
+    np.testing.assert_allclose(back.power_w, msg.power_w)
+    assert back.lookup(1_000_000_124) == (0, pytest.approx(1e-6))
+    assert back.lookup(1_000_000_122) is None and back.lookup(1_000_000_127) is None
+    data = msg.to_data()
+    for bad in (data[:-1], [*data[:4], 2.0, *data[5:]], [*data[:-1], -1.0], [*data[:1], float("nan"), *data[2:]]):
+        with pytest.raises(ValueError):
+            ScheduleMsg.from_data(bad)
+
+
+def test_assembler_counts_every_fault_and_never_blocks():
+    up = UplinkAssembler(max_future_slots=10)
+    up.on_key(PoseKey(5, 1.0, 2.0, 0.1), now_slot=5, now_ns=0)
+    up.on_key(PoseKey(5, 1.0, 2.0, 0.1), now_slot=5, now_ns=0)  # duplicate
+    up.on_key(PoseKey(6, float("nan"), 2.0, 0.1), now_slot=6, now_ns=0)  # invalid
+    up.on_image(5, b"jpeg", now_slot=5, now_ns=0)
+    up.on_image(5, b"jpeg", now_slot=5, now_ns=0)  # duplicate
+    up.on_key(PoseKey(500, 0.0, 0.0, 0.0), now_slot=6, now_ns=0)  # far future: forged or bad clock
+    s5 = up.take(5, image_expected=True)
+    assert s5.key == PoseKey(5, 1.0, 2.0, 0.1) and s5.jpeg == b"jpeg" and not s5.faults
+    up.on_image(5, b"late", now_slot=6, now_ns=0)  # after its slot was taken
+    s6 = up.take(6, image_expected=True)
+    assert s6.key is None and s6.jpeg is None and set(s6.faults) == {"missing_key", "missing_image"}
+    assert dict(up.faults) == {"duplicate_key": 1, "invalid_key": 1, "duplicate_image": 1, "future": 1,
+                               "late": 1, "missing_key": 1, "missing_image": 1}
+
+
+def test_best_pose_extrapolates_and_is_bounded():
+    up = UplinkAssembler(max_extrapolation_slots=3)
+    assert up.best_pose(0) is None
+    up.on_key(PoseKey(10, 0.0, 0.0, 0.0), 10, 0)
+    up.on_key(PoseKey(12, 0.2, 0.0, 0.1), 12, 0)
+    est = up.best_pose(13)
+    assert (est.a_m, est.theta_rad) == (pytest.approx(0.3), pytest.approx(0.15))
+    far = up.best_pose(100)
+    assert far.a_m == pytest.approx(0.5)  # at most 3 slots of extrapolation
+
+
+def test_loss_map_learns_neighbours_prior_and_forgets():
+    lm = LossMap(cell_m=0.5, heading_bins=4, radius_m=1.0, prior=0.07, forgetting=0.5)
+    assert lm.predict(0.1, 0.1, 0.0) == 0.07
+    lm.add(0.1, 0.1, 0.0, 0.02)
+    assert lm.predict(0.2, 0.3, 0.1) == pytest.approx(0.02)  # same cell, same sector
+    assert lm.predict(0.6, 0.1, 0.0) == pytest.approx(0.02)  # neighbour cell
+    assert lm.predict(0.1, 0.1, math.pi) == 0.07  # facing the other way: no information
+    assert lm.predict(5.0, 5.0, 0.0) == 0.07  # far away
+    for _ in range(5):
+        lm.add(0.1, 0.1, 0.0, 0.2)  # the world changed here
+    assert lm.predict(0.1, 0.1, 0.0) > 0.19
+    lm.add(0.1, 0.1, 0.0, float("nan"))
+    back = LossMap.from_json(lm.to_json())
+    assert back.predict_many(np.array([[0.1, 0.1, 0.0], [9, 9, 0]])) == pytest.approx([lm.predict(0.1, 0.1, 0), 0.07])
