@@ -1,0 +1,83 @@
+"""Benchmark of the simulated world on ONE core: real camera, virtual view + mask, garden splatter.
+
+Prints a table: median / p90 milliseconds per frame over the poses of one route lap (each pose
+rendered once per repeat), the resulting camera rate, and the configuration. Numba compilation is
+excluded (one warm-up frame). Run: ``.venv/bin/python bench/world.py [--width 320 --height 240]``.
+Pins the process to one CPU (``os.sched_setaffinity``) and limits numba/BLAS to one thread.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse
+from collections.abc import Callable
+import contextlib
+import platform
+import time
+
+import numpy as np
+
+from gsrmr_common.camera import Camera, camera_from_pose
+from gsrmr_server.world.kinematics import drive_route
+from gsrmr_server.world.points import make_world
+from gsrmr_server.world.recorder import with_resolution
+from gsrmr_server.world.scene import load_scene
+from gsrmr_server.world.virtual import VirtualViewSource
+
+
+def _time_ms(fn: Callable[[Camera, float], object], cams: list[Camera], times_s: list[float],
+             repeats: int) -> np.ndarray:
+    fn(cams[0], times_s[0])  # warm-up / JIT
+    out = []
+    for _ in range(repeats):
+        for cam, t in zip(cams, times_s, strict=True):
+            t0 = time.perf_counter()
+            fn(cam, t)
+            out.append((time.perf_counter() - t0) * 1e3)
+    return np.asarray(out)
+
+
+def main() -> None:
+    """Print the benchmark table."""
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("--width", type=int, default=320)
+    p.add_argument("--height", type=int, default=240)
+    p.add_argument("--poses", type=int, default=36, help="poses sampled over one lap")
+    p.add_argument("--repeats", type=int, default=3)
+    args = p.parse_args()
+    with contextlib.suppress(AttributeError, OSError):
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
+    print(f"# bench/world.py  {args.width}x{args.height}, {args.poses} poses over one lap x {args.repeats} "
+          f"repeats, 1 core ({platform.processor() or platform.machine()}), "
+          f"cpus allowed: {len(os.sched_getaffinity(0))}")
+    print(f"{'scene':8s} {'stage':34s} {'median ms':>10s} {'p90 ms':>8s} {'rate Hz':>8s}")
+    for name in ("sandbox", "garden"):
+        scene = with_resolution(load_scene(name), args.width, args.height)
+        lap_s = scene.slots * scene.slot_s
+        drive = drive_route(scene.route, args.poses, lap_s / args.poses)
+        cams = [camera_from_pose(*pose, scene.camera.mount, scene.camera.intrinsics) for pose in drive.poses]
+        times_s = list(drive.times_s)
+        world = make_world(scene, 2)
+        virtual = VirtualViewSource(scene, world)
+
+        def real(cam: Camera, t: float) -> object:
+            return world.render(cam, t)  # noqa: B023
+
+        def both(cam: Camera, t: float) -> object:
+            _, depth = world.render(cam, t)  # noqa: B023
+            return virtual.render(cam, time_s=t, real_depth_m=depth)  # noqa: B023
+
+        kind = "point splat" if scene.points is not None else "ray cast"
+        for stage, fn in ((f"real camera ({kind})", real), ("real + virtual view + mask", both)):
+            ms = _time_ms(fn, cams, times_s, args.repeats)
+            med = float(np.median(ms))
+            print(f"{name:8s} {stage:34s} {med:10.1f} {np.percentile(ms, 90):8.1f} {1e3 / med:8.1f}")
+
+
+if __name__ == "__main__":
+    main()
