@@ -1,0 +1,215 @@
+"""Conversions between the plain wire records of :mod:`gsrmr_common.wire` and ROS 2 messages.
+
+Imports message classes only (no rclpy node, no executor), so it is usable from tests, the recorder
+and tools without a running graph. The rules (slot clock, frames, layouts) live in ``wire``; this
+module only maps fields:
+
+* pose key ↔ ``geometry_msgs/Vector3Stamped``: ``vector = (a_m, b_m, theta_rad)`` in ``map``,
+  ``header.stamp`` = start of the key's slot.
+* schedule ↔ ``std_msgs/Float64MultiArray``: ``layout.dim = [meta(4), x(n), power_w(n)]``.
+* raw image ↔ ``sensor_msgs/Image``: our in-process images are H×W×3 ``uint8`` RGB; this is the
+  project's replacement for ``cv_bridge`` (not installable here: the PyPI build is broken on numpy 2).
+  ``image_from_msg`` accepts ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8`` and ``mono8`` with any row
+  ``step`` padding and refuses inconsistent sizes.
+* JPEG ↔ ``sensor_msgs/CompressedImage`` with ``format = wire.JPEG_FORMAT``.
+* :class:`~gsrmr_common.camera.Intrinsics` ↔ ``sensor_msgs/CameraInfo`` (ROS K convention: pixel
+  centres at integer coordinates, ``plumb_bob`` with zero distortion, R = I, P = [K | 0]).
+* ``builtin_interfaces/Time`` ↔ integer nanoseconds.
+
+Every ``*_from_msg`` raises ``ValueError`` (or :class:`gsrmr_common.jpeg.ImageRejected`, a subclass)
+on an inconsistent message; nothing here logs or swallows errors.
+"""
+
+from __future__ import annotations
+
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Vector3Stamped
+import numpy as np
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+from gsrmr_common import wire
+from gsrmr_common.camera import Intrinsics
+from gsrmr_common.jpeg import ImageRejected, decode_jpeg
+
+NS_PER_S = 1_000_000_000
+_INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
+SCHEDULE_LABELS = ("meta", "x", "power_w")
+# encoding -> (channels, channel order to pick for RGB output; None = grey replicated)
+_RAW_ENCODINGS: dict[str, tuple[int, tuple[int, int, int] | None]] = {
+    "rgb8": (3, (0, 1, 2)), "bgr8": (3, (2, 1, 0)), "rgba8": (4, (0, 1, 2)), "bgra8": (4, (2, 1, 0)),
+    "mono8": (1, None),
+}
+
+
+def stamp_to_ns(stamp: Time) -> int:
+    """``builtin_interfaces/Time`` → integer nanoseconds since the clock's epoch."""
+    if not 0 <= stamp.nanosec < NS_PER_S:
+        raise ValueError(f"Time.nanosec must be in [0, 1e9), got {stamp.nanosec}")
+    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
+
+
+def ns_to_stamp(ns: int) -> Time:
+    """Integer nanoseconds → ``builtin_interfaces/Time`` (``sec`` floored, ``nanosec`` in [0, 1e9))."""
+    if isinstance(ns, float) or int(ns) != ns:
+        raise ValueError(f"time stamp must be integer nanoseconds, got {ns!r}")
+    sec, nanosec = divmod(int(ns), NS_PER_S)
+    if not _INT32_MIN <= sec <= _INT32_MAX:
+        raise ValueError(f"time stamp {ns} ns does not fit builtin_interfaces/Time (int32 seconds)")
+    return Time(sec=sec, nanosec=nanosec)
+
+
+# --------------------------------------------------------------------------------------- pose key
+
+def pose_key_to_msg(key: wire.PoseKey, slot_len_ns: int) -> Vector3Stamped:
+    """Pose key → ``Vector3Stamped`` (frame ``map``, stamp = start of ``key.slot``)."""
+    msg = Vector3Stamped()
+    msg.header.stamp = ns_to_stamp(wire.slot_start_ns(key.slot, slot_len_ns))
+    msg.header.frame_id = wire.MAP_FRAME
+    msg.vector.x, msg.vector.y, msg.vector.z = float(key.a_m), float(key.b_m), float(key.theta_rad)
+    return msg
+
+
+def pose_key_from_msg(msg: Vector3Stamped, slot_len_ns: int) -> wire.PoseKey:
+    """``Vector3Stamped`` → pose key; the slot comes from the stamp. Refuses frames other than ``map``.
+
+    The key may still be non-finite: check :meth:`wire.PoseKey.is_valid` before rendering it.
+    """
+    if msg.header.frame_id != wire.MAP_FRAME:
+        raise ValueError(f"pose key must be in frame {wire.MAP_FRAME!r}, got {msg.header.frame_id!r}")
+    slot = wire.slot_index(stamp_to_ns(msg.header.stamp), slot_len_ns)
+    return wire.PoseKey(slot, float(msg.vector.x), float(msg.vector.y), float(msg.vector.z))
+
+
+# --------------------------------------------------------------------------------------- schedule
+
+def schedule_to_msg(schedule: wire.ScheduleMsg) -> Float64MultiArray:
+    """Schedule → ``Float64MultiArray`` with ``layout.dim`` = meta(4), x(n), power_w(n)."""
+    data = schedule.to_data()
+    n = len(schedule.x)
+    msg = Float64MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=size)
+                      for label, size in zip(SCHEDULE_LABELS, (len(wire.SCHEDULE_META), n, n), strict=True)]
+    msg.layout.data_offset = 0
+    msg.data = data
+    return msg
+
+
+def schedule_from_msg(msg: Float64MultiArray) -> wire.ScheduleMsg:
+    """``Float64MultiArray`` → schedule; checks the layout labels and sizes against ``data``."""
+    if msg.layout.data_offset != 0:
+        raise ValueError(f"schedule: layout.data_offset must be 0, got {msg.layout.data_offset}")
+    schedule = wire.ScheduleMsg.from_data(np.asarray(msg.data, dtype=np.float64))
+    n = len(schedule.x)
+    labels = tuple(d.label for d in msg.layout.dim)
+    sizes = tuple(int(d.size) for d in msg.layout.dim)
+    if labels != SCHEDULE_LABELS or sizes != (len(wire.SCHEDULE_META), n, n):
+        raise ValueError(f"schedule: layout {list(zip(labels, sizes, strict=True))} does not match "
+                         f"meta(4), x({n}), power_w({n})")
+    return schedule
+
+
+# ------------------------------------------------------------------------------------------ images
+
+def image_to_msg(rgb: np.ndarray, stamp_ns: int, frame_id: str) -> Image:
+    """H×W×3 ``uint8`` RGB → ``sensor_msgs/Image`` (``rgb8``, no row padding)."""
+    img = np.asarray(rgb)
+    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3 or 0 in img.shape:
+        raise ValueError(f"image_to_msg: expected H×W×3 uint8 RGB, got {img.dtype} {img.shape}")
+    msg = Image()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.header.frame_id = frame_id
+    msg.height, msg.width = int(img.shape[0]), int(img.shape[1])
+    msg.encoding = "rgb8"
+    msg.is_bigendian = 0
+    msg.step = 3 * msg.width
+    msg.data = np.ascontiguousarray(img).tobytes()
+    return msg
+
+
+def image_from_msg(msg: Image, *, max_pixels: int = wire.MAX_IMAGE_PIXELS) -> np.ndarray:
+    """``sensor_msgs/Image`` → H×W×3 ``uint8`` RGB (a copy; mono8 is replicated to three channels).
+
+    Supports ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8`` (alpha dropped) and ``mono8``; ``step`` may
+    include row padding. Raises :class:`ImageRejected` on an unsupported encoding, an empty or
+    oversized image, ``step`` < width·channels, or ``len(data) != step·height``.
+    """
+    enc = msg.encoding.lower()
+    if enc not in _RAW_ENCODINGS:
+        raise ImageRejected(f"unsupported image encoding {msg.encoding!r} (want {sorted(_RAW_ENCODINGS)})")
+    channels, order = _RAW_ENCODINGS[enc]
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    if height < 1 or width < 1:
+        raise ImageRejected(f"empty image {width}×{height}")
+    if height * width > max_pixels:
+        raise ImageRejected(f"image {width}×{height} exceeds {max_pixels} px")
+    if step < width * channels:
+        raise ImageRejected(f"image step {step} < width·channels = {width * channels}")
+    buf = np.frombuffer(msg.data, dtype=np.uint8)
+    if buf.size != step * height:
+        raise ImageRejected(f"image data has {buf.size} bytes, step·height = {step * height}")
+    rows = buf.reshape(height, step)[:, : width * channels].reshape(height, width, channels)
+    if order is None:
+        return np.repeat(rows, 3, axis=2)
+    return np.ascontiguousarray(rows[:, :, list(order)])
+
+
+def compressed_to_msg(jpeg_data: bytes, stamp_ns: int, frame_id: str) -> CompressedImage:
+    """JPEG bytes → ``sensor_msgs/CompressedImage`` with ``format = wire.JPEG_FORMAT``."""
+    msg = CompressedImage()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.header.frame_id = frame_id
+    msg.format = wire.JPEG_FORMAT
+    msg.data = bytes(jpeg_data)
+    return msg
+
+
+def compressed_from_msg(msg: CompressedImage, **decode_kwargs: object) -> np.ndarray:
+    """``CompressedImage`` → H×W×3 ``uint8`` RGB via :func:`gsrmr_common.jpeg.decode_jpeg`.
+
+    ``format`` must name JPEG (``"jpeg"`` or ``"… jpeg compressed …"``; an empty format is JPEG by the
+    image_transport convention); ``decode_kwargs`` (``max_pixels``, ``max_bytes``,
+    ``expected_shape``) are passed on. Raises :class:`ImageRejected`.
+    """
+    fmt = msg.format.lower()
+    if fmt and "jpeg" not in fmt and "jpg" not in fmt:
+        raise ImageRejected(f"compressed image format {msg.format!r} is not JPEG")
+    return decode_jpeg(bytes(msg.data), **decode_kwargs)  # type: ignore[arg-type]
+
+
+# ------------------------------------------------------------------------------------- camera info
+
+def camera_info_from_intrinsics(intrinsics: Intrinsics, stamp_ns: int, frame_id: str) -> CameraInfo:
+    """Intrinsics → ``sensor_msgs/CameraInfo`` (K, P in the ROS integer-pixel-centre convention).
+
+    ``distortion_model = "plumb_bob"`` with ``d`` = five zeros, ``r`` = identity, ``p = [K | 0]``
+    (monocular), no binning, full-image ROI.
+    """
+    k = intrinsics.ros_k()
+    msg = CameraInfo()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.header.frame_id = frame_id
+    msg.width, msg.height = int(intrinsics.width), int(intrinsics.height)
+    msg.distortion_model = "plumb_bob"
+    msg.d = [0.0] * 5
+    msg.k = k.reshape(-1).tolist()
+    msg.r = np.eye(3).reshape(-1).tolist()
+    msg.p = np.hstack([k, np.zeros((3, 1))]).reshape(-1).tolist()
+    return msg
+
+
+def intrinsics_from_camera_info(msg: CameraInfo, *, ignore_distortion: bool = False) -> Intrinsics:
+    """``sensor_msgs/CameraInfo`` → :class:`Intrinsics` (principal point shifted +0.5 px).
+
+    Uses ``k`` (the raw camera's matrix). Refuses non-zero distortion coefficients unless
+    ``ignore_distortion`` (our pinhole model cannot represent them), a K with skew, and an
+    uncalibrated (all-zero) K; raises ``ValueError``.
+    """
+    k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
+    if not np.any(k):
+        raise ValueError("CameraInfo is uncalibrated (K is all zeros)")
+    if k[0, 1] != 0.0 or k[1, 0] != 0.0 or k[2, 0] != 0.0 or k[2, 1] != 0.0 or k[2, 2] != 1.0:
+        raise ValueError(f"CameraInfo K is not a zero-skew pinhole matrix: {k.tolist()}")
+    if not ignore_distortion and np.any(np.asarray(msg.d, dtype=np.float64)):
+        raise ValueError(f"CameraInfo has non-zero distortion {list(msg.d)} ({msg.distortion_model})")
+    return Intrinsics.from_ros_k(k, int(msg.width), int(msg.height))

@@ -1,0 +1,246 @@
+"""Run recorder (gsrmr_server.recording): CSV + MCAP output, ROS 2 compatibility, crash safety."""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+from geometry_msgs.msg import TwistStamped
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+import numpy as np
+import pytest
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import CompressedImage
+from std_msgs.msg import String
+
+from gsrmr_common import wire
+from gsrmr_common.jpeg import decode_jpeg
+from gsrmr_server import recording as rec
+from gsrmr_server.recording import CSV_COLUMNS, RunRecorder, read_mcap, read_slots_csv, recover_run
+
+SLOT_NS = wire.slot_ns(0.1)
+T0_SLOT = 17_638_000_000  # an epoch-like absolute slot index (2025-11-22 in ROS time at τ = 0.1 s)
+
+
+def make_row(k: int) -> dict:
+    """A fully populated slot row for absolute slot T0_SLOT + k."""
+    slot = T0_SLOT + k
+    return {"slot": slot, "stamp_s": wire.slot_start_ns(slot, SLOT_NS) / 1e9, "x": k % 2,
+            "power_w": 0.05 + 0.01 * k, "bytes_sent": 24 if k % 2 == 0 else 15_000 + k,
+            "energy_j": 1e-3 * (k + 1), "loss": 0.1 / (k + 1), "psnr_db": 20.0 + k, "ssim": 0.9,
+            "source": ("render", "image", "fallback")[k % 3], "pose_a_m": 0.1 * k, "pose_b_m": -0.2 * k,
+            "pose_theta_rad": math.pi / 7 * k, "latency_ms": 12.5, "faults": "" if k % 4 else "late;retry"}
+
+
+def make_image(k: int) -> np.ndarray:
+    img = np.zeros((24, 32, 3), np.uint8)
+    img[:, : 2 + k % 30] = (220, 30, 20)
+    return img
+
+
+@pytest.mark.parametrize("type_name", sorted(set(rec.TOPIC_TYPES.values())))
+def test_message_definition_matches_ros_classes(type_name: str) -> None:
+    text = rec.message_definition(type_name)
+    top = text.split("=" * 80)[0]
+    cls = {"sensor_msgs/msg/CompressedImage": CompressedImage, "geometry_msgs/msg/TwistStamped": TwistStamped,
+           "std_msgs/msg/String": String}[type_name]
+    names = [line.split()[1] for line in top.splitlines() if line.strip()]
+    assert names == list(cls.get_fields_and_field_types())
+    if "Header" in text:
+        assert "\nMSG: std_msgs/msg/Header\n" in text and "\nMSG: builtin_interfaces/msg/Time\n" in text
+    assert "#" not in text
+
+
+def test_message_definition_unknown_type() -> None:
+    with pytest.raises(FileNotFoundError):
+        rec.message_definition("sensor_msgs/msg/NoSuchThing")
+    with pytest.raises(ValueError):
+        rec.message_definition("Image")
+
+
+def test_round_trip_csv_and_mcap(tmp_path: Path) -> None:
+    rows = [make_row(k) for k in range(12)]
+    with RunRecorder(tmp_path, segment_slots=5) as recorder:
+        for k, row in enumerate(rows):
+            image = make_image(k) if k != 3 else None
+            cmd = (0.1 * k, -0.05 * k) if k != 4 else None
+            recorder.write_slot(row, image, cmd)
+            if k == 11:  # two segments are finished and renamed, the third is being written
+                names = sorted(p.name for p in tmp_path.iterdir())
+                assert names == ["run-0000.mcap", "run-0001.mcap", "run-0002.mcap.part", "slots.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.mcap", "slots.csv"]
+
+    back = read_slots_csv(tmp_path / "slots.csv")
+    for row, got in zip(rows, back, strict=True):
+        expected = {**row, "faults": row["faults"] or None}
+        assert got == expected  # floats survive exactly (repr), empty cells become None
+
+    messages = read_mcap(tmp_path / "run.mcap")
+    by_topic: dict[str, list] = {}
+    for topic, log_time, msg in messages:
+        by_topic.setdefault(topic, []).append((log_time, msg))
+    assert len(by_topic[rec.TOPIC_SLOT_LOG]) == 12
+    assert len(by_topic[rec.TOPIC_MR_IMAGE]) == 11 and len(by_topic[rec.TOPIC_CMD_VEL]) == 11
+    for (log_time, msg), row in zip(by_topic[rec.TOPIC_SLOT_LOG], rows, strict=True):
+        assert log_time == wire.slot_start_ns(row["slot"], SLOT_NS)
+        assert rec.json.loads(msg.data)["slot"] == row["slot"]
+    image_rows = [r for k, r in enumerate(rows) if k != 3]
+    for (log_time, msg), row in zip(by_topic[rec.TOPIC_MR_IMAGE], image_rows, strict=True):
+        k = row["slot"] - T0_SLOT
+        assert msg.format == wire.JPEG_FORMAT and msg.header.frame_id == "camera_optical"
+        assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == log_time
+        decoded = decode_jpeg(bytes(msg.data), expected_shape=(24, 32))
+        assert np.abs(decoded.astype(int) - make_image(k)).mean() < 4
+    cmd_rows = [r for k, r in enumerate(rows) if k != 4]
+    for (_, msg), row in zip(by_topic[rec.TOPIC_CMD_VEL], cmd_rows, strict=True):
+        k = row["slot"] - T0_SLOT
+        assert msg.header.frame_id == "base_link"
+        assert (msg.twist.linear.x, msg.twist.angular.z) == pytest.approx((0.1 * k, -0.05 * k))
+
+
+def test_mcap_messages_are_valid_ros2_cdr(tmp_path: Path) -> None:
+    """The raw payloads deserialize with rclpy's own typesupport, as ``ros2 bag play`` would do."""
+    with RunRecorder(tmp_path) as recorder:
+        recorder.write_slot(make_row(0), make_image(0), (0.3, 0.2))
+    classes = {"sensor_msgs/msg/CompressedImage": CompressedImage,
+               "geometry_msgs/msg/TwistStamped": TwistStamped, "std_msgs/msg/String": String}
+    seen = set()
+    with (tmp_path / "run.mcap").open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics.message_count == 3
+        assert reader.get_header().profile == "ros2"
+        for schema, channel, message in reader.iter_messages():
+            assert schema.encoding == "ros2msg" and channel.message_encoding == "cdr"
+            assert rec.TOPIC_TYPES[channel.topic] == schema.name
+            msg = deserialize_message(message.data, classes[schema.name])
+            seen.add(channel.topic)
+            if channel.topic == rec.TOPIC_CMD_VEL:
+                assert (msg.twist.linear.x, msg.twist.angular.z) == (0.3, 0.2)
+            if channel.topic == rec.TOPIC_MR_IMAGE:
+                assert decode_jpeg(bytes(msg.data)).shape == (24, 32, 3)
+    assert seen == set(rec.TOPIC_TYPES)
+
+
+def test_csv_value_rules(tmp_path: Path) -> None:
+    with RunRecorder(tmp_path) as recorder:
+        recorder.write_slot({"slot": 1, "loss": float("nan"), "psnr_db": float("inf"), "faults": ["a", "b"]},
+                            None, None, stamp_ns=5)
+        with pytest.raises(ValueError, match="unknown"):
+            recorder.write_slot({"slot": 2, "lost": 1.0}, None, None)
+        with pytest.raises(ValueError, match="source"):
+            recorder.write_slot({"slot": 2, "source": "camera"}, None, None)
+        with pytest.raises(ValueError, match="integer"):
+            recorder.write_slot({"slot": 2, "bytes_sent": 1.5}, None, None)
+        with pytest.raises(ValueError, match="required"):
+            recorder.write_slot({"x": 1}, None, None)
+    rows = read_slots_csv(tmp_path / "slots.csv")
+    assert len(rows) == 1  # refused rows left no trace
+    assert rows[0]["loss"] is None and rows[0]["psnr_db"] == math.inf and rows[0]["faults"] == "a;b"
+    (_, log_time, msg), = read_mcap(tmp_path / "run.mcap")
+    assert log_time == 5
+    assert rec.json.loads(msg.data)["psnr_db"] is None and rec.json.loads(msg.data)["faults"] == "a;b"
+
+
+def test_torn_last_line_is_dropped(tmp_path: Path) -> None:
+    path = tmp_path / "slots.csv"
+    path.write_text(",".join(CSV_COLUMNS) + "\n1,0.1,1,,,,,,,image,,,,,\n2,0.2,0,0.0")
+    rows = read_slots_csv(path)
+    assert [r["slot"] for r in rows] == [1]
+    path.write_text("slot,stamp\n1,2\n")
+    with pytest.raises(ValueError, match="header"):
+        read_slots_csv(path)
+
+
+def test_lifecycle(tmp_path: Path) -> None:
+    recorder = RunRecorder(tmp_path / "a")
+    assert recorder.close() is None  # nothing recorded: no MCAP, header-only CSV
+    assert recorder.close() is None
+    assert read_slots_csv(tmp_path / "a" / "slots.csv") == []
+    with pytest.raises(RuntimeError, match="closed"):
+        recorder.write_slot({"slot": 0}, None, None)
+    with pytest.raises(FileExistsError):
+        RunRecorder(tmp_path / "a")
+    for bad in ({"segment_slots": 0}, {"jpeg_quality": 0}):
+        with pytest.raises(ValueError):
+            RunRecorder(tmp_path / "b", **bad)
+
+
+CRASH_SCRIPT = textwrap.dedent("""
+    import sys, time
+    import numpy as np
+    from gsrmr_server.recording import RunRecorder
+    out, stop_after = sys.argv[1], int(sys.argv[2])
+    recorder = RunRecorder(out, segment_slots=5, chunk_bytes=4096)
+    rng = np.random.default_rng(0)
+    k = 0
+    while True:
+        image = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)  # noise: ~8 kB per JPEG
+        recorder.write_slot({"slot": k, "stamp_s": k * 0.1, "x": 1, "source": "image"}, image, (0.1, 0.0))
+        print(k, flush=True)
+        k += 1
+        if k == stop_after:
+            time.sleep(60)  # killed here
+""")
+
+
+def run_and_kill(out: Path, stop_after: int, kill_when_rows: int) -> int:
+    """Start a recorder process, SIGKILL it once it reported ``kill_when_rows`` slots; return that count."""
+    proc = subprocess.Popen([sys.executable, "-c", CRASH_SCRIPT, str(out), str(stop_after)],
+                            stdout=subprocess.PIPE, text=True, start_new_session=True)
+    reported = -1
+    try:
+        deadline = time.monotonic() + 60
+        while reported + 1 < kill_when_rows and time.monotonic() < deadline:
+            line = proc.stdout.readline()  # type: ignore[union-attr]
+            if not line:
+                break
+            reported = int(line)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+        for line in proc.stdout:  # type: ignore[union-attr]
+            reported = int(line)  # slots acknowledged between our decision and the kill
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.stdout.close()  # type: ignore[union-attr]
+    assert proc.returncode == -signal.SIGKILL
+    return reported + 1
+
+
+@pytest.mark.parametrize(("stop_after", "kill_when_rows"), [(23, 23), (10**9, 17)],
+                         ids=["idle", "mid-write"])
+def test_kill_9_loses_no_written_slot(tmp_path: Path, stop_after: int, kill_when_rows: int) -> None:
+    acknowledged = run_and_kill(tmp_path, stop_after, kill_when_rows)
+    assert acknowledged >= kill_when_rows
+    rows = read_slots_csv(tmp_path / "slots.csv")
+    # Every slot write_slot returned from is in the CSV (at most one more the process was writing).
+    assert [r["slot"] for r in rows][:acknowledged] == list(range(acknowledged))
+    assert len(rows) <= acknowledged + 1
+    finished = sorted(p.name for p in tmp_path.glob("run-*.mcap"))
+    assert len(finished) >= acknowledged // 5 - 1 >= 2
+    # Every finished segment is a complete MCAP that decodes without the .part.
+    slots_in_segments = []
+    for name in finished:
+        for topic, _, msg in read_mcap(tmp_path / name):
+            if topic == rec.TOPIC_SLOT_LOG:
+                slots_in_segments.append(rec.json.loads(msg.data)["slot"])
+    assert slots_in_segments == list(range(5 * len(finished)))
+    # Recovery merges them plus the complete chunks of the open segment into run.mcap.
+    merged = recover_run(tmp_path)
+    assert merged == tmp_path / "run.mcap"
+    assert not list(tmp_path.glob("run-*"))
+    logs = [rec.json.loads(m.data)["slot"] for t, _, m in read_mcap(merged) if t == rec.TOPIC_SLOT_LOG]
+    images = [m for t, _, m in read_mcap(merged) if t == rec.TOPIC_MR_IMAGE]
+    assert logs == list(range(len(logs))) and 5 * len(finished) <= len(logs) <= len(rows)
+    assert len(images) >= 5 * len(finished)
+    for msg in images:
+        assert decode_jpeg(bytes(msg.data)).shape == (48, 64, 3)
+    assert recover_run(tmp_path) is None  # nothing left to recover
