@@ -23,6 +23,8 @@ hence :data:`gsrmr_common.wire.JPEG_FORMAT` ``"rgb8; jpeg compressed bgr8"``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
@@ -99,8 +101,19 @@ def _segment_end(data: bytes, pos: int, marker: int) -> int:
     return end
 
 
-def _parse_sof(data: bytes, pos: int, end: int, marker: int) -> tuple[int, int, int]:
-    """(width, height, components) from a SOF segment payload starting at ``pos``."""
+@dataclass(frozen=True)
+class JpegHeader:
+    """What a JPEG frame header (SOF segment) claims, read without decoding."""
+
+    width: int  # pixels
+    height: int  # pixels
+    components: int  # 1 = grey, 3 = colour (YCbCr), 4 = CMYK/YCCK
+    precision_bits: int  # sample precision, 8 for ordinary JPEG
+    sof_marker: int  # 0xC0 baseline, 0xC1 extended, 0xC2 progressive, …
+
+
+def _parse_sof(data: bytes, pos: int, end: int, marker: int) -> JpegHeader:
+    """Frame header from a SOF segment payload starting at ``pos``."""
     if end - pos < 6:
         raise ImageRejected(f"corrupt JPEG: SOF 0x{marker:02X} segment too short")
     height = (data[pos + 1] << 8) | data[pos + 2]
@@ -112,11 +125,20 @@ def _parse_sof(data: bytes, pos: int, end: int, marker: int) -> tuple[int, int, 
         raise ImageRejected(f"JPEG frame header claims {width}×{height} (DNL-defined height unsupported)")
     if components == 0:
         raise ImageRejected("corrupt JPEG: frame header declares 0 components")
-    return width, height, components
+    return JpegHeader(width, height, components, data[pos], marker)
 
 
 def jpeg_dimensions(data: bytes) -> tuple[int, int, int]:
     """``(width, height, components)`` from a JPEG's frame header, without decoding any pixels.
+
+    See :func:`jpeg_header`; raises :class:`ImageRejected`.
+    """
+    header = jpeg_header(data)
+    return header.width, header.height, header.components
+
+
+def jpeg_header(data: bytes) -> JpegHeader:
+    """The frame header of a JPEG, without decoding any pixels.
 
     Walks SOI, then marker segments (skipping fill bytes and standalone markers) until the first SOF
     (baseline C0, extended C1, progressive C2, lossless/arithmetic variants). Raises
@@ -209,7 +231,8 @@ def decode_jpeg(data: bytes, *, max_pixels: int = wire.MAX_IMAGE_PIXELS,
     data = bytes(data)
     if len(data) > max_bytes:
         raise ImageRejected(f"JPEG of {len(data)} bytes exceeds the {max_bytes}-byte limit")
-    width, height, components = jpeg_dimensions(data)
+    header = jpeg_header(data)
+    width, height, components = header.width, header.height, header.components
     if width * height > max_pixels:
         raise ImageRejected(f"JPEG claims {width}×{height} = {width * height} px > limit {max_pixels} px")
     if expected_shape is not None and (height, width) != tuple(expected_shape):
@@ -217,6 +240,8 @@ def decode_jpeg(data: bytes, *, max_pixels: int = wire.MAX_IMAGE_PIXELS,
                             f"{expected_shape[1]}×{expected_shape[0]}")
     if components != 3:
         raise ImageRejected(f"JPEG has {components} components, expected 3 (colour)")
+    if header.precision_bits != 8:
+        raise ImageRejected(f"JPEG has {header.precision_bits}-bit samples, expected 8")
     check_jpeg_structure(data)
     try:
         bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8),

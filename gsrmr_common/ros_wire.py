@@ -164,17 +164,21 @@ def compressed_to_msg(jpeg_data: bytes, stamp_ns: int, frame_id: str) -> Compres
     return msg
 
 
-def compressed_from_msg(msg: CompressedImage, **decode_kwargs: object) -> np.ndarray:
+def compressed_from_msg(msg: CompressedImage, *, max_pixels: int = wire.MAX_IMAGE_PIXELS,
+                        max_bytes: int = wire.MAX_COMPRESSED_BYTES,
+                        expected_shape: tuple[int, int] | None = None) -> np.ndarray:
     """``CompressedImage`` → H×W×3 ``uint8`` RGB via :func:`gsrmr_common.jpeg.decode_jpeg`.
 
     ``format`` must name JPEG (``"jpeg"`` or ``"… jpeg compressed …"``; an empty format is JPEG by the
-    image_transport convention); ``decode_kwargs`` (``max_pixels``, ``max_bytes``,
-    ``expected_shape``) are passed on. Raises :class:`ImageRejected`.
+    image_transport convention). ``expected_shape`` is (height, width). Raises :class:`ImageRejected`.
     """
     fmt = msg.format.lower()
     if fmt and "jpeg" not in fmt and "jpg" not in fmt:
         raise ImageRejected(f"compressed image format {msg.format!r} is not JPEG")
-    return decode_jpeg(bytes(msg.data), **decode_kwargs)  # type: ignore[arg-type]
+    if len(msg.data) > max_bytes:  # before copying the payload
+        raise ImageRejected(f"JPEG of {len(msg.data)} bytes exceeds the {max_bytes}-byte limit")
+    return decode_jpeg(bytes(msg.data), max_pixels=max_pixels, max_bytes=max_bytes,
+                       expected_shape=expected_shape)
 
 
 # ------------------------------------------------------------------------------------- camera info

@@ -12,7 +12,14 @@ import numpy as np
 import pytest
 
 from gsrmr_common import jpeg, wire
-from gsrmr_common.jpeg import ImageRejected, decode_jpeg, encode_jpeg, jpeg_dimensions
+from gsrmr_common.jpeg import (
+    ImageRejected,
+    check_jpeg_structure,
+    decode_jpeg,
+    encode_jpeg,
+    jpeg_dimensions,
+    jpeg_header,
+)
 from gsrmr_common.metrics import psnr
 
 
@@ -182,9 +189,39 @@ SMALL_PROGRESSIVE = encode_jpeg(scene(16, 24, seed=3), 90, progressive=True)
 
 @pytest.mark.parametrize("data", [SMALL, SMALL_PROGRESSIVE], ids=["baseline", "progressive"])
 def test_every_truncation_is_rejected(data: bytes) -> None:
+    check_jpeg_structure(data)
     for n in range(len(data) - 1):
+        with pytest.raises(ImageRejected):  # by our own walk, whatever the OpenCV build tolerates
+            check_jpeg_structure(data[:n])
         with pytest.raises(ImageRejected):
             decode_jpeg(data[:n])
+
+
+def test_structure_walk_accepts_valid_and_names_the_problem() -> None:
+    for data in (BASELINE, PROGRESSIVE, BASELINE[:2] + b"\xff\x01\xff\xff" + BASELINE[2:]):
+        check_jpeg_structure(data)
+    sos = BASELINE.find(b"\xff\xda")
+    with pytest.raises(ImageRejected, match="without EOI"):
+        check_jpeg_structure(BASELINE[:-2])
+    with pytest.raises(ImageRejected, match="second SOI"):
+        check_jpeg_structure(BASELINE[:sos] + b"\xff\xd8" + BASELINE[sos:])
+    with pytest.raises(ImageRejected, match="more than one frame header"):
+        at = sof_offset(BASELINE)
+        sof_len = struct.unpack(">H", BASELINE[at + 2: at + 4])[0]
+        check_jpeg_structure(BASELINE[:sos] + BASELINE[at: at + 2 + sof_len] + BASELINE[sos:])
+    with pytest.raises(ImageRejected, match="EOI before any scan"):
+        check_jpeg_structure(BASELINE[:sos] + b"\xff\xd9")
+
+
+def test_header_fields_and_precision_refused() -> None:
+    header = jpeg_header(PROGRESSIVE)
+    assert (header.width, header.height, header.components, header.precision_bits, header.sof_marker) == \
+        (128, 96, 3, 8, 0xC2)
+    at = sof_offset(BASELINE) + 4
+    twelve_bit = BASELINE[:at] + b"\x0c" + BASELINE[at + 1:]
+    assert jpeg_header(twelve_bit).precision_bits == 12
+    with pytest.raises(ImageRejected, match="12-bit"):
+        decode_jpeg(twelve_bit)
 
 
 def _decode_or_reject(data: bytes) -> None:
