@@ -247,14 +247,17 @@ def pack(means2d, conic, opacity, colors, depth, radius) -> np.ndarray:
 
 
 def rasterize_packed(packed: np.ndarray, box: np.ndarray, width: int, height: int, background: np.ndarray,
-                     tile: int = TILE):
-    """Forward pass over depth-ordered packed rows; returns (rgb, alpha, depth, final_T, last, bins)."""
+                     tile: int = TILE, dtype=np.float32):
+    """Forward pass over depth-ordered packed rows; returns (rgb, alpha, depth, final_T, last, bins).
+
+    rgb/alpha/depth are ``dtype`` (float32 for display, float64 for training and gradient checks).
+    """
     tiles_x, tiles_y = (width + tile - 1) // tile, (height + tile - 1) // tile
     box = np.ascontiguousarray(box, np.int64)
     offsets, lst = bin_kernel(box, tile, tiles_x, tiles_y)
-    rgb = np.empty((height, width, 3), np.float32)
-    alpha = np.empty((height, width), np.float32)
-    depth = np.empty((height, width), np.float32)
+    rgb = np.empty((height, width, 3), dtype)
+    alpha = np.empty((height, width), dtype)
+    depth = np.empty((height, width), dtype)
     final_t = np.empty((height, width), np.float64)
     last = np.empty((height, width), np.int64)
     bg = np.asarray(background, np.float64)
@@ -275,7 +278,7 @@ class RasterizeFunction(torch.autograd.Function):
         packed = pack(means2d.detach().numpy(), conic.detach().numpy(), opacity.detach().numpy(),
                       colors.detach().numpy(), depth.detach().numpy(), radius.detach().numpy())
         bg = np.asarray(background, np.float64)
-        rgb, alpha, _, final_t, last, bins = rasterize_packed(packed, box, width, height, bg)
+        rgb, alpha, _, final_t, last, bins = rasterize_packed(packed, box, width, height, bg, TILE, np.float64)
         ctx.saved = (packed, bins, bg, final_t, last, width, height)
         ctx.dtype = means2d.dtype
         return torch.from_numpy(rgb).to(means2d.dtype), torch.from_numpy(alpha).to(means2d.dtype)
