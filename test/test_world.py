@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import copy
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,7 +13,7 @@ from gsrmr_common.camera import CameraMount, camera_from_pose
 from gsrmr_common.nerfstudio import read_dataset
 from gsrmr_server.world import cli
 from gsrmr_server.world.kinematics import drive_route, lap_time_s, start_pose, unicycle_step
-from gsrmr_server.world.points import make_world
+from gsrmr_server.world.points import find_points_file, make_world
 from gsrmr_server.world.raycast import RayCastWorld
 from gsrmr_server.world.recorder import Round2Record, record_round1, record_round2, with_resolution
 from gsrmr_server.world.route import LoopPath, PurePursuit
@@ -94,7 +93,7 @@ def test_shipped_scenes_load_by_name():
     assert {ev.type for ev in sandbox.events} >= {"move", "light", "add", "region_light"}
     assert math.dist(sandbox.server_position_m[:2], (0.0, 0.0)) == pytest.approx(10.0, abs=1.0)
     garden = load_scene("garden")
-    assert garden.points is not None and Path(garden.points.path).exists()
+    assert garden.points is not None and find_points_file(garden.points.path).exists()
 
 
 def test_events_apply_only_in_round_two_and_only_in_their_span():

@@ -39,13 +39,24 @@ def _rotation_to_z(up: np.ndarray) -> np.ndarray:
     return np.eye(3) + vx + vx @ vx * (1.0 / (1.0 + c))
 
 
+def find_points_file(path: str) -> Path:
+    """The points file: ``path`` itself, else its name in ``$GSRMR_DATA_DIR``, ``<repo>/../shared/data``
+    or ``/work/shared/data`` (where the project's shared data lives)."""
+    p = Path(path)
+    candidates = [p]
+    if os.environ.get("GSRMR_DATA_DIR"):
+        candidates.append(Path(os.environ["GSRMR_DATA_DIR"]) / p.name)
+    candidates += [Path(__file__).resolve().parents[3] / "shared" / "data" / p.name,
+                   Path("/work/shared/data") / p.name]
+    for cand in candidates:
+        if cand.exists():
+            return cand
+    raise FileNotFoundError(f"points file {path} not found (set GSRMR_DATA_DIR to its folder)")
+
+
 def load_points(spec: PointsWorld) -> tuple[np.ndarray, np.ndarray]:
     """(N×3 float64 points in the map frame, N×3 float32 colours in [0, 1]) from ``spec.path``."""
-    path = Path(spec.path)
-    if not path.exists() and os.environ.get("GSRMR_DATA_DIR"):
-        path = Path(os.environ["GSRMR_DATA_DIR"]) / path.name
-    if not path.exists():
-        raise FileNotFoundError(f"points file {spec.path} not found (set GSRMR_DATA_DIR to its folder)")
+    path = find_points_file(spec.path)
     with np.load(path) as data:
         pts = np.asarray(data["means3d"], dtype=np.float64).reshape(-1, 3)
         cols = np.asarray(data["colors"]).reshape(-1, 3)

@@ -210,6 +210,8 @@ class Scene:
                 if not ev.active(t_s):
                     continue
                 if ev.type == "move":
+                    if ev.target not in objects:  # removed by an earlier event
+                        continue
                     obj = objects[ev.target]
                     yaw = obj.yaw_rad if ev.yaw_rad is None else ev.yaw_rad
                     objects[ev.target] = replace(obj, position=ev.position or obj.position, yaw_rad=yaw)
