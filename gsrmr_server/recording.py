@@ -179,6 +179,8 @@ def _cell(column: str, value: Any) -> str:
     if column in _INT_COLUMNS:
         if isinstance(value, bool) or int(value) != value:
             raise ValueError(f"slot row: {column} must be an integer, got {value!r}")
+        if column == "x" and value not in (0, 1):
+            raise ValueError(f"slot row: x must be 0 (pose key) or 1 (image), got {value!r}")
         return str(int(value))
     number = float(value)
     return "" if math.isnan(number) else repr(number)
@@ -341,7 +343,8 @@ class RunRecorder:
         self.chunk_bytes = int(chunk_bytes)
         self.csv_path = self.out_dir / CSV_NAME
         self.mcap_path = self.out_dir / MCAP_NAME
-        self._definitions = {topic: message_definition(t) for topic, t in TOPIC_TYPES.items()}
+        self._topic_types: dict[str, str] = dict(TOPIC_TYPES)
+        self._definitions = {t: message_definition(t) for t in sorted(set(TOPIC_TYPES.values()))}
         self._lock = threading.Lock()
         self._csv_file = self.csv_path.open("w", newline="", encoding="utf-8")
         self._csv = csv.writer(self._csv_file, lineterminator="\n")
@@ -364,9 +367,20 @@ class RunRecorder:
         self._segment_file = path.open("wb")
         self._writer = Ros2Writer(self._segment_file, chunk_size=self.chunk_bytes,
                                   compression=CompressionType.ZSTD)
-        self._schemas = {topic: self._writer.register_msgdef(TOPIC_TYPES[topic], text)
-                         for topic, text in self._definitions.items()}
+        self._schemas = {}  # per segment: type name -> schema record, registered on first use
         self._segment_count = 0
+
+    def _write(self, topic: str, msg: Any, stamp_ns: int, seq: int) -> None:
+        """Write one message into the open segment (opening one if needed); caller holds the lock."""
+        if self._writer is None:
+            self._open_segment()
+        assert self._writer is not None
+        type_name = self._topic_types[topic]
+        schema = self._schemas.get(type_name)
+        if schema is None:
+            schema = self._writer.register_msgdef(type_name, self._definitions[type_name])
+            self._schemas[type_name] = schema
+        self._writer.write_message(topic, schema, msg, log_time=stamp_ns, publish_time=stamp_ns, sequence=seq)
 
     def _finish_segment(self) -> None:
         if self._writer is None:
@@ -415,29 +429,44 @@ class RunRecorder:
             self._csv_file.flush()
             if self.fsync:
                 os.fsync(self._csv_file.fileno())
-            if self._writer is None:
-                self._open_segment()
-            assert self._writer is not None
             seq = self.slots_written
             if jpeg is not None:
-                self._writer.write_message(TOPIC_MR_IMAGE, self._schemas[TOPIC_MR_IMAGE],
-                                           compressed_to_msg(jpeg, stamp_ns, self.image_frame_id),
-                                           log_time=stamp_ns, publish_time=stamp_ns, sequence=seq)
+                self._write(TOPIC_MR_IMAGE, compressed_to_msg(jpeg, stamp_ns, self.image_frame_id), stamp_ns, seq)
             if cmd is not None:
                 twist = TwistStamped()
                 twist.header.stamp = ns_to_stamp(stamp_ns)
                 twist.header.frame_id = self.cmd_frame_id
                 twist.twist.linear.x = float(cmd[0])
                 twist.twist.angular.z = float(cmd[1])
-                self._writer.write_message(TOPIC_CMD_VEL, self._schemas[TOPIC_CMD_VEL], twist,
-                                           log_time=stamp_ns, publish_time=stamp_ns, sequence=seq)
-            self._writer.write_message(TOPIC_SLOT_LOG, self._schemas[TOPIC_SLOT_LOG], String(data=log_json),
-                                       log_time=stamp_ns, publish_time=stamp_ns, sequence=seq)
+                self._write(TOPIC_CMD_VEL, twist, stamp_ns, seq)
+            self._write(TOPIC_SLOT_LOG, String(data=log_json), stamp_ns, seq)
             self._segment_file.flush()
             self.slots_written += 1
             self._segment_count += 1
             if self._segment_count >= self.segment_slots:
                 self._finish_segment()
+
+    def write_message(self, topic: str, msg: Any, stamp_ns: int) -> None:
+        """Record any other ROS 2 message (e.g. the pose key or the schedule) into the MCAP.
+
+        ``msg`` is an instance of a generated message class (``pkg.msg.Type``); its definition is read
+        from the installed ``.msg`` files on first use. A topic keeps the type it was first written
+        with (``ValueError`` otherwise). The message lands in the open segment; segments still rotate
+        by slot count only.
+        """
+        cls = type(msg)
+        type_name = f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("RunRecorder is closed")
+            known = self._topic_types.get(topic)
+            if known is not None and known != type_name:
+                raise ValueError(f"topic {topic} is recorded as {known}, not {type_name}")
+            if type_name not in self._definitions:
+                self._definitions[type_name] = message_definition(type_name)
+            self._topic_types[topic] = type_name
+            self._write(topic, msg, int(stamp_ns), self.slots_written)
+            self._segment_file.flush()
 
     def close(self) -> Path | None:
         """Finish the open segment, merge all segments into ``run.mcap`` and close the CSV.

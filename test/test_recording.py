@@ -11,16 +11,16 @@ import sys
 import textwrap
 import time
 
-from geometry_msgs.msg import TwistStamped
+from geometry_msgs.msg import TwistStamped, Vector3Stamped
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import CompressedImage
-from std_msgs.msg import String
+from std_msgs.msg import Float64MultiArray, String
 
-from gsrmr_common import wire
+from gsrmr_common import ros_wire, wire
 from gsrmr_common.jpeg import decode_jpeg
 from gsrmr_server import recording as rec
 from gsrmr_server.recording import CSV_COLUMNS, RunRecorder, read_mcap, read_slots_csv, recover_run
@@ -141,12 +141,39 @@ def test_csv_value_rules(tmp_path: Path) -> None:
             recorder.write_slot({"slot": 2, "bytes_sent": 1.5}, None, None)
         with pytest.raises(ValueError, match="required"):
             recorder.write_slot({"x": 1}, None, None)
+        with pytest.raises(ValueError, match="pose key"):
+            recorder.write_slot({"slot": 2, "x": 2}, None, None)
     rows = read_slots_csv(tmp_path / "slots.csv")
     assert len(rows) == 1  # refused rows left no trace
     assert rows[0]["loss"] is None and rows[0]["psnr_db"] == math.inf and rows[0]["faults"] == "a;b"
     (_, log_time, msg), = read_mcap(tmp_path / "run.mcap")
     assert log_time == 5
     assert rec.json.loads(msg.data)["psnr_db"] is None and rec.json.loads(msg.data)["faults"] == "a;b"
+
+
+def test_extra_topics(tmp_path: Path) -> None:
+    """Pose keys and schedules recorded with write_message land in the right segments and decode."""
+    schedule = wire.ScheduleMsg(T0_SLOT, 0.1, 3, np.array([1, 0, 0], np.int8), np.array([0.1, 0.02, 0.02]))
+    with RunRecorder(tmp_path, segment_slots=2) as recorder:
+        recorder.write_message("/gsrmr/schedule", ros_wire.schedule_to_msg(schedule), T0_SLOT * SLOT_NS)
+        for k in range(5):
+            key = wire.PoseKey(T0_SLOT + k, 0.1 * k, 0.0, 0.5)
+            recorder.write_message("/gsrmr/pose_key", ros_wire.pose_key_to_msg(key, SLOT_NS),
+                                   wire.slot_start_ns(key.slot, SLOT_NS))
+            recorder.write_slot(make_row(k), None, None)
+        with pytest.raises(ValueError, match="recorded as"):
+            recorder.write_message("/gsrmr/pose_key", String(data="x"), 0)
+        with pytest.raises(ValueError, match="recorded as"):
+            recorder.write_message(rec.TOPIC_SLOT_LOG, TwistStamped(), 0)
+    with (tmp_path / "run.mcap").open("rb") as f:
+        raw = [(c.topic, s.name, m.data) for s, c, m in make_reader(f).iter_messages()]
+    keys = [deserialize_message(d, Vector3Stamped) for t, _, d in raw if t == "/gsrmr/pose_key"]
+    assert [ros_wire.pose_key_from_msg(m, SLOT_NS).slot for m in keys] == [T0_SLOT + k for k in range(5)]
+    (sched_data,) = [d for t, name, d in raw if t == "/gsrmr/schedule" and name == "std_msgs/msg/Float64MultiArray"]
+    back = ros_wire.schedule_from_msg(deserialize_message(sched_data, Float64MultiArray))
+    np.testing.assert_array_equal(back.x, schedule.x)
+    decoded = read_mcap(tmp_path / "run.mcap")
+    assert [t for t, _, _ in decoded].count("/gsrmr/pose_key") == 5
 
 
 def test_torn_last_line_is_dropped(tmp_path: Path) -> None:
