@@ -69,7 +69,7 @@ def odom_msg(x: float, y: float, yaw: float) -> Odometry:
 
 def test_mock_camera_publishes_image_info_and_mask_at_the_odometry_pose(ros_processes, test_node):
     cam_proc = ros_processes.start("gsrmr-mock-camera", "--ros-args", "-p", "width:=64", "-p", "height:=48",
-                                   "-p", "rate_hz:=10.0")
+                                   "-p", "rate_hz:=10.0", "-p", "round:=0")
     images: list[Image] = []
     infos: list[CameraInfo] = []
     masks: list[Image] = []
@@ -103,6 +103,16 @@ def test_mock_camera_publishes_image_info_and_mask_at_the_odometry_pose(ros_proc
 
     images.clear()
     assert spin_until(test_node, matches, 30.0, tick=lambda: odom_pub.publish(odom_msg(*pose)))
+
+    # round:=0 follows the route follower's lap counter: after lap 1 the operating round starts
+    lap_pub = test_node.create_publisher(Int32, "sim/route/lap", 10)
+    seen = {"log": False}
+
+    def lap_logged() -> bool:
+        seen["log"] = "lap 1: round 2" in "".join(ros_processes.output(cam_proc))
+        return seen["log"]
+
+    assert spin_until(test_node, lap_logged, 20.0, tick=lambda: lap_pub.publish(Int32(data=1)))
     assert ros_processes.interrupt(cam_proc) < 10.0
     assert cam_proc.returncode == 0, ros_processes.output(cam_proc)
 

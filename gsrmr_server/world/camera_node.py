@@ -15,6 +15,8 @@ The pose is the true pose from ``odom_topic`` (default ``/sim/ground_truth/odom`
 ``odom_timeout_s``) the node falls back to a scripted pose: the route driven open-loop at its nominal
 speed (arc length = speed · round time, heading along the path). Round time is the node clock
 (sim time if ``use_sim_time``) since start; the scene's change events apply by it when ``round`` = 2.
+With ``round`` = 0 the node follows ``sim/route/lap`` (std_msgs/Int32 from the route follower): the
+round becomes 1 + laps (capped at 2) and the round clock restarts at every lap.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.time import Time
 from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import Int32
 
 from gsrmr_common.camera import camera_from_pose
 from gsrmr_common.ros_node import declare, run_node
@@ -64,8 +67,10 @@ class MockCamera(Node):
     def __init__(self) -> None:
         super().__init__("gsrmr_mock_camera")
         scene_name = declare(self, "scene", "sandbox", "scene name (config/scenes) or YAML path")
-        self.round_index = declare(self, "round", 1, "1 = mapping (static world), 2 = apply change events",
-                                   min_value=1, max_value=2)
+        self.round_param = declare(self, "round", 1, "1 = mapping (static world), 2 = apply change events, "
+                                   "0 = follow sim/route/lap (round = 1 + laps, clock restarts per lap)",
+                                   min_value=0, max_value=2)
+        self.round_index = self.round_param or 1
         rate = declare(self, "rate_hz", 0.0, "camera rate in Hz (0 = the scene's)", min_value=0.0,
                        max_value=100.0)
         width = declare(self, "width", 0, "image width in pixels (0 = the scene's)", min_value=0,
@@ -87,6 +92,8 @@ class MockCamera(Node):
         self.pub_virtual = self.create_publisher(Image, "sim/virtual/image_raw", qos_profile_sensor_data)
         self.pub_mask = self.create_publisher(Image, "sim/virtual/mask", qos_profile_sensor_data)
         self.create_subscription(Odometry, odom_topic, self._on_odom, qos_profile_sensor_data)
+        if self.round_param == 0:
+            self.create_subscription(Int32, "sim/route/lap", self._on_lap, 10)
         self.odom_pose: tuple[float, float, float] | None = None
         self.odom_time: Time | None = None
         self.start = self.get_clock().now()
@@ -97,6 +104,15 @@ class MockCamera(Node):
                                f"{self.k.width}x{self.k.height} at {1.0 / period:.1f} Hz, "
                                f"pose from {odom_topic} "
                                "(scripted route until it arrives)")
+
+    def _on_lap(self, msg: Int32) -> None:
+        new_round = min(2, 1 + int(msg.data))
+        self.start = self.get_clock().now()
+        if new_round != self.round_index:
+            self.round_index = new_round
+            self.world = make_world(self.scene, new_round)
+            self.virtual = VirtualViewSource(self.scene, self.world)
+        self.get_logger().info(f"lap {msg.data}: round {self.round_index}, round clock restarted")
 
     def _on_odom(self, msg: Odometry) -> None:
         q = msg.pose.pose.orientation
