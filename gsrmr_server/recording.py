@@ -14,7 +14,8 @@ Output directory layout
     ``format = wire.JPEG_FORMAT``), :data:`TOPIC_CMD_VEL` (``geometry_msgs/msg/TwistStamped``: u_t in
     ``base_link``, m/s and rad/s) and :data:`TOPIC_SLOT_LOG` (``std_msgs/msg/String``: the CSV row as
     JSON). Every message's ``log_time``/``publish_time`` and header stamp is the slot start. Opens in
-    Foxglove and ``ros2 bag info/play`` (MCAP storage plugin).
+    Foxglove and ``ros2 bag info/play`` (MCAP storage plugin); channels carry
+    ``offered_qos_profiles = "[]"`` (the player then uses its default QoS).
 
 Crash safety of the MCAP
 ------------------------
@@ -280,8 +281,11 @@ def merge_segments(out_dir: str | os.PathLike[str], *, salvage_parts: bool = Fal
                 if key not in schema_ids:
                     schema_ids[key] = writer.register_schema(schema.name, schema.encoding, schema.data)
                 if channel.topic not in channel_ids:
+                    # The MCAP ros2 profile requires offered_qos_profiles; "[]" (no publisher QoS known)
+                    # parses as an empty list in rosbag2, whose player then uses its default QoS.
+                    metadata = {"offered_qos_profiles": "[]", **channel.metadata}
                     channel_ids[channel.topic] = writer.register_channel(
-                        channel.topic, channel.message_encoding, schema_ids[key], dict(channel.metadata))
+                        channel.topic, channel.message_encoding, schema_ids[key], metadata)
                 writer.add_message(channel_ids[channel.topic], message.log_time, message.data,
                                    message.publish_time, message.sequence)
         writer.finish()

@@ -119,6 +119,7 @@ def test_mcap_messages_are_valid_ros2_cdr(tmp_path: Path) -> None:
         assert reader.get_header().profile == "ros2"
         for schema, channel, message in reader.iter_messages():
             assert schema.encoding == "ros2msg" and channel.message_encoding == "cdr"
+            assert channel.metadata["offered_qos_profiles"] == "[]"  # required by the ros2 profile
             assert rec.TOPIC_TYPES[channel.topic] == schema.name
             msg = deserialize_message(message.data, classes[schema.name])
             seen.add(channel.topic)
