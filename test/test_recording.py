@@ -272,3 +272,14 @@ def test_kill_9_loses_no_written_slot(tmp_path: Path, stop_after: int, kill_when
     for msg in images:
         assert decode_jpeg(bytes(msg.data)).shape == (48, 64, 3)
     assert recover_run(tmp_path) is None  # nothing left to recover
+
+
+def test_cli_recover_and_info(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    run_and_kill(tmp_path, 12, 12)
+    assert rec.main(["recover", str(tmp_path)]) == 0
+    assert "recovered" in capsys.readouterr().out
+    assert rec.main(["info", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "/gsrmr/slot_log [std_msgs/msg/String]" in out and "12 slot rows" in out
+    assert rec.main(["recover", str(tmp_path)]) == 0
+    assert "nothing to recover" in capsys.readouterr().out
