@@ -178,6 +178,20 @@ def test_directional_light_shadow_darkens_the_floor_behind_a_box():
     assert np.allclose(lit, 0.5 * (0.3 + 0.7 * math.cos(math.radians(45))), atol=1e-3)
 
 
+def test_textures_are_prefiltered_so_a_fine_checker_far_away_averages_instead_of_aliasing():
+    fine = {"texture": "checker", "color": [0.9, 0.9, 0.9], "color2": [0.1, 0.1, 0.1], "scale_m": 0.01}
+    s = parse_scene(_scene(ambient=1.0, room={"min": [-50, -50, 0], "max": [50, 50, 30], "floor": fine},
+                           camera={"width": 64, "height": 48, "mount": {"pitch_deg": 80, "height_m": 10.0}}))
+    rgb, _ = RayCastWorld(s).render(camera_from_pose(0.0, 0.0, 0.0, s.camera.mount, s.camera.intrinsics))
+    # 1 cm cells seen from 10 m (≈ 0.3 px each): every pixel is the 50 % mix, not a random cell colour
+    assert np.allclose(rgb, 0.5, atol=0.03), (rgb.min(), rgb.max())
+    near = parse_scene(_scene(ambient=1.0, room={"min": [-50, -50, 0], "max": [50, 50, 30],
+                                                 "floor": {**fine, "scale_m": 0.2}},
+                              camera={"width": 64, "height": 48, "mount": {"pitch_deg": 80, "height_m": 0.5}}))
+    rgb, _ = RayCastWorld(near).render(camera_from_pose(0.0, 0.0, 0.0, near.camera.mount, near.camera.intrinsics))
+    assert rgb.max() > 0.85 and rgb.min() < 0.15  # cells of ≥ 10 px keep their full contrast
+
+
 # ---------------------------------------------------------------------------------------------- virtual view
 
 

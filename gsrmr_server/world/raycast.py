@@ -109,19 +109,35 @@ def _value_noise(u: float, v: float, seed: int) -> float:
     return (a * (1 - su) + b * su) * (1 - sv) + (c * (1 - su) + d * su) * sv
 
 
+@numba.njit(cache=True, inline="always")
+def _filtered_square(x: float, w: float) -> float:
+    """Box-filtered square wave of period 2 (+1 on [0, 1), −1 on [1, 2)) over a window of width w."""
+    a = (x - 0.5 * w) * 0.5
+    b = (x + 0.5 * w) * 0.5
+    return 2.0 * (abs(a - math.floor(a) - 0.5) - abs(b - math.floor(b) - 0.5)) / w
+
+
 @numba.njit(cache=True)
-def _albedo(mats: np.ndarray, m: int, u: float, v: float, out: np.ndarray) -> None:
+def _albedo(mats: np.ndarray, m: int, u: float, v: float, footprint_m: float, out: np.ndarray) -> None:
+    """Albedo of material m at texture coordinates (u, v) metres, pre-filtered over ``footprint_m``.
+
+    The filter (a pixel's footprint on the surface) keeps the textures from aliasing: the checker
+    is box-filtered analytically, stripes and noise octaves fade as their period approaches it.
+    """
     tex = int(mats[m, 0])
     s = mats[m, 7]
-    if tex == 0:
-        w = 0.0
-    elif tex == 1:
-        w = float((math.floor(u / s) + math.floor(v / s)) % 2)
+    w = 0.0
+    fw = max(footprint_m / s, 1e-4)  # footprint in pattern periods
+    if tex == 1:
+        w = 0.5 - 0.5 * _filtered_square(u / s, fw) * _filtered_square(v / s, fw)
     elif tex == 2:
-        w = 0.65 * _value_noise(u / s, v / s, m) + 0.35 * _value_noise(2.0 * u / s, 2.0 * v / s, m + 101)
+        a1 = max(0.0, 1.0 - 0.5 * fw)
+        a2 = max(0.0, 1.0 - fw)
+        w = 0.5 + a1 * 0.65 * (_value_noise(u / s, v / s, m) - 0.5) \
+            + a2 * 0.35 * (_value_noise(2.0 * u / s, 2.0 * v / s, m + 101) - 0.5)
         w = min(1.0, max(0.0, 1.5 * (w - 0.5) + 0.5))
-    else:
-        w = 0.5 + 0.5 * math.sin(2.0 * math.pi * u / s)
+    elif tex == 3:
+        w = 0.5 + 0.5 * max(0.0, 1.0 - fw) * math.sin(2.0 * math.pi * u / s)
     for k in range(3):
         out[k] = mats[m, 1 + k] * (1.0 - w) + mats[m, 4 + k] * w
 
@@ -244,9 +260,12 @@ def _occluded(boxes: np.ndarray, cyls: np.ndarray, ox: float, oy: float, oz: flo
 @numba.njit(cache=True)
 def render_kernel(origin: np.ndarray, dirs: np.ndarray, boxes: np.ndarray, cyls: np.ndarray,
                   room: np.ndarray, has_room: bool, mats: np.ndarray, lights: np.ndarray,
-                  regions: np.ndarray, ambient: float, background: np.ndarray,
+                  regions: np.ndarray, ambient: float, background: np.ndarray, pixel_angle: float,
                   out_rgb: np.ndarray, out_depth: np.ndarray) -> None:
-    """Ray cast every pixel: writes out_rgb (H×W×3 float32 in [0, 1]) and out_depth (H×W, +inf on miss)."""
+    """Ray cast every pixel: writes out_rgb (H×W×3 float32 in [0, 1]) and out_depth (H×W, +inf on miss).
+
+    ``pixel_angle`` (rad, ≈ 1/fx) sets the texture pre-filter footprint.
+    """
     H, W = dirs.shape[0], dirs.shape[1]
     ox, oy, oz = origin[0], origin[1], origin[2]
     res = np.empty(6)
@@ -306,8 +325,11 @@ def render_kernel(origin: np.ndarray, dirs: np.ndarray, boxes: np.ndarray, cyls:
                     out_rgb[y, x, k] = background[k]
                 continue
             out_depth[y, x] = tbest
-            _albedo(mats, mat, best[4], best[5], alb)
             nx, ny, nz = best[1], best[2], best[3]
+            # pixel footprint on the surface (m): ray length per pixel over the incidence cosine
+            dlen = math.sqrt(dx * dx + dy * dy + dz * dz)
+            cos_i = abs(nx * dx + ny * dy + nz * dz) / dlen
+            _albedo(mats, mat, best[4], best[5], tbest * dlen * pixel_angle / max(cos_i, 0.25), alb)
             px, py, pz = ox + tbest * dx, oy + tbest * dy, oz + tbest * dz
             lr = ambient
             lg = ambient
@@ -368,7 +390,7 @@ def render_shapes(camera: Camera, shapes: tuple[Shape, ...] | list[Shape], state
     depth = np.empty((camera.height, camera.width), np.float32)
     render_kernel(origin, dirs, boxes, cyls, room if room is not None else np.zeros(9), room is not None,
                   mats.array(), lights, regions, float(state.ambient), np.asarray(background, np.float64),
-                  rgb, depth)
+                  1.0 / camera.intrinsics.fx, rgb, depth)
     return rgb, depth
 
 
