@@ -1,0 +1,280 @@
+"""``gsrmr-limo-base``: thin rclpy node around :class:`~gsrmr_robot.limo.driver.LimoDriver`.
+
+Topics (relative names, so a namespace applies; QoS reliable, depth 10):
+
+* ``cmd_vel``  ``geometry_msgs/Twist`` in: linear.x [m/s] forward, linear.y [m/s] left (mecanum),
+  angular.z [rad/s] CCW, in ``base_link``. Held for ``cmd_timeout_s``, then the base is stopped.
+* ``odom``  ``nav_msgs/Odometry`` out, one per 0x221 frame (≈50 Hz): ``odom_frame_id`` →
+  ``base_frame_id`` (REP-105), pose/twist covariances filled, stamped with the host receive time
+  of the frame. With ``publish_tf`` (default false) the same transform goes to ``/tf`` (needs
+  ``tf2_msgs``; without it a warning is logged and no TF is sent).
+* ``imu``  ``sensor_msgs/Imu`` out, one per 0x323 frame, frame ``imu_frame_id``: orientation from
+  the base's yaw/pitch/roll, angular velocity from 0x322 [rad/s], acceleration from 0x321 [m/s²];
+  a reading never received has covariance[0] = -1 (REP-145).
+* ``/diagnostics``  ``diagnostic_msgs/DiagnosticArray`` at 1 Hz: battery voltage, vehicle state,
+  control mode, motion mode, decoded error bits, parser counters, link state and reconnects.
+"""
+
+from __future__ import annotations
+
+import math
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Quaternion, Twist
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from rclpy.time import Time
+from sensor_msgs.msg import Imu
+
+from gsrmr_common.ros_node import declare, run_node
+from gsrmr_robot.limo import kinematics as kin
+from gsrmr_robot.limo import protocol as proto
+from gsrmr_robot.limo.driver import DriverSnapshot, ImuSample, LimoDriver
+from gsrmr_robot.limo.odometry import HEADING_SOURCES
+
+MOTION_MODES = ("auto", "diff", "ackermann", "mecanum")
+BATTERY_WARN_V = 10.5  # 3S Li-ion pack, 12 V nominal: warn below 3.5 V/cell
+
+
+def yaw_pitch_roll_to_quaternion(yaw: float, pitch: float, roll: float) -> Quaternion:
+    """ZYX (yaw, then pitch, then roll) Euler angles [rad] → geometry_msgs/Quaternion."""
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    return Quaternion(w=cr * cp * cy + sr * sp * sy, x=sr * cp * cy - cr * sp * sy,
+                      y=cr * sp * cy + sr * cp * sy, z=cr * cp * sy - sr * sp * cy)
+
+
+class LimoBaseNode(Node):
+    """cmd_vel → LIMO; odom, imu, diagnostics ← LIMO."""
+
+    def __init__(self) -> None:
+        super().__init__("gsrmr_limo_base")
+        p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
+        port = p("port", "/dev/ttyTHS1", "Serial device path or any pyserial URL (e.g. /tmp/limo, "
+                 "rfc2217://host:port)", read_only=True)
+        baud = p("baud", 460800, "Baud rate (LIMO: 460800, 8N1)", min_value=1200, max_value=4_000_000,
+                 read_only=True)
+        rate = p("command_rate_hz", 50.0, "0x111 streaming rate [Hz]", min_value=1.0, max_value=200.0,
+                 read_only=True)
+        timeout = p("cmd_timeout_s", 0.5, "cmd_vel older than this stops the base [s]", min_value=0.05,
+                    max_value=5.0, read_only=True)
+        mode = p("motion_mode", "auto", "auto (from 0x211) | diff | ackermann | mecanum",
+                 constraints="one of " + ", ".join(MOTION_MODES))
+        heading = p("heading_source", "imu", "Odometry heading: imu (0x323 yaw) | gyro_integration (0x221 wz)",
+                    constraints="one of " + ", ".join(HEADING_SOURCES))
+        self.odom_frame = p("odom_frame_id", "odom", "Odometry parent frame", read_only=True)
+        self.base_frame = p("base_frame_id", "base_link", "Robot body frame", read_only=True)
+        self.imu_frame = p("imu_frame_id", "imu_link", "IMU frame", read_only=True)
+        self.publish_tf = p("publish_tf", False, "Also publish odom → base_link on /tf", read_only=True)
+        max_v = p("max_linear_mps", 1.0, "Clamp on |linear.x| and |linear.y| [m/s]", min_value=0.0,
+                  max_value=1.0, read_only=True)
+        max_w = p("max_angular_radps", kin.DEFAULT_LIMITS.max_angular_radps, "Clamp on |angular.z| [rad/s]",
+                  min_value=0.0, max_value=20.0, read_only=True)
+        diag_period = p("diagnostics_period_s", 1.0, "Diagnostics publishing period [s]", min_value=0.1,
+                        max_value=10.0, read_only=True)
+        for name, value, allowed in (("motion_mode", mode, MOTION_MODES), ("heading_source", heading,
+                                                                           HEADING_SOURCES)):
+            if value not in allowed:
+                raise ValueError(f"parameter {name} must be one of {allowed}, got {value!r}")
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self._odom_pub = self.create_publisher(Odometry, "odom", 10)
+        self._imu_pub = self.create_publisher(Imu, "imu", 10)
+        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._tf_pub = None
+        if self.publish_tf:
+            try:
+                from tf2_msgs.msg import TFMessage
+            except ImportError:
+                self.get_logger().warning("publish_tf is true but tf2_msgs is not installed: no TF published")
+            else:
+                self._tf_msg_type = TFMessage
+                self._tf_pub = self.create_publisher(TFMessage, "/tf", 100)
+        self.create_subscription(Twist, "cmd_vel", self._on_cmd_vel, 10)
+
+        limits = kin.Limits(max_linear_mps=max_v, max_lateral_mps=max_v, max_angular_radps=max_w)
+        self.driver = LimoDriver(port, baud, command_rate_hz=rate, cmd_timeout_s=timeout, motion_mode=mode,
+                                 heading_source=heading, limits=limits, on_event=self._on_event)
+        self.driver.on_odometry = self._publish_odom
+        self.driver.on_imu = self._publish_imu
+        self._alive = True
+        self.create_timer(diag_period, self._publish_diagnostics)
+        self.driver.start()
+        self.get_logger().info(f"LIMO base on {port} @ {baud} Bd, mode {mode}, heading {heading}, "
+                               f"commands {rate:g} Hz, timeout {timeout:g} s")
+
+    # ---------------------------------------------------------------- parameters
+    def _on_set_parameters(self, params: list) -> SetParametersResult:
+        for prm in params:
+            if prm.name == "motion_mode" and prm.value not in MOTION_MODES:
+                return SetParametersResult(successful=False, reason=f"motion_mode must be one of {MOTION_MODES}")
+            if prm.name == "heading_source" and prm.value not in HEADING_SOURCES:
+                return SetParametersResult(successful=False,
+                                           reason=f"heading_source must be one of {HEADING_SOURCES}")
+        for prm in params:
+            if prm.name == "motion_mode" and hasattr(self, "driver"):
+                self.driver.set_motion_mode(prm.value)
+            elif prm.name == "heading_source" and hasattr(self, "driver"):
+                self.driver.set_heading_source(prm.value)
+        return SetParametersResult(successful=True)
+
+    # ---------------------------------------------------------------- callbacks
+    def _on_cmd_vel(self, msg: Twist) -> None:
+        self.driver.set_command(msg.linear.x, msg.angular.z, msg.linear.y)
+
+    def _on_event(self, level: str, text: str) -> None:
+        log = self.get_logger()
+        {"info": log.info, "warn": log.warning}.get(level, log.error)(text)
+
+    def _stamp(self, t_mono_s: float, now_mono_s: float):
+        """ROS time of a host-monotonic instant (receive time of a frame)."""
+        now = self.get_clock().now()
+        return Time(nanoseconds=now.nanoseconds - int((now_mono_s - t_mono_s) * 1e9)).to_msg()
+
+    def _publish_odom(self, snap: DriverSnapshot) -> None:
+        if not self._alive:
+            return
+        msg = Odometry()
+        t_rx = snap.link.last_rx_t_s if snap.link.last_rx_t_s is not None else snap.t_s
+        msg.header.stamp = self._stamp(t_rx, snap.t_s)
+        msg.header.frame_id = self.odom_frame
+        msg.child_frame_id = self.base_frame
+        msg.pose.pose.position.x = snap.pose.x_m
+        msg.pose.pose.position.y = snap.pose.y_m
+        msg.pose.pose.orientation = yaw_pitch_roll_to_quaternion(snap.pose.yaw_rad, 0.0, 0.0)
+        msg.pose.covariance = snap.pose_covariance
+        msg.twist.twist.linear.x = snap.velocity.vx_mps
+        msg.twist.twist.linear.y = snap.velocity.vy_mps
+        msg.twist.twist.angular.z = snap.velocity.wz_radps
+        msg.twist.covariance = snap.twist_covariance
+        self._odom_pub.publish(msg)
+        if self._tf_pub is not None:
+            from geometry_msgs.msg import TransformStamped
+            tf = TransformStamped()
+            tf.header = msg.header
+            tf.child_frame_id = self.base_frame
+            tf.transform.translation.x = snap.pose.x_m
+            tf.transform.translation.y = snap.pose.y_m
+            tf.transform.rotation = msg.pose.pose.orientation
+            self._tf_pub.publish(self._tf_msg_type(transforms=[tf]))
+
+    def _publish_imu(self, sample: ImuSample) -> None:
+        if not self._alive:
+            return
+        import time
+        msg = Imu()
+        msg.header.stamp = self._stamp(sample.t_s, time.monotonic())
+        msg.header.frame_id = self.imu_frame
+        e = sample.euler
+        msg.orientation = yaw_pitch_roll_to_quaternion(e.yaw_rad, e.pitch_rad, e.roll_rad)
+        msg.orientation_covariance = _diag3(math.radians(1.0) ** 2)
+        if sample.gyro is not None:
+            g = sample.gyro
+            msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = g.x_radps, g.y_radps, g.z_radps
+            msg.angular_velocity_covariance = _diag3(math.radians(0.5) ** 2)
+        else:
+            msg.angular_velocity_covariance = [-1.0] + [0.0] * 8
+        if sample.accel is not None:
+            a = sample.accel
+            msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = (
+                a.x_mps2, a.y_mps2, a.z_mps2)
+            msg.linear_acceleration_covariance = _diag3(0.1 ** 2)
+        else:
+            msg.linear_acceleration_covariance = [-1.0] + [0.0] * 8
+        self._imu_pub.publish(msg)
+
+    def _publish_diagnostics(self) -> None:
+        snap = self.driver.snapshot()
+        status = DiagnosticStatus(name="gsrmr_limo_base: LIMO base", hardware_id=snap.link.port)
+        level, problems = diagnose(snap)
+        status.level = level
+        status.message = "; ".join(problems) if problems else "OK"
+        status.values = [KeyValue(key=k, value=v) for k, v in diagnostic_values(snap)]
+        arr = DiagnosticArray(status=[status])
+        arr.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(arr)
+
+    def on_shutdown(self) -> None:
+        """Stop the base and the driver threads (called by run_node before destroy_node)."""
+        self._alive = False
+        self.driver.close()
+
+
+def _diag3(var: float) -> list[float]:
+    return [var, 0.0, 0.0, 0.0, var, 0.0, 0.0, 0.0, var]
+
+
+def diagnose(snap: DriverSnapshot, stale_after_s: float = 0.5) -> tuple[bytes, list[str]]:
+    """(DiagnosticStatus level, problem texts) for a driver snapshot."""
+    problems: list[str] = []
+    level = DiagnosticStatus.OK
+    def worse(new: bytes) -> None:
+        nonlocal level
+        level = max(level, new)
+    if not snap.link.connected:
+        worse(DiagnosticStatus.ERROR)
+        problems.append(f"serial link down ({snap.link.last_error})")
+    elif snap.link.last_rx_t_s is None or snap.t_s - snap.link.last_rx_t_s > stale_after_s:
+        worse(DiagnosticStatus.ERROR)
+        problems.append("no data from the base")
+    s = snap.system_state
+    if s is None:
+        worse(DiagnosticStatus.WARN)
+        problems.append("no 0x211 system state yet")
+    else:
+        if s.vehicle_state != proto.VehicleState.NORMAL:
+            worse(DiagnosticStatus.ERROR)
+            problems.append(f"vehicle state {_enum_name(proto.VehicleState, s.vehicle_state)}")
+        if s.control_mode != proto.ControlMode.COMMANDED:
+            worse(DiagnosticStatus.WARN)
+            problems.append(f"control mode {_enum_name(proto.ControlMode, s.control_mode)} (not commanded)")
+        errors = s.errors
+        if errors:
+            fatal = s.error_code & ~0x0002
+            worse(DiagnosticStatus.ERROR if fatal else DiagnosticStatus.WARN)
+            problems.append("errors: " + ", ".join(errors))
+        if s.battery_voltage_v < BATTERY_WARN_V:
+            worse(DiagnosticStatus.WARN)
+            problems.append(f"battery {s.battery_voltage_v:.1f} V")
+    if snap.motion_mode == proto.MotionMode.UNKNOWN:
+        worse(DiagnosticStatus.WARN)
+        problems.append("motion mode unknown: commands held at zero")
+    return level, problems
+
+
+def _enum_name(enum_cls, value: int) -> str:
+    try:
+        return enum_cls(value).name.lower()
+    except ValueError:
+        return f"0x{value:02x}"
+
+
+def diagnostic_values(snap: DriverSnapshot) -> list[tuple[str, str]]:
+    """Key/value pairs published in /diagnostics."""
+    s = snap.system_state
+    vals = [("link_connected", str(snap.link.connected)), ("port", snap.link.port),
+            ("connects", str(snap.link.connects)), ("reconnects", str(max(0, snap.link.connects - 1))),
+            ("disconnects", str(snap.link.disconnects)), ("failed_opens", str(snap.link.failed_opens)),
+            ("last_link_error", snap.link.last_error),
+            ("motion_mode", _enum_name(proto.MotionMode, snap.motion_mode)),
+            ("motion_mode_param", snap.motion_mode_param),
+            ("heading_source", "imu" if snap.heading_from_imu else "gyro_integration"),
+            ("command_active", str(snap.command_active)), ("commands_sent", str(snap.commands_sent)),
+            ("enables_sent", str(snap.enables_sent)), ("implausible_frames", str(snap.implausible_frames))]
+    if s is not None:
+        vals += [("battery_voltage_v", f"{s.battery_voltage_v:.1f}"),
+                 ("vehicle_state", _enum_name(proto.VehicleState, s.vehicle_state)),
+                 ("control_mode", _enum_name(proto.ControlMode, s.control_mode)),
+                 ("base_motion_mode", _enum_name(proto.MotionMode, s.motion_mode)),
+                 ("error_code", f"0x{s.error_code:04x}"), ("errors", ",".join(s.errors) or "none")]
+    vals += [(f"parser_{k}", str(v)) for k, v in snap.parser.items()]
+    vals += [("unknown_ids", ",".join(f"0x{k:03x}:{v}" for k, v in sorted(snap.unknown_ids.items())) or "none")]
+    vals += [(f"frames_0x{k:03x}", str(v)) for k, v in sorted(snap.frames_by_id.items())]
+    return vals
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``gsrmr-limo-base``."""
+    return run_node(LimoBaseNode, args)
