@@ -36,6 +36,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping, Sequence
 import contextlib
 import csv
+import hashlib
 import importlib
 import json
 import math
@@ -260,6 +261,9 @@ def merge_segments(out_dir: str | os.PathLike[str], *, salvage_parts: bool = Fal
     segments) into ``out_dir/run.mcap`` (written as ``run.mcap.part`` then renamed).
 
     Returns the path, or None if there was nothing to merge. ``delete`` removes the merged segments.
+    If ``run.mcap`` already exists (a crash between its rename and the deletion of the segments), its
+    messages come first and segment messages identical to one of them are skipped, so merging twice
+    never loses or duplicates a message.
     """
     out = Path(out_dir)
     done, parts = _segment_paths(out)
@@ -268,14 +272,22 @@ def merge_segments(out_dir: str | os.PathLike[str], *, salvage_parts: bool = Fal
     if not sources:
         return None
     target, tmp = out / MCAP_NAME, out / f"{MCAP_NAME}.part"
+    previous = [(target, False)] if target.exists() else []
+    already: set[tuple[str, int, int, bytes]] = set()
     with tmp.open("wb") as f:
         writer = McapWriter(f, compression=CompressionType.ZSTD)
         writer.start(profile="ros2", library="gsrmr.recording")
         schema_ids: dict[tuple[str, bytes], int] = {}
         channel_ids: dict[str, int] = {}
-        for path, salvage in sources:
+        for path, salvage in previous + sources:
             for schema, channel, message in _records(path, salvage):
                 if schema is None:
+                    continue
+                ident = (channel.topic, message.log_time, message.sequence,
+                         hashlib.blake2b(message.data, digest_size=16).digest())
+                if path == target:
+                    already.add(ident)
+                elif ident in already:
                     continue
                 key = (schema.name, schema.data)
                 if key not in schema_ids:

@@ -177,6 +177,29 @@ def test_extra_topics(tmp_path: Path) -> None:
     assert [t for t, _, _ in decoded].count("/gsrmr/pose_key") == 5
 
 
+def test_recover_after_crash_between_rename_and_delete(tmp_path: Path) -> None:
+    """run.mcap written but the segments not yet deleted: recovering again neither loses nor duplicates."""
+    recorder = RunRecorder(tmp_path, segment_slots=2)
+    for k in range(5):
+        recorder.write_slot(make_row(k), make_image(k), None)
+    recorder._finish_segment()  # what close() does before merging
+    kept = {p.name: p.read_bytes() for p in tmp_path.glob("run-*.mcap")}
+    assert len(kept) == 3
+    recorder.close()
+    for name, data in kept.items():
+        (tmp_path / name).write_bytes(data)
+    # The crash also cost a later segment's merge: drop slot 4 from run.mcap by rebuilding it from
+    # the first two segments only, then recover from all three.
+    (tmp_path / "run.mcap").unlink()
+    (tmp_path / "run-0002.mcap").rename(tmp_path / "spare")
+    rec.merge_segments(tmp_path, delete=False)
+    (tmp_path / "spare").rename(tmp_path / "run-0002.mcap")
+    assert recover_run(tmp_path) == tmp_path / "run.mcap"
+    logs = [rec.json.loads(m.data)["slot"] for t, _, m in read_mcap(tmp_path / "run.mcap") if t == rec.TOPIC_SLOT_LOG]
+    assert logs == [T0_SLOT + k for k in range(5)]
+    assert sum(t == rec.TOPIC_MR_IMAGE for t, _, _ in read_mcap(tmp_path / "run.mcap")) == 5
+
+
 def test_torn_last_line_is_dropped(tmp_path: Path) -> None:
     path = tmp_path / "slots.csv"
     path.write_text(",".join(CSV_COLUMNS) + "\n1,0.1,1,,,,,,,image,,,,,\n2,0.2,0,0.0")
