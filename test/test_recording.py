@@ -306,3 +306,24 @@ def test_cli_recover_and_info(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert "/gsrmr/slot_log [std_msgs/msg/String]" in out and "12 slot rows" in out
     assert rec.main(["recover", str(tmp_path)]) == 0
     assert "nothing to recover" in capsys.readouterr().out
+
+
+def test_concurrent_writers_keep_rows_whole(tmp_path: Path) -> None:
+    import threading
+
+    def writer(offset: int) -> None:
+        for k in range(offset, offset + 25):
+            recorder.write_slot(make_row(k), make_image(k), (0.1, 0.0))
+
+    with RunRecorder(tmp_path, segment_slots=7) as recorder:
+        threads = [threading.Thread(target=writer, args=(o,)) for o in (0, 100)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    rows = read_slots_csv(tmp_path / "slots.csv")
+    expected = sorted(T0_SLOT + k for o in (0, 100) for k in range(o, o + 25))
+    assert sorted(r["slot"] for r in rows) == expected
+    assert all(r == {**make_row(r["slot"] - T0_SLOT), "faults": r["faults"]} for r in rows)
+    logs = [rec.json.loads(m.data)["slot"] for t, _, m in read_mcap(tmp_path / "run.mcap") if t == rec.TOPIC_SLOT_LOG]
+    assert sorted(logs) == expected

@@ -221,3 +221,19 @@ def test_camera_info_refusals() -> None:
     msg.k[1] = 0.5
     with pytest.raises(ValueError, match="skew"):
         rw.intrinsics_from_camera_info(msg)
+
+
+@settings(max_examples=300, deadline=None)
+@given(height=st.integers(0, 6), width=st.integers(0, 6), step=st.integers(0, 30),
+       encoding=st.sampled_from(["rgb8", "bgr8", "rgba8", "bgra8", "mono8", "RGB8", "yuv422", ""]),
+       data=st.binary(max_size=200))
+def test_fuzz_image_from_msg_rejects_or_returns_rgb(height: int, width: int, step: int, encoding: str,
+                                                    data: bytes) -> None:
+    msg = Image(height=height, width=width, step=step, encoding=encoding, data=data)
+    try:
+        out = rw.image_from_msg(msg)
+    except ImageRejected:
+        return
+    channels = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1}[encoding.lower()]
+    assert len(data) == step * height and step >= width * channels
+    assert out.shape == (height, width, 3) and out.dtype == np.uint8
