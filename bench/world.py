@@ -1,5 +1,10 @@
 """Benchmark of the simulated world on ONE core: real camera, virtual view + mask, garden splatter.
 
+Second table: the round-2 discrepancy profile of each scene — per slot t, the MR loss between the
+round-2 MR image and the MR image of the *round-1* world at the same pose (what a perfect GS model of
+round 1 would cost, L_t of the paper with Φ = the mapped world), summarised by quantiles and the
+fraction of slots above 0.01 / 0.03.
+
 Prints a table: median / p90 milliseconds per frame over the poses of one route lap (each pose
 rendered once per repeat), the resulting camera rate, and the configuration. Numba compilation is
 excluded (one warm-up frame). Run: ``.venv/bin/python bench/world.py [--width 320 --height 240]``.
@@ -23,11 +28,12 @@ import time
 import numpy as np
 
 from gsrmr_common.camera import Camera, camera_from_pose
-from gsrmr_server.world.kinematics import drive_route
+from gsrmr_common.metrics import mr_loss
+from gsrmr_server.world.kinematics import drive_route, start_pose
 from gsrmr_server.world.points import make_world
 from gsrmr_server.world.recorder import with_resolution
 from gsrmr_server.world.scene import load_scene
-from gsrmr_server.world.virtual import VirtualViewSource
+from gsrmr_server.world.virtual import VirtualViewSource, mr_image
 
 
 def _time_ms(fn: Callable[[Camera, float], object], cams: list[Camera], times_s: list[float],
@@ -49,6 +55,7 @@ def main() -> None:
     p.add_argument("--height", type=int, default=240)
     p.add_argument("--poses", type=int, default=36, help="poses sampled over one lap")
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--skip-profile", action="store_true", help="timings only")
     args = p.parse_args()
     with contextlib.suppress(AttributeError, OSError):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
@@ -77,6 +84,31 @@ def main() -> None:
             ms = _time_ms(fn, cams, times_s, args.repeats)
             med = float(np.median(ms))
             print(f"{name:8s} {stage:34s} {med:10.1f} {np.percentile(ms, 90):8.1f} {1e3 / med:8.1f}")
+    if args.skip_profile:
+        return
+    print(f"\n# round-2 discrepancy: MR loss of the round-1 world vs round 2 at the round-2 poses, "
+          f"{args.width}x{args.height}, all T slots, seed 0")
+    print(f"{'scene':8s} {'T':>4s} {'median':>8s} {'p90':>8s} {'max':>8s} {'>0.01':>7s} {'>0.03':>7s}  bursts (s)")
+    for name in ("sandbox", "garden"):
+        scene = with_resolution(load_scene(name), args.width, args.height)
+        drive = drive_route(scene.route, scene.slots, scene.slot_s,
+                            pose0=start_pose(scene.route, scene.route.start_jitter_m, 0))
+        now, mapped = make_world(scene, 2), make_world(scene, 1)
+        virtual = VirtualViewSource(scene, now)
+        losses = []
+        for t_s, pose in zip(drive.times_s, drive.poses, strict=True):
+            cam = camera_from_pose(*pose, scene.camera.mount, scene.camera.intrinsics)
+            r2, depth = now.render(cam, t_s)  # type: ignore[attr-defined]
+            r1, _ = mapped.render(cam, t_s)  # type: ignore[attr-defined]
+            v, d = virtual.render(cam, time_s=t_s, real_depth_m=depth)
+            losses.append(mr_loss(mr_image(r2, v, d), mr_image(r1, v, d)))
+        loss = np.asarray(losses)
+        high = loss > 0.01
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], high.astype(int), [0]])))
+        bursts = " ".join(f"{drive.times_s[a]:.1f}-{drive.times_s[b - 1] + scene.slot_s:.1f}"
+                          for a, b in zip(edges[::2], edges[1::2], strict=True))
+        print(f"{name:8s} {len(loss):4d} {np.median(loss):8.4f} {np.percentile(loss, 90):8.4f} {loss.max():8.4f} "
+              f"{np.mean(loss > 0.01):7.2f} {np.mean(loss > 0.03):7.2f}  {bursts}")
 
 
 if __name__ == "__main__":
