@@ -1,0 +1,97 @@
+"""The robot's uplink energy ledger (pure): what each slot actually sent and what it cost.
+
+Per slot the ledger records the bits actually sent (JPEG bytes × 8 plus the 192-bit pose key, or the
+key alone), the channel gain g_t of that slot under the link model, the power needed to carry those
+bits in one slot, ``p = (σ²/g)·(2^{bits/(τB)} − 1)`` (watts), and the energy ``τ·p`` (joules). It
+also prices the *upload-all* reference (RoboMR: the same frame's JPEG every slot, no key) so the
+energy ratio is measured on the frames of this run, not on a nominal image size.
+
+A slot whose bits cannot be carried at any finite power (2^{bits/(τB)} overflows) is recorded with
+``energy_j = inf`` and counted in ``undeliverable``; totals stay finite by leaving it out of them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+import math
+
+from gsrmr_common.wire import POSE_KEY_BITS
+
+# required_power_w(bits, gain, slot_s, bandwidth_hz, noise_w) -> watts (inf if impossible)
+PowerFunction = Callable[[float, float, float, float, float], float]
+
+
+@dataclass(frozen=True)
+class LedgerRow:
+    """One slot of the ledger (units in the names)."""
+
+    slot: int
+    x: int
+    scheduled_power_w: float
+    bits_sent: int
+    gain: float
+    power_w: float
+    energy_j: float
+    upload_all_bits: int
+    upload_all_energy_j: float
+
+
+# Order of the values in a ``gsrmr/ledger`` Float64MultiArray (one message per slot).
+LEDGER_FIELDS = tuple(LedgerRow.__dataclass_fields__)
+
+
+class EnergyLedger:
+    """Accumulates :class:`LedgerRow` totals; thread-compatible (callers serialise access)."""
+
+    def __init__(self, required_power_w: PowerFunction, slot_s: float, bandwidth_hz: float,
+                 noise_w: float) -> None:
+        self._power = required_power_w
+        self.slot_s, self.bandwidth_hz, self.noise_w = slot_s, bandwidth_hz, noise_w
+        self.slots = self.images = self.keys_only = self.undeliverable = 0
+        self.bits_sent = 0
+        self.energy_j = 0.0
+        self.upload_all_energy_j = 0.0
+        self.last: LedgerRow | None = None
+
+    def _energy(self, bits: int, gain: float) -> tuple[float, float]:
+        if bits <= 0:
+            return 0.0, 0.0
+        power = self._power(float(bits), gain, self.slot_s, self.bandwidth_hz, self.noise_w)
+        return power, self.slot_s * power
+
+    def record(self, slot: int, x: int, scheduled_power_w: float, jpeg_bytes: int | None, gain: float,
+               reference_jpeg_bytes: int | None) -> LedgerRow:
+        """Record one slot. ``jpeg_bytes`` is None for a key-only slot; ``reference_jpeg_bytes`` is the
+        size this slot's frame has (or would have) as a JPEG, for the upload-all reference."""
+        bits = POSE_KEY_BITS + (8 * jpeg_bytes if jpeg_bytes is not None else 0)
+        power_w, energy_j = self._energy(bits, gain)
+        ref_bits = 8 * reference_jpeg_bytes if reference_jpeg_bytes else 0
+        _, ref_energy_j = self._energy(ref_bits, gain)
+        row = LedgerRow(slot, int(x), float(scheduled_power_w), bits, float(gain), power_w, energy_j,
+                        ref_bits, ref_energy_j)
+        self.slots += 1
+        self.images += int(jpeg_bytes is not None)
+        self.keys_only += int(jpeg_bytes is None)
+        self.bits_sent += bits
+        if math.isfinite(energy_j):
+            self.energy_j += energy_j
+        else:
+            self.undeliverable += 1
+        if math.isfinite(ref_energy_j):
+            self.upload_all_energy_j += ref_energy_j
+        self.last = row
+        return row
+
+    def totals(self) -> dict[str, float]:
+        """Totals for diagnostics and the run summary."""
+        ratio = self.upload_all_energy_j / self.energy_j if self.energy_j > 0 else float("nan")
+        return {"slots": self.slots, "images_sent": self.images, "keys_only": self.keys_only,
+                "bits_sent": self.bits_sent, "energy_j": self.energy_j,
+                "energy_upload_all_j": self.upload_all_energy_j, "energy_ratio_vs_upload_all": ratio,
+                "undeliverable": self.undeliverable}
+
+    @staticmethod
+    def row_dict(row: LedgerRow) -> dict:
+        """A row as a plain dict."""
+        return asdict(row)

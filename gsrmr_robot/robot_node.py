@@ -1,0 +1,203 @@
+"""The robot node (``gsrmr-robot``): each slot, upload the camera image or only the pose key.
+
+Every τ seconds, aligned to the slot clock of :mod:`gsrmr_common.wire`, the node takes the newest
+camera frame and the current pose, looks up (x_t, p_t) for this slot in the active schedule, and
+publishes:
+
+* ``uplink/pose_key`` (``geometry_msgs/Vector3Stamped``, reliable, depth 50): (a, b, θ) in ``map``
+  — every slot (in image slots too, so the server can measure the GS loss at this pose);
+* ``uplink/image_raw/compressed`` (``sensor_msgs/CompressedImage``, JPEG, ``format`` =
+  ``"rgb8; jpeg compressed bgr8"``, reliable, depth 10): only when x_t = 1.
+
+Inputs: ``camera/image_raw`` (``sensor_msgs/Image``, sensor-data QoS), ``odom`` (``nav_msgs/Odometry``,
+odom → base_link; composed with the ``map_from_odom`` parameter to get the pose in ``map``),
+``gsrmr/schedule`` (``std_msgs/Float64MultiArray``, layout in :mod:`gsrmr_common.wire`, transient
+local). Without a schedule for the slot the node uploads the image (``default_upload_image``).
+
+It keeps an energy ledger (:mod:`gsrmr_robot.ledger`) under the link model of
+:mod:`gsrmr_server.scheduling` and publishes each slot's row on ``gsrmr/ledger``
+(``std_msgs/Float64MultiArray``, fields :data:`gsrmr_robot.ledger.LEDGER_FIELDS`) and totals on
+``/diagnostics`` once a second.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Vector3Stamped
+from nav_msgs.msg import Odometry
+import numpy as np
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import CompressedImage, Image
+from std_msgs.msg import Float64MultiArray
+
+from gsrmr_common.jpeg import encode_jpeg
+from gsrmr_common.ros_node import declare, run_node
+from gsrmr_common.ros_wire import compressed_to_msg, image_from_msg, pose_key_to_msg, schedule_from_msg
+from gsrmr_common.wire import PoseKey, ScheduleMsg, slot_ns, slot_start_ns
+from gsrmr_robot.ledger import LEDGER_FIELDS, EnergyLedger
+from gsrmr_server.link_params import LinkBudget
+
+UPLINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+SCHEDULE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def yaw_of(q) -> float:
+    """Yaw (rad, about +z) of a geometry_msgs/Quaternion."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+class RobotNode(Node):
+    """Slot-clocked uplink: image or pose key, with an energy ledger."""
+
+    def __init__(self) -> None:
+        super().__init__("gsrmr_robot")
+        self.slot_s = declare(self, "slot_s", 0.1, "Slot length τ [s]; must equal the server's", min_value=0.01,
+                              max_value=10.0, read_only=True)
+        self.jpeg_quality = declare(self, "jpeg_quality", 80, "JPEG quality of uploaded images (1-100)",
+                                    min_value=1, max_value=100)
+        self.default_upload_image = declare(self, "default_upload_image", True,
+                                            "Upload the image in slots no schedule covers")
+        self.max_frame_age_s = declare(self, "max_frame_age_s", 0.5, "Older camera frames are not uploaded [s]",
+                                       min_value=0.0, max_value=10.0)
+        self.map_from_odom = list(declare(self, "map_from_odom", [0.0, 0.0, 0.0],
+                                          "Pose of the odom frame in map: [a_m, b_m, theta_rad]"))
+        self.camera_frame = declare(self, "camera_frame_id", "camera_optical_frame", "Frame of uploaded images")
+        self.link = LinkBudget.from_node_parameters(self)
+        self.add_on_set_parameters_callback(self._validate)
+        self._slot_len_ns = slot_ns(self.slot_s)
+        self._lock = threading.Lock()
+        self._frame: np.ndarray | None = None
+        self._frame_ns = 0
+        self._pose: tuple[float, float, float] | None = None
+        self._schedule: ScheduleMsg | None = None
+        self._last_slot: int | None = None
+        self.schedule_misses = self.no_frame = self.no_pose = 0
+        self.ledger = EnergyLedger(self.link.required_power_w, self.slot_s, self.link.bandwidth_hz,
+                                   self.link.noise_w)
+
+        self._pub_key = self.create_publisher(Vector3Stamped, "uplink/pose_key", UPLINK_QOS)
+        self._pub_img = self.create_publisher(CompressedImage, "uplink/image_raw/compressed",
+                                              QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        self._pub_ledger = self.create_publisher(Float64MultiArray, "gsrmr/ledger", UPLINK_QOS)
+        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_subscription(Image, "camera/image_raw", self._on_image, qos_profile_sensor_data)
+        self.create_subscription(Odometry, "odom", self._on_odom, 20)
+        self.create_subscription(Float64MultiArray, "gsrmr/schedule", self._on_schedule, SCHEDULE_QOS)
+        # 5 ms tick: slot starts are detected with ≤ 5 ms jitter without a drifting periodic timer.
+        self.create_timer(0.005, self._tick)
+        self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(f"robot uplink: τ={self.slot_s}s, JPEG q={self.jpeg_quality}, "
+                               f"server at {self.link.server_position_m}")
+
+    def _validate(self, params) -> SetParametersResult:
+        for p in params:
+            if p.name == "map_from_odom":
+                v = list(p.value)
+                if len(v) != 3 or not all(math.isfinite(x) for x in v):
+                    return SetParametersResult(successful=False, reason="map_from_odom must be 3 finite numbers")
+                self.map_from_odom = v
+            elif p.name == "jpeg_quality":
+                self.jpeg_quality = int(p.value)
+        return SetParametersResult(successful=True)
+
+    # ---------------------------------------------------------------- inputs
+    def _on_image(self, msg: Image) -> None:
+        try:
+            rgb = image_from_msg(msg)
+        except ValueError as err:
+            self.get_logger().warning(f"camera frame refused: {err}", throttle_duration_sec=5.0)
+            return
+        with self._lock:
+            self._frame, self._frame_ns = rgb, self.get_clock().now().nanoseconds
+
+    def _on_odom(self, msg: Odometry) -> None:
+        p = msg.pose.pose
+        a0, b0, t0 = self.map_from_odom
+        c, s = math.cos(t0), math.sin(t0)
+        x, y, yaw = p.position.x, p.position.y, yaw_of(p.orientation)
+        pose = (a0 + c * x - s * y, b0 + s * x + c * y, math.atan2(math.sin(t0 + yaw), math.cos(t0 + yaw)))
+        if all(math.isfinite(v) for v in pose):
+            with self._lock:
+                self._pose = pose
+
+    def _on_schedule(self, msg: Float64MultiArray) -> None:
+        try:
+            sched = schedule_from_msg(msg)
+        except ValueError as err:
+            self.get_logger().error(f"schedule refused: {err}")
+            return
+        if abs(sched.slot_s - self.slot_s) > 1e-9:
+            self.get_logger().error(f"schedule refused: slot_s {sched.slot_s} != {self.slot_s}")
+            return
+        with self._lock:
+            self._schedule = sched
+
+    # ---------------------------------------------------------------- slots
+    def _tick(self) -> None:
+        now_ns = self.get_clock().now().nanoseconds
+        slot = now_ns // self._slot_len_ns
+        if self._last_slot is None:
+            self._last_slot = slot  # start on the next boundary
+            return
+        if slot <= self._last_slot:
+            return
+        if slot > self._last_slot + 1:
+            self.get_logger().warning(f"{slot - self._last_slot - 1} slot(s) skipped (node overloaded)",
+                                      throttle_duration_sec=5.0)
+        self._last_slot = slot
+        self.run_slot(slot, now_ns)
+
+    def run_slot(self, slot: int, now_ns: int) -> None:
+        """Upload for one slot (public for tests)."""
+        with self._lock:
+            frame = self._frame if now_ns - self._frame_ns <= self.max_frame_age_s * 1e9 else None
+            pose, sched = self._pose, self._schedule
+        entry = sched.lookup(slot) if sched is not None else None
+        if entry is None:
+            self.schedule_misses += 1
+            x, power_w = int(self.default_upload_image), float("nan")
+        else:
+            x, power_w = entry
+        stamp_ns = slot_start_ns(slot, self._slot_len_ns)
+        jpeg = encode_jpeg(frame, self.jpeg_quality) if frame is not None else None
+        if frame is None:
+            self.no_frame += 1
+        sent_image = None
+        if x == 1 and jpeg is not None:
+            self._pub_img.publish(compressed_to_msg(jpeg, stamp_ns, self.camera_frame))
+            sent_image = len(jpeg)
+        if pose is None:
+            self.no_pose += 1
+            gain = self.link.gain(slot, None)
+        else:
+            self._pub_key.publish(pose_key_to_msg(PoseKey(slot, *pose), self._slot_len_ns))
+            gain = self.link.gain(slot, pose[:2])
+        row = self.ledger.record(slot, x, power_w, sent_image, gain, len(jpeg) if jpeg is not None else None)
+        if pose is None and sent_image is None:
+            return
+        self._pub_ledger.publish(Float64MultiArray(data=[float(getattr(row, f)) for f in LEDGER_FIELDS]))
+
+    def _publish_diagnostics(self) -> None:
+        totals = self.ledger.totals()
+        extra = {"schedule_misses": self.schedule_misses, "no_frame": self.no_frame, "no_pose": self.no_pose,
+                 "schedule_seq": self._schedule.seq if self._schedule else -1}
+        level = DiagnosticStatus.OK if not (self.no_frame or self.no_pose) else DiagnosticStatus.WARN
+        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: uplink energy ledger",
+                                  hardware_id="gsrmr_robot",
+                                  message="ok" if level == DiagnosticStatus.OK else "missing frames or pose",
+                                  values=[KeyValue(key=k, value=f"{v}") for k, v in {**totals, **extra}.items()])
+        arr = DiagnosticArray(status=[status])
+        arr.header.stamp = self.get_clock().now().to_msg()
+        self._pub_diag.publish(arr)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``gsrmr-robot``."""
+    return run_node(RobotNode, args)
+

@@ -1,0 +1,115 @@
+"""The server's per-slot MR pipeline (pure): r̂_t from the upload or Φ(s_t), then m̂_t = d·r̂ + (1 − d)·v.
+
+For slot t the composer decides the real-view estimate r̂_t:
+
+* ``image``    — the uploaded JPEG, decoded (refused before decoding if its header lies about its size);
+* ``render``   — Φ(s_t), the Gaussian-splatting render at the slot's pose key;
+* ``fallback`` — Φ at the best pose estimate (last key, extrapolated) when the upload is missing, late,
+  corrupt or the wrong size; ``none`` when no pose has ever been received (r̂ = the background colour).
+
+The GS render is made in every slot: its depth is the real-world depth the virtual view is occluded
+against (d_t), and in image slots it gives the true GS loss L_t = MR loss between the MR image with the
+uploaded image and the MR image with Φ(s_t) — the sample the scheduler's loss map learns from.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import time
+
+import cv2
+import numpy as np
+
+from gsrmr_common.camera import CameraMount, Intrinsics, camera_from_pose
+from gsrmr_common.jpeg import ImageRejected, decode_jpeg
+from gsrmr_common.metrics import mr_loss
+from gsrmr_common.wire import PoseKey
+from gsrmr_server.splatting.model import GaussianModel
+from gsrmr_server.splatting.render import render
+from gsrmr_server.uplink import SlotUploads
+from gsrmr_server.world.virtual import VirtualViewSource, mr_image
+
+
+@dataclass
+class ComposedSlot:
+    """Result of one slot: the MR image and how it was made."""
+
+    slot: int
+    mr: np.ndarray  # H×W×3 float32 in [0, 1]
+    real_estimate: np.ndarray  # r̂_t
+    virtual: np.ndarray  # v_t
+    mask: np.ndarray  # d_t, 1 = real
+    source: str  # image | render | fallback | none
+    pose: PoseKey | None
+    gs_loss: float | None = None  # measured L_t (image slots only)
+    faults: list[str] = field(default_factory=list)
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+class MRComposer:
+    """Builds m̂_t for each slot from the uploads, the GS model and a virtual-view source."""
+
+    def __init__(self, model: GaussianModel, virtual: VirtualViewSource, intrinsics: Intrinsics,
+                 mount: CameraMount, background_rgb: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
+        self.model = model
+        self.virtual = virtual
+        self.intrinsics = intrinsics
+        self.mount = mount
+        self.background_rgb = np.asarray(background_rgb, np.float32)
+
+    def compose(self, uploads: SlotUploads, best_pose: PoseKey | None, time_s: float,
+                measure_loss: bool = True) -> ComposedSlot:
+        """Compose slot ``uploads.slot``; never raises on bad uploads (they become faults)."""
+        t0 = time.perf_counter()
+        faults = list(uploads.faults)
+        k = self.intrinsics
+        image = None
+        if uploads.jpeg is not None:
+            try:
+                image = decode_jpeg(uploads.jpeg, expected_shape=(k.height, k.width))
+            except ImageRejected as err:
+                faults.append("corrupt_image" if "size" not in str(err) else "wrong_size")
+        t_decode = time.perf_counter()
+        pose = uploads.key if uploads.key is not None else best_pose
+        if pose is None:
+            r_hat = np.broadcast_to(self.background_rgb, (k.height, k.width, 3)).astype(np.float32)
+            if image is not None:
+                r_hat = image.astype(np.float32) / 255.0
+            v = np.zeros((k.height, k.width, 3), np.float32)
+            d = np.ones((k.height, k.width), np.float32)
+            return ComposedSlot(uploads.slot, r_hat.copy(), r_hat, v, d, "image" if image is not None else "none",
+                                None, None, faults, {"total": 1e3 * (time.perf_counter() - t0)})
+        camera = camera_from_pose(pose.a_m, pose.b_m, pose.theta_rad, self.mount, k)
+        out = render(self.model, camera, self.background_rgb)
+        t_render = time.perf_counter()
+        real_depth = np.where(out.alpha > 0.5, out.depth, np.inf).astype(np.float32)
+        v, d = self.virtual.render(camera, time_s=time_s, real_depth_m=real_depth)
+        gs_mr = mr_image(out.rgb, v, d)
+        t_virtual = time.perf_counter()
+        gs_loss = None
+        if image is not None:
+            r_hat = image.astype(np.float32) / 255.0
+            mr = mr_image(r_hat, v, d)
+            source = "image"
+            if measure_loss and uploads.key is not None:
+                gs_loss = mr_loss(mr, gs_mr)
+        else:
+            r_hat, mr = out.rgb, gs_mr
+            source = "render" if uploads.key is not None and uploads.jpeg is None else "fallback"
+        t_end = time.perf_counter()
+        timings = {"decode": 1e3 * (t_decode - t0), "render": 1e3 * (t_render - t_decode),
+                   "virtual": 1e3 * (t_virtual - t_render), "loss": 1e3 * (t_end - t_virtual),
+                   "total": 1e3 * (t_end - t0)}
+        return ComposedSlot(uploads.slot, mr, r_hat, v, d, source, pose, gs_loss, faults, timings)
+
+
+def to_u8(img: np.ndarray) -> np.ndarray:
+    """float [0, 1] image → uint8 (rounded)."""
+    return np.clip(np.round(np.asarray(img, np.float32) * 255.0), 0, 255).astype(np.uint8)
+
+
+def resize_to(img: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Resize an image to width×height (area interpolation)."""
+    if img.shape[1] == width and img.shape[0] == height:
+        return img
+    return cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA)

@@ -1,0 +1,157 @@
+"""Online planning over a receding horizon (pure): predict poses, losses and gains, then solve P_GS.
+
+The scheduler node calls :meth:`OnlinePlanner.plan` at every replan. The planner
+
+1. predicts the robot's poses for the next ``horizon`` slots by advancing along the scene's route loop
+   at the nominal speed from the point nearest to the current pose (:class:`RoutePredictor`);
+2. predicts L_t at those poses from the :class:`~gsrmr_server.loss_map.LossMap`;
+3. takes g_t from the link model (:class:`~gsrmr_server.link_params.LinkBudget`: the seeded channel
+   realisation of each absolute slot at the predicted robot–server distance);
+4. sets the horizon's loss budget so that the *run's* mean loss meets L_th:
+   ``budget = (L_th · (n_done + H) − loss_spent) / H``, clipped to ≥ 0, where ``loss_spent`` is the
+   predicted loss of the key slots already executed (image slots add 0);
+5. solves with :func:`gsrmr_server.scheduling.solve` and returns the schedule for the wire.
+
+It also watches drift: every measured loss is compared with what the planner predicted for that
+slot; when the mean absolute error of the last ``drift_window`` samples exceeds ``drift_threshold`` a
+replan is due.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+import math
+import time
+
+import numpy as np
+
+from gsrmr_common.wire import ScheduleMsg
+from gsrmr_server.loss_map import LossMap
+from gsrmr_server.world.route import LoopPath
+
+
+class RoutePredictor:
+    """Future poses along a closed route at a nominal speed."""
+
+    def __init__(self, waypoints: np.ndarray | list, speed_mps: float) -> None:
+        if not (speed_mps > 0 and math.isfinite(speed_mps)):
+            raise ValueError("route speed must be > 0")
+        self.path = LoopPath(waypoints)
+        self.speed_mps = float(speed_mps)
+        self._dense_s = np.linspace(0.0, self.path.length_m, max(200, int(self.path.length_m / 0.01)),
+                                    endpoint=False)
+        self._dense_xy = self.path.points_at(self._dense_s)
+
+    def nearest_s(self, a_m: float, b_m: float) -> float:
+        """Arc length of the route point nearest to (a, b)."""
+        d2 = (self._dense_xy[:, 0] - a_m) ** 2 + (self._dense_xy[:, 1] - b_m) ** 2
+        return float(self._dense_s[int(np.argmin(d2))])
+
+    def predict(self, pose: tuple[float, float, float] | None, n_slots: int, slot_s: float) -> np.ndarray:
+        """n_slots×3 poses (a_m, b_m, theta_rad) for the next slots (route start if pose is None)."""
+        s0 = 0.0 if pose is None else self.nearest_s(pose[0], pose[1])
+        s = s0 + self.speed_mps * slot_s * np.arange(1, n_slots + 1)
+        xy = self.path.points_at(s)
+        theta = np.array([self.path.heading_at(v) for v in s])
+        return np.column_stack([xy, theta])
+
+
+@dataclass
+class PlanResult:
+    """A solved horizon: the wire schedule plus what the reply of /gsrmr/replan reports."""
+
+    schedule: ScheduleMsg
+    method: str
+    images: int
+    energy_j: float
+    mean_predicted_loss: float
+    budget: float
+    feasible: bool
+    solve_time_s: float
+    predicted_loss: np.ndarray
+    notes: list[str] = field(default_factory=list)
+
+
+class OnlinePlanner:
+    """Receding-horizon GSCLO planner with budget carry-over and drift detection."""
+
+    def __init__(self, predictor: RoutePredictor, loss_map: LossMap, link, *, slot_s: float, image_bits: float,
+                 pose_bits: float, loss_threshold: float, horizon: int, method: str = "exact",
+                 options: dict | None = None, drift_threshold: float = 0.02, drift_window: int = 5) -> None:
+        self.predictor, self.loss_map, self.link = predictor, loss_map, link
+        self.slot_s, self.image_bits, self.pose_bits = slot_s, image_bits, pose_bits
+        self.loss_threshold, self.horizon, self.method = loss_threshold, horizon, method
+        self.options = dict(options or {})
+        self.drift_threshold, self.drift_window = drift_threshold, drift_window
+        self._predicted: dict[int, float] = {}
+        self._errors: deque[float] = deque(maxlen=drift_window)
+        self.loss_spent = 0.0
+        self.slots_done = 0
+        self._accounted_up_to: int | None = None
+        self._active: ScheduleMsg | None = None
+        self.seq = 0
+
+    def account_until(self, slot: int) -> None:
+        """Charge the predicted loss of the key slots of the active schedule that ended before ``slot``."""
+        sched = self._active
+        if sched is None:
+            return
+        start = sched.first_slot if self._accounted_up_to is None else self._accounted_up_to + 1
+        for k in range(start, slot):
+            entry = sched.lookup(k)
+            if entry is None:
+                continue
+            self.slots_done += 1
+            if entry[0] == 0:
+                self.loss_spent += self._predicted.get(k, self.loss_map.prior)
+            self._accounted_up_to = k
+
+    def plan(self, now_slot: int, pose: tuple[float, float, float] | None) -> PlanResult:
+        """Solve the horizon starting at ``now_slot + 1``."""
+        from gsrmr_server.scheduling import Problem, solve
+
+        self.account_until(now_slot + 1)
+        first = now_slot + 1
+        poses = self.predictor.predict(pose, self.horizon, self.slot_s)
+        losses = self.loss_map.predict_many(poses)
+        gains = np.array([self.link.gain(first + i, poses[i, :2]) for i in range(self.horizon)])
+        total = self.loss_threshold * (self.slots_done + self.horizon) - self.loss_spent
+        budget = max(0.0, total / self.horizon)
+        problem = Problem(slot_s=self.slot_s, image_bits=self.image_bits, pose_bits=self.pose_bits,
+                          bandwidth_hz=self.link.bandwidth_hz, noise_w=self.link.noise_w, channel_gain=gains,
+                          gs_loss=losses, loss_threshold=budget)
+        t0 = time.perf_counter()
+        result = solve(problem, self.method, **self.options)
+        solve_time = time.perf_counter() - t0
+        notes = list(getattr(result, "notes", []) or [])
+        x = np.asarray(result.x, dtype=np.int8)
+        power = np.nan_to_num(np.asarray(result.power_w, dtype=np.float64), nan=0.0, posinf=0.0)
+        self.seq += 1
+        schedule = ScheduleMsg(first, self.slot_s, self.seq, x, power)
+        for i in range(self.horizon):
+            self._predicted[first + i] = float(losses[i])
+        for old in [k for k in self._predicted if k < now_slot - 1000]:
+            del self._predicted[old]
+        self._active = schedule
+        self._accounted_up_to = now_slot
+        return PlanResult(schedule, self.method, int(x.sum()), float(result.energy_j),
+                          float(np.mean(losses * (1 - x))), budget, bool(result.feasible), solve_time, losses, notes)
+
+    def observe(self, slot: int, a_m: float, b_m: float, theta_rad: float, loss: float) -> bool:
+        """Add a measured loss to the map; True when the prediction error says a replan is due."""
+        self.loss_map.add(a_m, b_m, theta_rad, loss)
+        predicted = self._predicted.get(slot)
+        if predicted is None or not math.isfinite(loss):
+            return False
+        self._errors.append(abs(loss - predicted))
+        return len(self._errors) >= self.drift_window and float(np.mean(self._errors)) > self.drift_threshold
+
+    def clear_drift(self) -> None:
+        """Forget past prediction errors (after a replan)."""
+        self._errors.clear()
+
+    @property
+    def active(self) -> ScheduleMsg | None:
+        """The schedule most recently planned."""
+        return self._active

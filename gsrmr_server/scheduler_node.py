@@ -1,0 +1,256 @@
+"""The scheduler node (``gsrmr-scheduler``): solves P_GS online and publishes the schedule.
+
+Replans (see :class:`~gsrmr_server.horizon.OnlinePlanner`) every ``replan_period_s``, on
+``/gsrmr/replan`` (``std_srvs/Trigger``, relative name ``gsrmr/replan``), after any accepted parameter
+change, and by itself when measured losses drift from the prediction by more than ``drift_threshold``.
+
+Subscribes: ``uplink/pose_key`` (geometry_msgs/Vector3Stamped: the robot's pose in ``map``),
+``gsrmr/loss_sample`` (std_msgs/Float64MultiArray ``[slot, a_m, b_m, theta_rad, loss]`` from the server).
+Publishes: ``gsrmr/schedule`` (std_msgs/Float64MultiArray, layout in :mod:`gsrmr_common.wire`;
+reliable, transient local, depth 1), ``/diagnostics``.
+The last schedule and the loss map are saved in ``state_dir`` (when set) after every plan, and loaded
+at start, so a restarted scheduler resumes from its last schedule.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+import threading
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Vector3Stamped
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
+
+from gsrmr_common.ros_node import declare, run_node
+from gsrmr_common.ros_wire import pose_key_from_msg, schedule_to_msg
+from gsrmr_common.wire import ScheduleMsg, slot_ns
+from gsrmr_server.horizon import OnlinePlanner, PlanResult, RoutePredictor
+from gsrmr_server.link_params import LinkBudget
+from gsrmr_server.loss_map import LossMap
+from gsrmr_server.scheduling import METHODS
+from gsrmr_server.world.scene import load_scene
+
+UPLINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+SCHEDULE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+PLANNING_PARAMS = {"loss_threshold", "horizon", "method", "solver_options", "image_bits", "pose_bits",
+                   "drift_threshold", "drift_window"}
+
+
+class SchedulerNode(Node):
+    """Online GSCLO scheduler."""
+
+    def __init__(self) -> None:
+        super().__init__("gsrmr_scheduler")
+        self.slot_s = declare(self, "slot_s", 0.1, "Slot length τ [s]", min_value=0.01, max_value=10.0,
+                              read_only=True)
+        self.loss_threshold = declare(self, "loss_threshold", 0.03, "Average MR-loss budget L_th",
+                                      min_value=0.0, max_value=1.0)
+        self.horizon = declare(self, "horizon", 100, "Slots per plan", min_value=1, max_value=100_000)
+        self.method = declare(self, "method", "exact", f"Scheduling method, one of {', '.join(METHODS)}",
+                              constraints=f"one of {list(METHODS)}")
+        self.solver_options = declare(self, "solver_options", "{}", "JSON object of options passed to the "
+                                      "solver (e.g. {\"time_limit_s\": 0.05} or {\"iterations\": 10})")
+        self.image_bits = declare(self, "image_bits", 67200.0, "Image size I assumed by the plan [bit]",
+                                  min_value=1.0, max_value=1e9)
+        self.pose_bits = declare(self, "pose_bits", 192.0, "Pose-key size S [bit]", min_value=1.0, max_value=1e6)
+        self.replan_period_s = declare(self, "replan_period_s", 2.0, "Replan this often [s]", min_value=0.1,
+                                       max_value=3600.0)
+        self.drift_threshold = declare(self, "drift_threshold", 0.02, "Replan when the mean |measured − "
+                                       "predicted| loss over drift_window samples exceeds this", min_value=0.0,
+                                       max_value=1.0)
+        self.drift_window = declare(self, "drift_window", 3, "Samples in the drift test", min_value=1,
+                                    max_value=1000)
+        scene = load_scene(declare(self, "scene", "sandbox", "Scene whose route predicts future poses",
+                                   read_only=True))
+        loss_map_file = declare(self, "loss_map_file", "", "Seed loss map (JSON from a previous run)",
+                                read_only=True)
+        prior = declare(self, "loss_prior", 0.05, "Predicted loss where the map knows nothing", min_value=0.0,
+                        max_value=1.0, read_only=True)
+        self.state_dir = declare(self, "state_dir", "", "Save/restore the last schedule and loss map here",
+                                 read_only=True)
+        self.link = LinkBudget.from_node_parameters(self)
+        self._check_options(self.solver_options)
+
+        self._slot_len_ns = slot_ns(self.slot_s)
+        loss_map = LossMap(prior=prior)
+        for candidate in (Path(self.state_dir, "loss_map.json") if self.state_dir else None,
+                          Path(loss_map_file) if loss_map_file else None):
+            if candidate is not None and candidate.exists():
+                loss_map = LossMap.load(candidate)
+                self.get_logger().info(f"loss map loaded from {candidate} ({len(loss_map.cells)} cells)")
+                break
+        self.planner = OnlinePlanner(RoutePredictor(scene.route.waypoints, scene.route.speed_mps), loss_map,
+                                     self.link, slot_s=self.slot_s, image_bits=self.image_bits,
+                                     pose_bits=self.pose_bits, loss_threshold=self.loss_threshold,
+                                     horizon=self.horizon, method=self.method,
+                                     options=json.loads(self.solver_options),
+                                     drift_threshold=self.drift_threshold, drift_window=self.drift_window)
+        self._lock = threading.RLock()
+        self._pose: tuple[float, float, float] | None = None
+        self._replan_reason: str | None = "start"
+        self.last: PlanResult | None = None
+        self.replans: dict[str, int] = {}
+        self._pub = self.create_publisher(Float64MultiArray, "gsrmr/schedule", SCHEDULE_QOS)
+        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_subscription(Vector3Stamped, "uplink/pose_key", self._on_key, UPLINK_QOS)
+        self.create_subscription(Float64MultiArray, "gsrmr/loss_sample", self._on_loss, UPLINK_QOS)
+        self.create_service(Trigger, "gsrmr/replan", self._on_replan)
+        self.add_on_set_parameters_callback(self._validate)
+        self.add_post_set_parameters_callback(self._apply)
+        self._restore()
+        self.create_timer(self.replan_period_s, lambda: self._request("period"))
+        self.create_timer(0.02, self._tick)
+        self.create_timer(1.0, self._publish_diagnostics)
+
+    # ---------------------------------------------------------------- parameters
+    @staticmethod
+    def _check_options(text: str) -> str | None:
+        try:
+            value = json.loads(text)
+        except json.JSONDecodeError as err:
+            return f"solver_options is not JSON: {err}"
+        return None if isinstance(value, dict) else "solver_options must be a JSON object"
+
+    def _validate(self, params) -> SetParametersResult:
+        for p in params:
+            if p.name == "method" and p.value not in METHODS:
+                return SetParametersResult(successful=False,
+                                           reason=f"method {p.value!r} is not one of {list(METHODS)}")
+            if p.name == "solver_options":
+                reason = self._check_options(p.value)
+                if reason:
+                    return SetParametersResult(successful=False, reason=reason)
+        return SetParametersResult(successful=True)
+
+    def _apply(self, params) -> None:
+        changed = [p.name for p in params if p.name in PLANNING_PARAMS]
+        if not changed:
+            return
+        with self._lock:
+            for p in params:
+                if p.name == "solver_options":
+                    self.planner.options = json.loads(p.value)
+                elif p.name in PLANNING_PARAMS:
+                    setattr(self.planner, p.name, p.value)
+                    setattr(self, p.name, p.value)
+        self._request("parameters: " + ", ".join(changed))
+
+    # ---------------------------------------------------------------- inputs
+    def _on_key(self, msg: Vector3Stamped) -> None:
+        key = pose_key_from_msg(msg, self._slot_len_ns)
+        if key.is_valid():
+            self._pose = (key.a_m, key.b_m, key.theta_rad)
+
+    def _on_loss(self, msg: Float64MultiArray) -> None:
+        if len(msg.data) != 5 or not all(math.isfinite(v) for v in msg.data):
+            return
+        slot, a, b, theta, loss = msg.data
+        with self._lock:
+            drift = self.planner.observe(int(slot), a, b, theta, loss)
+        if drift:
+            self._request("drift")
+
+    def _request(self, reason: str) -> None:
+        with self._lock:
+            if self._replan_reason is None or reason != "period":
+                self._replan_reason = reason
+
+    def _tick(self) -> None:
+        reason = self._replan_reason
+        if reason is not None:
+            self.replan(reason)
+
+    # ---------------------------------------------------------------- planning
+    def replan(self, reason: str) -> tuple[PlanResult, int]:
+        """Plan from the next slot and publish; returns the result and how many slots changed x."""
+        with self._lock:
+            self._replan_reason = None
+            now_slot = self.get_clock().now().nanoseconds // self._slot_len_ns
+            previous = self.planner.active
+            result = self.planner.plan(now_slot, self._pose)
+            changed = 0
+            if previous is not None:
+                for i, x in enumerate(result.schedule.x):
+                    old = previous.lookup(result.schedule.first_slot + i)
+                    changed += int(old is not None and old[0] != int(x))
+            self.last = result
+            self.replans[reason.split(":")[0]] = self.replans.get(reason.split(":")[0], 0) + 1
+            self.planner.clear_drift()
+        self._pub.publish(schedule_to_msg(result.schedule))
+        self._save(result.schedule)
+        if reason != "period":
+            self.get_logger().info(f"replan ({reason}): {self._summary(result, changed)}")
+        return result, changed
+
+    @staticmethod
+    def _summary(result: PlanResult, changed: int) -> str:
+        return (f"method={result.method} T={len(result.schedule.x)} images={result.images} "
+                f"energy_j={result.energy_j:.6g} predicted_mean_loss={result.mean_predicted_loss:.4f} "
+                f"budget={result.budget:.4f} feasible={result.feasible} solve_time_s={result.solve_time_s:.4f} "
+                f"changed_slots={changed}")
+
+    def _on_replan(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        previous = self.last
+        result, changed = self.replan("service")
+        what = f"{changed} slot(s) switched image/key against the previous schedule"
+        if previous is not None and not changed:
+            what = "no slot changed image/key (same inputs give the same optimum)"
+        response.success = bool(result.feasible)
+        response.message = self._summary(result, changed) + "; " + what
+        return response
+
+    # ---------------------------------------------------------------- state
+    def _save(self, schedule: ScheduleMsg) -> None:
+        if not self.state_dir:
+            return
+        state = Path(self.state_dir)
+        state.mkdir(parents=True, exist_ok=True)
+        tmp = state / "schedule.json.tmp"
+        tmp.write_text(json.dumps({"data": schedule.to_data()}))
+        tmp.replace(state / "schedule.json")
+        self.planner.loss_map.save(state / "loss_map.json")
+
+    def _restore(self) -> None:
+        if not self.state_dir or not Path(self.state_dir, "schedule.json").exists():
+            return
+        try:
+            sched = ScheduleMsg.from_data(json.loads(Path(self.state_dir, "schedule.json").read_text())["data"])
+        except (ValueError, KeyError, json.JSONDecodeError) as err:
+            self.get_logger().warning(f"saved schedule ignored: {err}")
+            return
+        now_slot = self.get_clock().now().nanoseconds // self._slot_len_ns
+        if sched.lookup(now_slot + 1) is not None:
+            self.planner._active = sched
+            self.planner.seq = sched.seq
+            self._pub.publish(schedule_to_msg(sched))
+            self.get_logger().info(f"resumed schedule seq {sched.seq} from {self.state_dir}")
+
+    def _publish_diagnostics(self) -> None:
+        r = self.last
+        values = {"replans": json.dumps(self.replans), "loss_map_cells": len(self.planner.loss_map.cells),
+                  "loss_spent": round(self.planner.loss_spent, 6), "slots_accounted": self.planner.slots_done}
+        if r is not None:
+            values.update({"method": r.method, "horizon": len(r.schedule.x), "images": r.images,
+                           "energy_j": r.energy_j, "feasible": r.feasible, "solve_time_s": round(r.solve_time_s, 5),
+                           "seq": r.schedule.seq})
+        level = DiagnosticStatus.OK if r is None or r.feasible else DiagnosticStatus.WARN
+        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: schedule", hardware_id="gsrmr_server",
+                                  message="ok" if level == DiagnosticStatus.OK else "plan infeasible",
+                                  values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+        arr = DiagnosticArray(status=[status])
+        arr.header.stamp = self.get_clock().now().to_msg()
+        self._pub_diag.publish(arr)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``gsrmr-scheduler``."""
+    return run_node(SchedulerNode, args)
+
+

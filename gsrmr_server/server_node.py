@@ -1,0 +1,279 @@
+"""The server node (``gsrmr-server``): one MR image per slot, whatever the uplink did.
+
+For every slot k (processed ``process_delay_s`` after the slot starts, see :mod:`gsrmr_common.wire`)
+the node takes what arrived for k (:class:`~gsrmr_server.uplink.UplinkAssembler`) and composes
+m̂_k (:class:`~gsrmr_server.compose.MRComposer`): the decoded image, or the Gaussian-splatting render at
+the pose key, or — for a missing, late, duplicated or corrupt upload — the render at the best pose
+estimate. It never skips a slot.
+
+Subscribes: ``uplink/pose_key`` (geometry_msgs/Vector3Stamped), ``uplink/image_raw/compressed``
+(sensor_msgs/CompressedImage), ``gsrmr/schedule`` (std_msgs/Float64MultiArray, transient local),
+``gsrmr/ledger`` (std_msgs/Float64MultiArray, the robot's per-slot energy row), ``cmd_vel``
+(geometry_msgs/Twist, u_t for the recording), and — only with ``evaluate_ground_truth`` in
+simulation — ``camera/image_raw`` (the true r_t, to measure loss/PSNR/SSIM of m̂_t against m_t).
+
+Publishes: ``mr/image`` (sensor_msgs/Image rgb8, frame ``camera_optical_frame``, stamp = slot start),
+``mr/image/compressed`` (JPEG), ``gsrmr/loss_sample`` (std_msgs/Float64MultiArray
+``[slot, a_m, b_m, theta_rad, loss]``: the measured GS loss L_t of an image slot), ``/diagnostics``.
+Records ``slots.csv`` and MCAP into ``record_dir`` when set.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+import json
+from pathlib import Path
+import threading
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Twist, Vector3Stamped
+import numpy as np
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import CompressedImage, Image
+from std_msgs.msg import Float64MultiArray
+
+from gsrmr_common.jpeg import encode_jpeg
+from gsrmr_common.metrics import image_quality
+from gsrmr_common.ros_node import declare, run_node
+from gsrmr_common.ros_wire import (
+    compressed_to_msg,
+    image_from_msg,
+    image_to_msg,
+    pose_key_from_msg,
+    schedule_from_msg,
+    stamp_to_ns,
+)
+from gsrmr_common.wire import MAX_COMPRESSED_BYTES, ScheduleMsg, slot_index, slot_ns, slot_start_ns
+from gsrmr_robot.ledger import LEDGER_FIELDS
+from gsrmr_server.compose import MRComposer, to_u8
+from gsrmr_server.recording import RunRecorder
+from gsrmr_server.splatting.model import GaussianModel
+from gsrmr_server.uplink import UplinkAssembler
+from gsrmr_server.world.recorder import with_resolution
+from gsrmr_server.world.scene import load_scene
+from gsrmr_server.world.virtual import VirtualViewSource, mr_image
+
+UPLINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+SCHEDULE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class ServerNode(Node):
+    """Composes and publishes m̂_t every slot; measures L_t in image slots."""
+
+    def __init__(self) -> None:
+        super().__init__("gsrmr_server")
+        self.slot_s = declare(self, "slot_s", 0.1, "Slot length τ [s]; must equal the robot's", min_value=0.01,
+                              max_value=10.0, read_only=True)
+        self.process_delay_s = declare(self, "process_delay_s", 0.03, "Compose slot k this long after its "
+                                       "start [s] (uploads arriving later are counted late)", min_value=0.0,
+                                       max_value=5.0)
+        model_path = declare(self, "model_path", "", "Gaussian-splatting model (.ply, 3DGS layout)",
+                             read_only=True)
+        scene_name = declare(self, "scene", "sandbox", "Scene (name or YAML path): virtual agents, camera "
+                             "intrinsics and mount", read_only=True)
+        width = declare(self, "width", 0, "Image width [px] (0 = the scene's camera)", min_value=0,
+                        max_value=4096, read_only=True)
+        height = declare(self, "height", 0, "Image height [px] (0 = the scene's camera)", min_value=0,
+                         max_value=4096, read_only=True)
+        self.measure_loss = declare(self, "measure_loss", True, "Render Φ(s_t) in image slots and publish "
+                                    "the measured GS loss")
+        self.evaluate = declare(self, "evaluate_ground_truth", False, "Simulation only: compare m̂_t with the "
+                                "true m_t built from camera/image_raw", read_only=True)
+        record_dir = declare(self, "record_dir", "", "Write slots.csv and MCAP here ('' = off)", read_only=True)
+        self.jpeg_quality = declare(self, "jpeg_quality", 85, "JPEG quality of mr/image/compressed",
+                                    min_value=1, max_value=100)
+
+        scene = with_resolution(load_scene(scene_name), width or None, height or None)
+        self.intrinsics = scene.camera.intrinsics
+        if not model_path:
+            raise ValueError("parameter model_path is required (a 3DGS .ply)")
+        model = GaussianModel.load_ply(model_path)
+        self.composer = MRComposer(model, VirtualViewSource(scene), self.intrinsics, scene.camera.mount,
+                                   scene.background)
+        self._slot_len_ns = slot_ns(self.slot_s)
+        self.uplink = UplinkAssembler()
+        self._lock = threading.Lock()
+        self._schedule: ScheduleMsg | None = None
+        self._ledger: dict[int, dict] = {}
+        self._cmd: tuple[float, float] | None = None
+        self._frames: deque[tuple[int, np.ndarray]] = deque(maxlen=8)
+        self._next_slot: int | None = None
+        self._t0_slot: int | None = None
+        self.slots_done = self.slots_on_time = 0
+        self.sources: dict[str, int] = {}
+        self.latencies_ms: deque[float] = deque(maxlen=1000)
+        self.recorder = RunRecorder(record_dir) if record_dir else None
+        self.eval_rows: list[dict] = []
+
+        self._pub_mr = self.create_publisher(Image, "mr/image", 5)
+        self._pub_mr_c = self.create_publisher(CompressedImage, "mr/image/compressed", 5)
+        self._pub_loss = self.create_publisher(Float64MultiArray, "gsrmr/loss_sample", UPLINK_QOS)
+        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_subscription(Vector3Stamped, "uplink/pose_key", self._on_key, UPLINK_QOS)
+        self.create_subscription(CompressedImage, "uplink/image_raw/compressed", self._on_image,
+                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        self.create_subscription(Float64MultiArray, "gsrmr/schedule", self._on_schedule, SCHEDULE_QOS)
+        self.create_subscription(Float64MultiArray, "gsrmr/ledger", self._on_ledger, UPLINK_QOS)
+        self.create_subscription(Twist, "cmd_vel", self._on_cmd, 10)
+        if self.evaluate:
+            self.create_subscription(Image, "camera/image_raw", self._on_camera, qos_profile_sensor_data)
+        self.create_timer(0.005, self._tick)
+        self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(f"server: model {model_path} ({model.num_gaussians} Gaussians), scene "
+                               f"{scene.name}, {self.intrinsics.width}×{self.intrinsics.height}")
+
+    # ---------------------------------------------------------------- inputs
+    def _now_slot(self) -> tuple[int, int]:
+        now_ns = self.get_clock().now().nanoseconds
+        return now_ns // self._slot_len_ns, now_ns
+
+    def _on_key(self, msg: Vector3Stamped) -> None:
+        slot, now_ns = self._now_slot()
+        with self._lock:
+            self.uplink.on_key(pose_key_from_msg(msg, self._slot_len_ns), slot, now_ns)
+
+    def _on_image(self, msg: CompressedImage) -> None:
+        slot, now_ns = self._now_slot()
+        data = bytes(msg.data)
+        with self._lock:
+            if len(data) > MAX_COMPRESSED_BYTES:
+                self.uplink.count("oversized_image")
+                return
+            self.uplink.on_image(slot_index(stamp_to_ns(msg.header.stamp), self._slot_len_ns), data, slot, now_ns)
+
+    def _on_schedule(self, msg: Float64MultiArray) -> None:
+        try:
+            sched = schedule_from_msg(msg)
+        except ValueError as err:
+            self.get_logger().error(f"schedule refused: {err}")
+            return
+        with self._lock:
+            self._schedule = sched
+
+    def _on_ledger(self, msg: Float64MultiArray) -> None:
+        if len(msg.data) != len(LEDGER_FIELDS):
+            return
+        row = dict(zip(LEDGER_FIELDS, msg.data, strict=True))
+        with self._lock:
+            self._ledger[int(row["slot"])] = row
+            if len(self._ledger) > 200:
+                del self._ledger[min(self._ledger)]
+
+    def _on_cmd(self, msg: Twist) -> None:
+        self._cmd = (float(msg.linear.x), float(msg.angular.z))
+
+    def _on_camera(self, msg: Image) -> None:
+        try:
+            frame = image_from_msg(msg)
+        except ValueError:
+            return
+        with self._lock:
+            self._frames.append((stamp_to_ns(msg.header.stamp), frame))
+
+    # ---------------------------------------------------------------- slots
+    def _tick(self) -> None:
+        now_ns = self.get_clock().now().nanoseconds
+        due = (now_ns - round(self.process_delay_s * 1e9)) // self._slot_len_ns
+        if self._next_slot is None:
+            self._next_slot = due + 1
+            self._t0_slot = due + 1
+            return
+        if due < self._next_slot:
+            return
+        if due > self._next_slot + 10:  # far behind (suspended, clock jump): skip ahead, count it
+            self.uplink.count("skipped_slots")
+            self._next_slot = due
+        slot = self._next_slot
+        self._next_slot += 1
+        self.process_slot(slot)
+
+    def process_slot(self, slot: int) -> None:
+        """Compose, publish and record slot ``slot``."""
+        start_ns = slot_start_ns(slot, self._slot_len_ns)
+        with self._lock:
+            entry = self._schedule.lookup(slot) if self._schedule is not None else None
+            uploads = self.uplink.take(slot, image_expected=None if entry is None else bool(entry[0]))
+            best = self.uplink.best_pose(slot)
+        time_s = (slot - (self._t0_slot or slot)) * self.slot_s
+        result = self.composer.compose(uploads, best, time_s, measure_loss=self.measure_loss)
+        for fault in result.faults:
+            if fault not in uploads.faults:
+                self.uplink.count(fault)
+        mr_u8 = to_u8(result.mr)
+        self._pub_mr.publish(image_to_msg(mr_u8, start_ns, "camera_optical_frame"))
+        latency_ms = (self.get_clock().now().nanoseconds - start_ns) / 1e6
+        self.latencies_ms.append(latency_ms)
+        jpeg = encode_jpeg(mr_u8, self.jpeg_quality)
+        self._pub_mr_c.publish(compressed_to_msg(jpeg, start_ns, "camera_optical_frame"))
+        self.slots_done += 1
+        self.slots_on_time += int(latency_ms <= 1e3 * self.slot_s)
+        self.sources[result.source] = self.sources.get(result.source, 0) + 1
+        if result.gs_loss is not None and result.pose is not None:
+            p = result.pose
+            self._pub_loss.publish(Float64MultiArray(data=[float(slot), p.a_m, p.b_m, p.theta_rad,
+                                                           float(result.gs_loss)]))
+        quality = self._evaluate(start_ns, result) if self.evaluate else None
+        if self.recorder is not None:
+            self._record(slot, start_ns, result, quality, latency_ms, jpeg, entry)
+
+    def _evaluate(self, start_ns: int, result) -> dict | None:
+        """True m_t from the camera frame the robot had at the slot start (simulation only)."""
+        with self._lock:
+            frames = [f for f in self._frames if f[0] <= start_ns + 5_000_000]
+        if not frames:
+            return None
+        frame = frames[-1][1]
+        if frame.shape[:2] != result.mr.shape[:2]:
+            return None
+        truth = mr_image(frame.astype(np.float32) / 255.0, result.virtual, result.mask)
+        return image_quality(truth, np.asarray(to_u8(result.mr), np.float32) / 255.0)
+
+    def _record(self, slot: int, start_ns: int, result, quality: dict | None, latency_ms: float, jpeg: bytes,
+                entry) -> None:
+        with self._lock:
+            led = self._ledger.pop(slot, None)
+        pose = result.pose
+        row = {"slot": slot, "stamp_s": start_ns / 1e9,
+               "x": int(led["x"]) if led else (entry[0] if entry else None),
+               "power_w": led["power_w"] if led else None,
+               "bytes_sent": int(led["bits_sent"]) // 8 if led else None,
+               "energy_j": led["energy_j"] if led else None,
+               "loss": quality["loss"] if quality else None,
+               "psnr_db": quality["psnr_db"] if quality else None,
+               "ssim": quality["ssim"] if quality else None,
+               "source": result.source if result.source != "none" else "fallback",
+               "pose_a_m": pose.a_m if pose else None, "pose_b_m": pose.b_m if pose else None,
+               "pose_theta_rad": pose.theta_rad if pose else None, "latency_ms": latency_ms,
+               "faults": ";".join(result.faults)}
+        self.recorder.write_slot(row, jpeg, self._cmd, stamp_ns=start_ns)
+
+    def _publish_diagnostics(self) -> None:
+        lat = np.asarray(self.latencies_ms) if self.latencies_ms else np.zeros(1)
+        values = {"slots": self.slots_done, "slots_on_time": self.slots_on_time,
+                  "latency_ms_p50": round(float(np.percentile(lat, 50)), 2),
+                  "latency_ms_p99": round(float(np.percentile(lat, 99)), 2),
+                  "sources": json.dumps(self.sources), "faults": json.dumps(dict(self.uplink.faults))}
+        level = DiagnosticStatus.OK if not self.uplink.faults else DiagnosticStatus.WARN
+        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: MR composition", hardware_id="gsrmr_server",
+                                  message="ok" if level == DiagnosticStatus.OK else "uplink faults counted",
+                                  values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+        arr = DiagnosticArray(status=[status])
+        arr.header.stamp = self.get_clock().now().to_msg()
+        self._pub_diag.publish(arr)
+
+    def on_shutdown(self) -> None:
+        """Close the recording (called by run_node on exit)."""
+        if self.recorder is not None:
+            self.recorder.close()
+            summary = {"slots": self.slots_done, "slots_on_time": self.slots_on_time, "sources": self.sources,
+                       "faults": dict(self.uplink.faults)}
+            Path(self.recorder.out_dir, "server_summary.json").write_text(json.dumps(summary, indent=1))
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``gsrmr-server``."""
+    return run_node(ServerNode, args)
+
+
