@@ -1,0 +1,87 @@
+"""gsrmr-mock-limo and gsrmr-limo-base as real processes; cmd_vel from this process moves odom."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+
+def test_cmd_vel_moves_odom_diagnostics_and_ground_truth_then_clean_sigint(ros_processes, tmp_path, monkeypatch):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import Twist
+    from nav_msgs.msg import Odometry
+    import rclpy
+    from sensor_msgs.msg import Imu
+
+    link = str(tmp_path / "limo")
+    mock = ros_processes.start("gsrmr-mock-limo", "--link", link, "--cmd-timeout-s", "0.3")
+    ros_processes.wait_for(mock, "mock LIMO ready", timeout_s=20)
+    base = ros_processes.start("gsrmr-limo-base", "--ros-args", "-p", f"port:={link}", "-p",
+                               "heading_source:=gyro_integration")
+    ros_processes.wait_for(base, "link up", timeout_s=20)
+
+    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
+        monkeypatch.setenv(key, ros_processes.env[key])
+    monkeypatch.delenv("ROS_LOCALHOST_ONLY", raising=False)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    try:
+        node = rclpy.create_node("test_limo_ros", context=ctx)
+        got: dict[str, list] = {"odom": [], "diag": [], "truth": [], "imu": []}
+        node.create_subscription(Odometry, "odom", got["odom"].append, 10)
+        node.create_subscription(DiagnosticArray, "/diagnostics", got["diag"].append, 10)
+        node.create_subscription(Odometry, "/sim/ground_truth/odom", got["truth"].append, 10)
+        node.create_subscription(Imu, "imu", got["imu"].append, 10)
+        pub = node.create_publisher(Twist, "cmd_vel", 10)
+        executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+
+        def spin_for(seconds: float, cmd: Twist | None = None) -> None:
+            end = time.monotonic() + seconds
+            next_pub = 0.0
+            while time.monotonic() < end:
+                if cmd is not None and time.monotonic() >= next_pub:
+                    pub.publish(cmd)
+                    next_pub = time.monotonic() + 0.05
+                executor.spin_once(timeout_sec=0.01)
+
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and (pub.get_subscription_count() == 0 or not got["odom"]):
+            spin_for(0.1)
+        assert got["odom"], "no odom from gsrmr-limo-base"
+        cmd = Twist()
+        cmd.linear.x, cmd.angular.z = 0.3, 0.2
+        spin_for(2.0, cmd)
+        spin_for(1.5)  # cmd_vel stops → base stops after cmd_timeout_s
+        odom, truth = got["odom"][-1], got["truth"][-1]
+        assert odom.header.frame_id == "odom" and odom.child_frame_id == "base_link"
+        assert truth.header.frame_id == "map" and truth.child_frame_id == "base_link"
+        assert odom.pose.pose.position.x > 0.3
+        assert odom.twist.twist.linear.x == 0.0  # stopped again
+        assert odom.pose.covariance[0] > 0 and odom.pose.covariance[35] > 0 and odom.twist.covariance[0] > 0
+        # odometry and the mock's true pose agree (both start at the origin)
+        assert odom.pose.pose.position.x == pytest.approx(truth.pose.pose.position.x, abs=0.02)
+        assert odom.pose.pose.position.y == pytest.approx(truth.pose.pose.position.y, abs=0.02)
+        yaw = 2 * math.atan2(odom.pose.pose.orientation.z, odom.pose.pose.orientation.w)
+        yaw_true = 2 * math.atan2(truth.pose.pose.orientation.z, truth.pose.pose.orientation.w)
+        assert yaw == pytest.approx(yaw_true, abs=0.02) and yaw > 0.2
+        assert got["imu"] and got["imu"][-1].header.frame_id == "imu_link"
+        assert got["diag"], "no /diagnostics"
+        values = {kv.key: kv.value for kv in got["diag"][-1].status[0].values}
+        assert values["battery_voltage_v"] == "12.3"
+        assert values["control_mode"] == "commanded" and values["motion_mode"] == "diff"
+        assert values["link_connected"] == "True" and values["errors"] == "none"
+        assert int(values["parser_frames_ok"]) > 100
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+    assert ros_processes.interrupt(base) < 10.0
+    assert base.returncode == 0, ros_processes.output(base)
+    assert ros_processes.interrupt(mock) < 10.0
+    assert mock.returncode == 0, ros_processes.output(mock)
+    assert "mock LIMO stopped" in ros_processes.output(mock)[0]
