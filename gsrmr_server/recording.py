@@ -5,8 +5,11 @@ Output directory layout
 ``slots.csv``
     One row per slot with the columns :data:`CSV_COLUMNS` (units in the names; ``stamp_s`` is the slot
     start in seconds of ROS time, ``x`` 1 = image / 0 = pose key, ``source`` ∈ {image, render,
-    fallback}, pose in ``map`` per REP-103, empty cell = not available). The file is flushed after
-    every row, so a killed process (``kill -9``) loses no row that :meth:`RunRecorder.write_slot`
+    fallback}, pose in ``map`` per REP-103, ``loss`` = MR loss of m̂_t against the true m_t (simulation
+    only), ``gs_loss`` = the GS loss L_t measured in an image slot, ``energy_upload_all_j`` = what the
+    upload-all reference (RoboMR) would have spent on this slot's frame; empty cell = not available).
+    The file is flushed after every row, so a killed process (``kill -9``) loses no row that
+    :meth:`RunRecorder.write_slot`
     returned from. ``fsync=True`` makes rows survive power loss as well (costs a disk sync per slot).
 ``run.mcap``
     After :meth:`RunRecorder.close`: ROS 2 (``ros2msg`` schemas, ``cdr`` messages, zstd chunks) with
@@ -65,7 +68,8 @@ from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.ros_wire import compressed_to_msg, ns_to_stamp
 
 CSV_COLUMNS = ("slot", "stamp_s", "x", "power_w", "bytes_sent", "energy_j", "loss", "psnr_db", "ssim",
-               "source", "pose_a_m", "pose_b_m", "pose_theta_rad", "latency_ms", "faults")
+               "source", "pose_a_m", "pose_b_m", "pose_theta_rad", "latency_ms", "faults", "gs_loss",
+               "energy_upload_all_j")
 _INT_COLUMNS = frozenset({"slot", "x", "bytes_sent"})
 _STR_COLUMNS = frozenset({"source", "faults"})
 SOURCES = ("image", "render", "fallback")

@@ -246,7 +246,8 @@ class ServerNode(Node):
                "source": result.source if result.source != "none" else "fallback",
                "pose_a_m": pose.a_m if pose else None, "pose_b_m": pose.b_m if pose else None,
                "pose_theta_rad": pose.theta_rad if pose else None, "latency_ms": latency_ms,
-               "faults": ";".join(result.faults)}
+               "faults": ";".join(result.faults), "gs_loss": result.gs_loss,
+               "energy_upload_all_j": led["upload_all_energy_j"] if led else None}
         self.recorder.write_slot(row, jpeg, self._cmd, stamp_ns=start_ns)
 
     def _publish_diagnostics(self) -> None:

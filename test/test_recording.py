@@ -36,7 +36,8 @@ def make_row(k: int) -> dict:
             "power_w": 0.05 + 0.01 * k, "bytes_sent": 24 if k % 2 == 0 else 15_000 + k,
             "energy_j": 1e-3 * (k + 1), "loss": 0.1 / (k + 1), "psnr_db": 20.0 + k, "ssim": 0.9,
             "source": ("render", "image", "fallback")[k % 3], "pose_a_m": 0.1 * k, "pose_b_m": -0.2 * k,
-            "pose_theta_rad": math.pi / 7 * k, "latency_ms": 12.5, "faults": "" if k % 4 else "late;retry"}
+            "pose_theta_rad": math.pi / 7 * k, "latency_ms": 12.5, "faults": "" if k % 4 else "late;retry",
+            "gs_loss": 0.02 * k if k % 2 else None, "energy_upload_all_j": 0.5 + k}
 
 
 def make_image(k: int) -> np.ndarray:
@@ -202,7 +203,7 @@ def test_recover_after_crash_between_rename_and_delete(tmp_path: Path) -> None:
 
 def test_torn_last_line_is_dropped(tmp_path: Path) -> None:
     path = tmp_path / "slots.csv"
-    path.write_text(",".join(CSV_COLUMNS) + "\n1,0.1,1,,,,,,,image,,,,,\n2,0.2,0,0.0")
+    path.write_text(",".join(CSV_COLUMNS) + "\n1,0.1,1,,,,,,,image,,,,,,,\n2,0.2,0,0.0")
     rows = read_slots_csv(path)
     assert [r["slot"] for r in rows] == [1]
     path.write_text("slot,stamp\n1,2\n")
