@@ -75,8 +75,10 @@ def test_mock_camera_publishes_image_info_and_mask_at_the_odometry_pose(ros_proc
     masks: list[Image] = []
     test_node.create_subscription(Image, "camera/image_raw", images.append, qos_profile_sensor_data)
     test_node.create_subscription(CameraInfo, "camera/camera_info", infos.append, qos_profile_sensor_data)
+    depths: list[Image] = []
     test_node.create_subscription(Image, "sim/virtual/mask", masks.append, qos_profile_sensor_data)
-    assert spin_until(test_node, lambda: len(images) >= 2 and len(infos) >= 2 and len(masks) >= 2, 60.0), \
+    test_node.create_subscription(Image, "camera/depth/image_raw", depths.append, qos_profile_sensor_data)
+    assert spin_until(test_node, lambda: min(len(images), len(infos), len(masks), len(depths)) >= 2, 60.0), \
         ros_processes.output(cam_proc)
     img, info = images[-1], infos[-1]
     assert (img.width, img.height, img.encoding, img.step) == (64, 48, "rgb8", 64 * 3)
@@ -88,11 +90,13 @@ def test_mock_camera_publishes_image_info_and_mask_at_the_odometry_pose(ros_proc
     stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in images}
     assert any((i.header.stamp.sec, i.header.stamp.nanosec) in stamps for i in infos)
     assert masks[-1].encoding == "mono8" and set(np.frombuffer(bytes(masks[-1].data), np.uint8)) <= {0, 255}
+    depth = np.frombuffer(bytes(depths[-1].data), "<f4").reshape(48, 64)
+    assert depths[-1].encoding == "32FC1" and np.all(depth > 0) and np.isfinite(depth).mean() > 0.9
 
     # Now the true pose arrives: the camera must render exactly there.
     pose = (0.4, -0.3, 2.0)
     odom_pub = test_node.create_publisher(Odometry, "/sim/ground_truth/odom", qos_profile_sensor_data)
-    expected = RayCastWorld(scene, 1).render(camera_from_pose(*pose, scene.camera.mount, k))[0]
+    expected, expected_depth = RayCastWorld(scene, 1).render(camera_from_pose(*pose, scene.camera.mount, k))
     expected_u8 = np.clip(np.round(expected * 255), 0, 255).astype(np.uint8)
 
     def matches() -> bool:
@@ -102,7 +106,11 @@ def test_mock_camera_publishes_image_info_and_mask_at_the_odometry_pose(ros_proc
         return bool(np.abs(got.astype(int) - expected_u8).max() <= 1)
 
     images.clear()
+    depths.clear()
     assert spin_until(test_node, matches, 30.0, tick=lambda: odom_pub.publish(odom_msg(*pose)))
+    assert spin_until(test_node, lambda: bool(depths), 5.0)
+    got_depth = np.frombuffer(bytes(depths[-1].data), "<f4").reshape(48, 64)
+    assert np.allclose(got_depth, expected_depth, rtol=1e-6)
 
     # round:=0 follows the route follower's lap counter: after lap 1 the operating round starts
     lap_pub = test_node.create_publisher(Int32, "sim/route/lap", 10)

@@ -6,6 +6,8 @@ Publishes at ``rate_hz`` (default: the scene's camera rate, 10 Hz), all with the
 * ``camera/image_raw`` (sensor_msgs/Image, rgb8, frame ``camera_optical_frame``): the real image r_t
 * ``camera/camera_info`` (sensor_msgs/CameraInfo): K in the ROS convention (``Intrinsics.ros_k()``,
   pixel centres at integers), plumb_bob with zero distortion, P = [K | 0]
+* ``camera/depth/image_raw`` (32FC1, metres = camera-space z, +inf where nothing is hit; parameter
+  ``publish_depth``): the LIMO's RGB-D depth, registered to the colour image
 * ``sim/virtual/image_raw`` (rgb8) and ``sim/virtual/mask`` (mono8, 255 = real, 0 = virtual): v_t and
   d_t at the same pose (parameter ``publish_virtual``). They are published here, not computed by the
   server, because d_t needs the *real* depth for occlusion and only the world knows it.
@@ -61,6 +63,19 @@ def image_msg(img_u8: np.ndarray, encoding: str, stamp: object, frame_id: str = 
     return msg
 
 
+def depth_msg(depth_m: np.ndarray, stamp: object, frame_id: str = FRAME_ID) -> Image:
+    """sensor_msgs/Image 32FC1 (metres along the optical axis, +inf = nothing in range; REP 118)."""
+    msg = Image()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    msg.height, msg.width = int(depth_m.shape[0]), int(depth_m.shape[1])
+    msg.encoding = "32FC1"
+    msg.is_bigendian = 0
+    msg.step = msg.width * 4
+    msg.data = np.ascontiguousarray(depth_m, dtype="<f4").tobytes()
+    return msg
+
+
 class MockCamera(Node):
     """Renders the scene's real world (and virtual view) at the robot's true pose."""
 
@@ -82,6 +97,8 @@ class MockCamera(Node):
                                       min_value=0.0)
         self.publish_virtual = declare(self, "publish_virtual", True,
                                        "publish sim/virtual/image_raw and mask")
+        self.publish_depth = declare(self, "publish_depth", True,
+                                     "publish camera/depth/image_raw (32FC1, metres, REP 118)")
         self.scene = with_resolution(load_scene(scene_name), width or None, height or None)
         self.world = make_world(self.scene, self.round_index)
         self.virtual = VirtualViewSource(self.scene, self.world)
@@ -91,6 +108,7 @@ class MockCamera(Node):
         self.pub_info = self.create_publisher(CameraInfo, "camera/camera_info", qos_profile_sensor_data)
         self.pub_virtual = self.create_publisher(Image, "sim/virtual/image_raw", qos_profile_sensor_data)
         self.pub_mask = self.create_publisher(Image, "sim/virtual/mask", qos_profile_sensor_data)
+        self.pub_depth = self.create_publisher(Image, "camera/depth/image_raw", qos_profile_sensor_data)
         self.create_subscription(Odometry, odom_topic, self._on_odom, qos_profile_sensor_data)
         if self.round_param == 0:
             self.create_subscription(Int32, "sim/route/lap", self._on_lap, 10)
@@ -152,6 +170,8 @@ class MockCamera(Node):
         rgb_u8 = np.clip(np.round(rgb * 255), 0, 255).astype(np.uint8)
         self.pub_image.publish(image_msg(rgb_u8, "rgb8", stamp))
         self.pub_info.publish(self.camera_info(stamp))
+        if self.publish_depth:
+            self.pub_depth.publish(depth_msg(depth, stamp))
         if self.publish_virtual:
             v, d = self.virtual.render(cam, time_s=t_s, real_depth_m=depth)
             self.pub_virtual.publish(image_msg(np.clip(np.round(v * 255), 0, 255).astype(np.uint8), "rgb8",
