@@ -5,6 +5,8 @@ from __future__ import annotations
 import copy
 import math
 
+from hypothesis import given, settings
+from hypothesis import strategies as st
 import numpy as np
 import pytest
 import yaml
@@ -358,3 +360,45 @@ def test_cli_records_round_one_and_reports_bad_scenes(tmp_path, capsys):
 def test_mount_default_matches_the_documented_camera():
     s = load_scene("sandbox")
     assert s.camera.mount == CameraMount(height_m=0.15, pitch_rad=math.radians(5), forward_m=0.1, left_m=0.0)
+
+
+# ---------------------------------------------------------------------------------------------- fuzz
+
+
+def _paths(node: object, prefix: str = "") -> list[tuple[str, list]]:
+    """Every (key path, access list) in a YAML tree, key paths spelled like SceneError messages."""
+    out: list[tuple[str, list]] = []
+    if isinstance(node, dict):
+        for k, v in node.items():
+            p = f"{prefix}.{k}" if prefix else str(k)
+            out.append((p, [k]))
+            out += [(q, [k, *acc]) for q, acc in _paths(v, p)]
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            p = f"{prefix}[{i}]"
+            out.append((p, [i]))
+            out += [(q, [i, *acc]) for q, acc in _paths(v, p)]
+    return out
+
+
+SANDBOX_RAW = yaml.safe_load(resolve_scene_path("sandbox").read_text())
+JUNK = [None, "x", -1, 0, 1e9, float("nan"), [], {}, [1, 2], True, {"bogus": 1}]
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.sampled_from(_paths(SANDBOX_RAW)), st.sampled_from(JUNK))
+def test_any_corrupted_value_in_the_sandbox_is_a_scene_error_or_valid(target, junk):
+    path, access = target
+    data = copy.deepcopy(SANDBOX_RAW)
+    node = data
+    for key in access[:-1]:
+        node = node[key]
+    node[access[-1]] = copy.deepcopy(junk)
+    try:
+        parse_scene(data)
+    except SceneError as exc:
+        # the message names a key at or around the corrupted one (never a bare Python error)
+        head = str(exc).split(":")[0]
+        assert head, str(exc)
+        top = path.split(".")[0].split("[")[0]
+        assert head.split(".")[0].split("[")[0] in (top, "events"), (path, str(exc))
