@@ -192,9 +192,12 @@ def test_count_byte_learns_constant_or_rolling_counter():
     ok = [len(parser.feed(stream(m, count=c))) for c in (0, 0, 0, 1, 0, 0)]
     assert ok == [1, 1, 1, 0, 1, 1]  # a flipped count (0 → 1) is rejected in a constant stream
     rolling = p.FrameParser(confirm_frames=1)
-    ok = [len(rolling.feed(stream(m, count=c))) for c in (5, 6, 7, 9, 10, 11)]
-    assert ok == [1, 1, 1, 0, 1, 1]  # a gap is rejected once, then the counter re-locks
-    assert rolling.stats.count_mismatch == 1
+    ok = [len(rolling.feed(stream(m, count=c))) for c in (5, 6, 7, 9, 10, 11, 12)]
+    assert ok == [1, 1, 1, 0, 0, 1, 1]  # after a gap the counter re-locks on 3 consistent frames
+    assert rolling.stats.count_mismatch == 2
+    # the same count flip in two consecutive frames is still rejected
+    twice = p.FrameParser(confirm_frames=1)
+    assert [len(twice.feed(stream(m, count=c))) for c in (0, 0, 4, 4, 0)] == [1, 1, 0, 0, 1]
 
 
 def test_parser_recovers_after_random_garbage():

@@ -18,12 +18,13 @@ Checksum weakness (§2): the checksum covers only the 8 data bytes, so a corrupt
 is not detected, and it is an additive 8-bit sum, so two compensating bit flips in the data pass.
 :class:`FrameParser` therefore adds three defences beyond the checksum, each counted separately:
 
-* **ID confirmation**: a known ID is dispatched only once it has been seen ``confirm_frames`` times
-  within ``confirm_window_s`` (a real stream, ≥ 50 Hz on LIMO, confirms within a few tens of ms; a
-  single-bit ID corruption such as 0x221 → 0x321 appears as an isolated frame and is dropped).
+* **ID confirmation**: a frame is dispatched only if its ID has been seen ``confirm_frames`` (5)
+  times within ``confirm_window_s`` (1 s), this frame included: a real stream (≥ 10 Hz) confirms
+  within 0.1–0.4 s and stays confirmed; a single-bit ID corruption such as 0x221 → 0x321 appears as
+  isolated frames and is dropped.
 * **count consistency**: per ID the count byte must follow the step learnt from that ID's stream,
   0 (constant, as every known transmitter sends) or +1 (rolling counter); a mismatch is dropped and
-  the stream re-locks after two consistent frames.
+  the stream re-locks after ``relock_frames`` (3) mutually consistent frames.
 * **plausibility** (:func:`decode_message`): enum bytes must be known values and physical values
   within generous bounds (|v| ≤ 5 m/s, |yaw| ≤ 180°, …).
 """
@@ -450,19 +451,20 @@ class FrameParser:
     ``confirm_frames=1`` disables ID confirmation; ``check_count=False`` disables the count check.
     """
 
-    def __init__(self, *, known_ids: frozenset[int] | None = KNOWN_IDS, confirm_frames: int = 3,
-                 confirm_window_s: float = 0.5, check_count: bool = True) -> None:
+    def __init__(self, *, known_ids: frozenset[int] | None = KNOWN_IDS, confirm_frames: int = 5,
+                 confirm_window_s: float = 1.0, check_count: bool = True, relock_frames: int = 3) -> None:
         if confirm_frames < 1:
             raise ValueError("confirm_frames must be ≥ 1")
         self.known_ids = known_ids
         self.confirm_frames = confirm_frames
         self.confirm_window_s = confirm_window_s
         self.check_count = check_count
+        self.relock_frames = max(1, relock_frames)
         self.stats = ParserStats()
         self._buf = bytearray()
         self._seen: dict[int, deque[float]] = {}
         self._count_ref: dict[int, int] = {}
-        self._count_cand: dict[int, int] = {}
+        self._count_cand: dict[int, tuple[int, int]] = {}
         self._count_step: dict[int, int] = {}
 
     def reset(self) -> None:
@@ -530,12 +532,13 @@ class FrameParser:
                 d = (c - ref) & 0xFF
                 ok = d == step if step is not None else d in (0, 1)
                 if not ok:
-                    cand = self._count_cand.get(cid)
-                    if cand is None or (c - cand) & 0xFF not in (0, 1):
-                        self._count_cand[cid] = c
+                    cand, run = self._count_cand.get(cid, (None, 0))
+                    run = run + 1 if cand is not None and (c - cand) & 0xFF in (0, 1) else 1
+                    if run < self.relock_frames:
+                        self._count_cand[cid] = (c, run)
                         self.stats.count_mismatch += 1
                         return False
-                    d = (c - cand) & 0xFF  # re-lock on two consistent frames
+                    d = (c - cand) & 0xFF  # re-lock on relock_frames consistent frames
                 self._count_step[cid] = d
             self._count_ref[cid] = c
             self._count_cand.pop(cid, None)
