@@ -30,7 +30,8 @@ def reference_render(model: GaussianModel, cam: Camera, bg) -> tuple[np.ndarray,
     p_cam = model.means.astype(np.float64) @ rot_w.T + t_w
     opac = 1.0 / (1.0 + np.exp(-model.opacity_logits.astype(np.float64)))
     dirs = model.means.astype(np.float64) - cam.center_world
-    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a Gaussian at the camera centre: culled anyway
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     colors = eval_sh_numpy(model.sh.astype(np.float64), dirs, model.sh_degree)
     tanx, tany = w / (2 * k.fx), h / (2 * k.fy)
     order = np.lexsort((np.arange(len(model)), p_cam[:, 2]))
