@@ -41,23 +41,31 @@ CONSOLE_SCRIPTS = [
     "gsrmr-demo = gsrmr_server.demo:main",
 ]
 
-setup(
-    name=PACKAGE,
-    version="0.1.0",
-    packages=find_packages(exclude=["test", "test.*", "bench", "bench.*"]),
-    package_data={"": ["*.yaml", "*.json"]},
-    data_files=[
+
+def data_files() -> list[tuple[str, list[str]]]:
+    """What `colcon build` / `pip install` put under share/: index marker, package.xml, launch, config."""
+    return [
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/launch", sorted(glob("launch/*.launch.py"))),
         *config_files(),
-    ],
-    install_requires=["setuptools"],
-    zip_safe=True,
-    maintainer="gsrmr developers",
-    maintainer_email="gsrmr@example.com",
-    description="Green robotic mixed reality with Gaussian splatting (ROS 2)",
-    license="Apache-2.0",
-    tests_require=["pytest"],
-    entry_points={"console_scripts": CONSOLE_SCRIPTS},
-)
+    ]
+
+
+if __name__ == "__main__":
+    os.chdir(os.path.dirname(os.path.abspath(__file__)))
+    setup(
+        name=PACKAGE,
+        version="0.1.0",
+        packages=find_packages(exclude=["test", "test.*", "bench", "bench.*"]),
+        package_data={"": ["*.yaml", "*.json"]},
+        data_files=data_files(),
+        install_requires=["setuptools"],
+        zip_safe=True,
+        maintainer="gsrmr developers",
+        maintainer_email="gsrmr@example.com",
+        description="Green robotic mixed reality with Gaussian splatting (ROS 2)",
+        license="Apache-2.0",
+        tests_require=["pytest"],
+        entry_points={"console_scripts": CONSOLE_SCRIPTS},
+    )

@@ -1,0 +1,78 @@
+"""Every launch file names executables that setup.py installs and config files that setup.py ships.
+
+Launch files target real ROS 2 installs (no `launch` here); this checks them statically, plus the
+process list of sim.launch.py (gsrmr_server.sim_stack) that `make demo` and the integration tests run.
+"""
+
+import ast
+from pathlib import Path
+import re
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+LAUNCH_FILES = sorted((REPO / "launch").glob("*.launch.py"))
+
+
+def console_scripts() -> set[str]:
+    tree = ast.parse((REPO / "setup.py").read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", "") == "CONSOLE_SCRIPTS" for t in node.targets):
+            return {ast.literal_eval(e).split("=")[0].strip() for e in node.value.elts}
+    raise AssertionError("CONSOLE_SCRIPTS not found in setup.py")
+
+
+def test_launch_files_exist():
+    names = {p.name for p in LAUNCH_FILES}
+    assert {"robot.launch.py", "server.launch.py", "sim.launch.py"} <= names
+
+
+@pytest.mark.parametrize("path", LAUNCH_FILES, ids=lambda p: p.name)
+def test_launch_file_executables_and_configs(path):
+    text = path.read_text()
+    ast.parse(text)  # valid Python
+    scripts = console_scripts()
+    for exe in re.findall(r'executable="([^"]+)"', text):
+        assert exe in scripts, f"{path.name}: executable {exe} is not a console script of setup.py"
+    assert 'package="gsrmr"' in text or "sim_stack" in text
+    for cfg in re.findall(r'"config", "([^"]+\.yaml)"', text):
+        assert (REPO / "config" / cfg).is_file(), f"{path.name}: config/{cfg} missing"
+
+
+def test_sim_stack_executables_and_param_files_are_installed():
+    from gsrmr_server.sim_stack import sim_stack
+
+    scripts = console_scripts()
+    specs = sim_stack(model_path="/nonexistent.ply", config=REPO / "config")
+    assert len({s.name for s in specs}) == len(specs)
+    for spec in specs:
+        assert spec.executable in scripts, spec.executable
+        for f in spec.param_files:
+            assert Path(f).is_file() and Path(f).parent == REPO / "config", f
+
+
+def test_setup_installs_every_config_and_launch_file():
+    import importlib.util
+    import os
+
+    spec = importlib.util.spec_from_file_location("gsrmr_setup", REPO / "setup.py")
+    module = importlib.util.module_from_spec(spec)
+    cwd = os.getcwd()
+    os.chdir(REPO)
+    try:
+        spec.loader.exec_module(module)  # __name__ != "__main__": setup() is not called
+        files = module.data_files()
+    finally:
+        os.chdir(cwd)
+    installed = {Path(f) for _, group in files for f in group}
+    for path in [*LAUNCH_FILES, *(REPO / "config").rglob("*.yaml")]:
+        assert path.relative_to(REPO) in installed, path
+
+
+def test_param_files_are_valid_ros_parameter_yaml():
+    import yaml
+
+    for path in (REPO / "config").glob("*.yaml"):
+        data = yaml.safe_load(path.read_text())
+        for node, body in data.items():
+            assert set(body) == {"ros__parameters"}, (path.name, node)
