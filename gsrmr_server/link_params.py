@@ -2,8 +2,8 @@
 
 Both nodes load ``config/link.yaml`` and call :meth:`LinkBudget.from_node_parameters`, so they agree on
 B, σ², the path loss, the Rician K, the server position and the fading realisation of every slot:
-g_k = :func:`gsrmr_server.scheduling.channel.slot_gain` (seeded by ``(channel_seed, k)``, k the absolute
-slot index) at the robot–server distance. With the channel known to the scheduler in advance this is
+g_k = one draw of :class:`gsrmr_server.scheduling.channel.ChannelModel` seeded by ``(channel_seed, k)``
+(k the absolute slot index) at the robot–server distance. With the channel known to the scheduler in advance this is
 the paper's perfect-CSI setting.
 """
 
@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from gsrmr_server.scheduling.channel import slot_gain
+from gsrmr_server.scheduling.channel import ChannelModel
 from gsrmr_server.scheduling.link import required_power_w
 
 
@@ -41,9 +41,9 @@ class LinkBudget:
 
     def gain(self, slot: int, position_xy: np.ndarray | tuple[float, float] | None) -> float:
         """Channel power gain g = |h|² of absolute slot ``slot`` at ``position_xy`` (robot x, y in map)."""
-        return slot_gain(self.channel_seed, slot, self.distance_m(position_xy),
-                         pathloss_db_at_1m=self.pathloss_db_at_1m, pathloss_exponent=self.pathloss_exponent,
-                         rician_k=self.rician_k)
+        model = ChannelModel(self.pathloss_db_at_1m, self.pathloss_exponent, self.rician_k,
+                             seed=[self.channel_seed, int(slot)])  # type: ignore[arg-type]
+        return float(model.gains(np.array([self.distance_m(position_xy)]))[0])
 
     def required_power_w(self, bits: float, gain: float, slot_s: float, bandwidth_hz: float,
                          noise_w: float) -> float:

@@ -359,9 +359,21 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--reopen-every-s", type=float, default=0.0, help="close and reopen the port every … s")
     p.add_argument("--reopen-gap-s", type=float, default=1.0, help="time the port stays closed")
     p.add_argument("--seed", type=int, default=None, help="fault-injection RNG seed")
+    p.add_argument("--start-pose", default="0,0,0", type=_pose_arg,
+                   help="true start pose 'x_m,y_m,yaw_rad' in the map frame")
     p.add_argument("--ros", action=argparse.BooleanOptionalAction, default=True,
                    help="publish the true pose on /sim/ground_truth/odom (needs rclpy)")
     return p
+
+
+def _pose_arg(text: str) -> tuple[float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"--start-pose: {err}") from err
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError("--start-pose needs three finite numbers x_m,y_m,yaw_rad")
+    return values  # type: ignore[return-value]
 
 
 def _mock_from_args(ns: argparse.Namespace) -> MockLimo:
@@ -371,7 +383,7 @@ def _mock_from_args(ns: argparse.Namespace) -> MockLimo:
                          silence_s=ns.silence_s, reopen_every_s=ns.reopen_every_s, reopen_gap_s=ns.reopen_gap_s,
                          seed=ns.seed)
     return MockLimo(ns.link, motion_mode=mode, cmd_timeout_s=ns.cmd_timeout_s, rate_hz=ns.rate_hz,
-                    battery_voltage_v=ns.battery_v, faults=faults)
+                    battery_voltage_v=ns.battery_v, faults=faults, start_pose=ns.start_pose)
 
 
 def main(argv: list[str] | None = None) -> int:
