@@ -1,0 +1,320 @@
+"""Baselines of the paper's Sec. V on P_GS (pure numpy): robomr, robogs, ranking, rounding, search,
+maxrate and fairness.
+
+``maxrate`` and ``fairness`` are physical-layer schemes that ignore the MR loss: they spend an energy
+budget (the paper uses APO's energy) by water-filling or max-min rate. A slot whose allocated bits
+``τ·R_t`` reach I delivers its image, else the key if they reach S, else nothing. A delivered key costs
+``L_t``; an undelivered slot costs ``undelivered_loss`` (default ``"gs"``: ``L_t``, i.e. the server renders
+the GS view at a dead-reckoned pose, an optimistic charge; a number charges that loss instead).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from gsrmr_server.scheduling import link
+from gsrmr_server.scheduling.problem import (
+    IMAGE,
+    KEY,
+    NONE,
+    Problem,
+    Schedule,
+    infeasibility_reason,
+    schedule_from_x,
+)
+
+#: Relative slack when comparing delivered bits against a payload (rate computed in floating point).
+BITS_RTOL = 1e-9
+
+
+def solve_robomr(problem: Problem) -> Schedule:
+    """Vanilla RoboMR: every slot uploads its image (x = 1)."""
+    return schedule_from_x(problem, np.ones(problem.slots, dtype=np.int8), "robomr")
+
+
+def solve_robogs(problem: Problem) -> Schedule:
+    """Vanilla GS: every slot uploads only its pose key (x = 0)."""
+    return schedule_from_x(problem, np.zeros(problem.slots, dtype=np.int8), "robogs")
+
+
+def _base_x(problem: Problem) -> tuple[np.ndarray, float, list[str]]:
+    """x with forced keys (slots that cannot carry an image) and zero-loss keys; remaining capacity; notes."""
+    x = np.ones(problem.slots, dtype=np.int8)
+    forced = ~problem.image_ok
+    x[forced] = 0
+    x[problem.image_ok & (problem.gs_loss == 0)] = 0
+    notes = []
+    if np.any(forced):
+        notes.append(f"{int(forced.sum())} slot(s) cannot carry an image (power not representable): forced keys")
+    cap = problem.loss_budget - math.fsum(problem.gs_loss[forced].tolist())
+    return x, cap, notes
+
+
+def _infeasible(problem: Problem, method: str, reason: str) -> Schedule:
+    x = np.where(problem.image_ok, 1, 0).astype(np.int8)
+    s = schedule_from_x(problem, x, method, notes=[f"infeasible: {reason}"])
+    s.feasible = False
+    return s
+
+
+def solve_ranking(problem: Problem) -> Schedule:
+    """Paper eq. (ranking): keys for the smallest losses L_t (ascending) as long as the budget holds.
+
+    Optimal when all gains are equal (paper Proposition 2). Slots that cannot carry an image are keys first.
+    """
+    reason = infeasibility_reason(problem)
+    if reason:
+        return _infeasible(problem, "ranking", reason)
+    x, cap, notes = _base_x(problem)
+    cand = np.flatnonzero(x == 1)
+    order = cand[np.argsort(problem.gs_loss[cand], kind="stable")]
+    cum = np.cumsum(problem.gs_loss[order])
+    k = int(np.searchsorted(cum, cap, side="right"))
+    x[order[:k]] = 0
+    while k > 0 and not problem.budget_ok(x):  # float round-off of the cumulative sum
+        k -= 1
+        x[order[k]] = 1
+    return schedule_from_x(problem, x, "ranking", notes=notes, iterations=1)
+
+
+def relaxed_solution(problem: Problem, tol_iter: int = 200) -> tuple[np.ndarray, float]:
+    """Exact continuous relaxation of P_GS (x ∈ [0,1], p continuous) by dual bisection on the loss multiplier.
+
+    With p eliminated (rate tight), slot t costs ``f_t(x) = E^key_t·(e^{b·x}·e^{a} − 1)/(e^{a} − 1)``, convex;
+    stationarity ``f_t'(x) = λ·L_t`` gives x_t in closed form (log domain), clipped to [0,1]; λ ≥ 0 is the
+    smallest value meeting ``Σ L_t(1 − x_t) ≤ C``. Returns (x_relaxed, energy lower bound in J).
+    Slots that cannot carry an image are 0; the caller checks feasibility first.
+    """
+    a = link.snr_exponent(problem.pose_bits, problem.slot_s, problem.bandwidth_hz)
+    bexp = link.snr_exponent(problem.image_bits - problem.pose_bits, problem.slot_s, problem.bandwidth_hz)
+    T = problem.slots
+    x = np.zeros(T)
+    ok = problem.image_ok & (problem.gs_loss > 0)
+    L = problem.gs_loss[ok]
+    # ln f'_t(x) = ln(τσ²/g · b) + a + b·x
+    log_c = math.log(problem.slot_s * problem.noise_w * bexp) - np.log(problem.channel_gain[ok]) + a
+    cap = problem.loss_budget - math.fsum(problem.gs_loss[~problem.image_ok].tolist())
+    if L.size and math.fsum(L.tolist()) > cap:
+        lo = float(np.min(log_c - np.log(L)))  # at this ln λ every x_t = 0
+        hi = float(np.max(log_c + bexp - np.log(L)))  # at this ln λ every x_t = 1
+
+        def x_of(log_lam: float) -> np.ndarray:
+            return np.clip((log_lam + np.log(L) - log_c) / bexp, 0.0, 1.0)
+
+        for _ in range(tol_iter):
+            mid = 0.5 * (lo + hi)
+            if math.fsum((L * (1 - x_of(mid))).tolist()) <= cap:
+                hi = mid
+            else:
+                lo = mid
+            if hi - lo < 1e-13 * max(1.0, abs(hi)):
+                break
+        x[ok] = x_of(hi)
+    x[problem.image_ok & ~ok] = 0.0
+    return x, relaxed_energy_j(problem, x)
+
+
+def relaxed_energy_j(problem: Problem, x: np.ndarray) -> float:
+    """Energy (J) of a fractional x with tight rate: ``Σ τ(σ²/g)(2^{(S + x(I−S))/τB} − 1)``."""
+    bits = problem.pose_bits + np.asarray(x) * (problem.image_bits - problem.pose_bits)
+    p = link.required_power_w(bits, problem.channel_gain, problem.slot_s, problem.bandwidth_hz, problem.noise_w)
+    p = np.where(np.isfinite(p), p, 0.0)
+    return link.energy_j(p, problem.slot_s)
+
+
+def repair(problem: Problem, x: np.ndarray) -> tuple[np.ndarray, int]:
+    """Make binary x meet the loss budget: turn keys into images, least saving per unit loss first.
+
+    Returns (x, number of flips). Forced keys (no image possible) are never flipped.
+    """
+    x = np.asarray(x, dtype=np.int8).copy()
+    flips = 0
+    if problem.budget_ok(x):
+        return x, 0
+    cand = np.flatnonzero((x == 0) & problem.image_ok & (problem.gs_loss > 0))
+    eff = problem.saving_j[cand] / problem.gs_loss[cand]
+    excess = problem.loss_sum(x) - problem.loss_budget
+    for t in cand[np.argsort(eff, kind="stable")]:
+        x[t] = 1
+        flips += 1
+        excess -= problem.gs_loss[t]
+        if excess <= 0 and problem.budget_ok(x):
+            break
+    return x, flips
+
+
+def solve_rounding(problem: Problem, threshold: float = 0.5) -> Schedule:
+    """Continuous relaxation (solved exactly) plus rounding at ``threshold``, then a feasibility repair."""
+    reason = infeasibility_reason(problem)
+    if reason:
+        return _infeasible(problem, "rounding", reason)
+    xr, e_lb = relaxed_solution(problem)
+    x = np.where(xr >= threshold, 1, 0).astype(np.int8)
+    x[~problem.image_ok] = 0
+    x, flips = repair(problem, x)
+    notes = [f"relaxation energy {e_lb:.6g} J (a lower bound on P_GS)"]
+    if flips:
+        notes.append(f"rounded x broke the loss budget: {flips} key(s) turned back into images")
+    s = schedule_from_x(problem, x, "rounding", notes=notes, iterations=1)
+    s.extras["relaxed_energy_j"] = e_lb
+    s.extras["fractional_slots"] = int(np.sum((xr > 1e-9) & (xr < 1 - 1e-9)))
+    return s
+
+
+def solve_search(problem: Problem, *, max_iterations: int = 10_000, time_limit_s: float | None = None) -> Schedule:
+    """Iterative local search from the ranking solution (best improvement, deterministic).
+
+    Moves: image→key if it fits the remaining budget; swap (image i→key, key j→image) if the budget still
+    holds. Stops at a local optimum (no improving move), after ``max_iterations`` or ``time_limit_s``.
+    """
+    t0 = time.perf_counter()
+    start = solve_ranking(problem)
+    if not start.feasible:
+        start.method = "search"
+        return start
+    x = start.x.copy()
+    v = problem.saving_j
+    L = problem.gs_loss
+    movable = problem.image_ok & (L > 0)
+    cap = problem.loss_budget
+    it = 0
+    notes: list[str] = []
+    while it < max_iterations:
+        if time_limit_s is not None and time.perf_counter() - t0 > time_limit_s:
+            notes.append(f"search: time limit {time_limit_s:g} s reached")
+            break
+        slack = cap - problem.loss_sum(x)
+        imgs = np.flatnonzero((x == 1) & movable)
+        keys = np.flatnonzero((x == 0) & movable)
+        if imgs.size == 0:
+            break
+        best_gain, move = 0.0, None
+        fits = imgs[L[imgs] <= slack]
+        if fits.size:
+            i = fits[np.argmax(v[fits])]
+            best_gain, move = float(v[i]), (int(i), -1)
+        if keys.size:
+            ko = keys[np.argsort(L[keys], kind="stable")]
+            suff_min_v = np.minimum.accumulate(v[ko][::-1])[::-1]
+            need = L[imgs] - slack  # key j must free at least this much
+            pos = np.searchsorted(L[ko], need, side="left")
+            valid = pos < ko.size
+            if np.any(valid):
+                gains = np.full(imgs.size, -np.inf)
+                gains[valid] = v[imgs[valid]] - suff_min_v[pos[valid]]
+                r = int(np.argmax(gains))
+                if gains[r] > best_gain:
+                    pr = int(pos[r])
+                    jj = pr + int(np.argmin(v[ko[pr:]]))
+                    best_gain, move = float(gains[r]), (int(imgs[r]), int(ko[jj]))
+        if move is None or best_gain <= 0:
+            break
+        i, j = move
+        x_try = x.copy()
+        x_try[i] = 0
+        if j >= 0:
+            x_try[j] = 1
+        if not problem.budget_ok(x_try):  # float round-off at the boundary: stop rather than cycle
+            break
+        x = x_try
+        it += 1
+    s = schedule_from_x(problem, x, "search", notes=start.notes + notes, iterations=it)
+    return s
+
+
+def _classify(problem: Problem, power_w: np.ndarray, undelivered_loss: Any) -> tuple[np.ndarray, list[str], float]:
+    bits = np.asarray(link.slot_bits(power_w, problem.channel_gain, problem.slot_s, problem.bandwidth_hz,
+                                     problem.noise_w))
+    img = bits >= problem.image_bits * (1 - BITS_RTOL)
+    key = ~img & (bits >= problem.pose_bits * (1 - BITS_RTOL))
+    delivered = np.where(img, IMAGE, np.where(key, KEY, NONE))
+    if isinstance(undelivered_loss, str):
+        if undelivered_loss != "gs":
+            raise ValueError(f"undelivered_loss must be 'gs' or a number, got {undelivered_loss!r}")
+        none_cost = problem.gs_loss
+    else:
+        c = float(undelivered_loss)
+        if not math.isfinite(c) or c < 0:
+            raise ValueError("undelivered_loss must be a finite number >= 0")
+        none_cost = np.full(problem.slots, c)
+    loss = math.fsum(problem.gs_loss[key].tolist()) + math.fsum(none_cost[~img & ~key].tolist())
+    return img.astype(np.int8), delivered.tolist(), loss / problem.slots
+
+
+def _budget(problem: Problem, energy_budget_j: float | None, budget_from: str) -> tuple[float, list[str]]:
+    if energy_budget_j is not None:
+        e = float(energy_budget_j)
+        if not math.isfinite(e) or e < 0:
+            raise ValueError("energy_budget_j must be a finite number >= 0")
+        return e, []
+    if problem.energy_budget_j is not None:
+        return problem.energy_budget_j, []
+    from gsrmr_server.scheduling.solve import solve  # late import: registry imports this module
+
+    ref = solve(problem, budget_from)
+    return ref.energy_j, [f"energy budget = {budget_from} energy {ref.energy_j:.6g} J (no budget given)"]
+
+
+def _phy_schedule(problem: Problem, method: str, power: np.ndarray, budget: float, notes: list[str],
+                  undelivered_loss: Any) -> Schedule:
+    x, delivered, mean_loss = _classify(problem, power, undelivered_loss)
+    energy = link.energy_j(power, problem.slot_s)
+    n_none = delivered.count(NONE)
+    notes = [*notes, f"{delivered.count(IMAGE)} image(s), {delivered.count(KEY)} key(s), {n_none} undelivered slot(s)"]
+    feasible = mean_loss * problem.slots <= problem.loss_budget and energy <= budget * (1 + 1e-9)
+    s = Schedule(method=method, x=x, power_w=power, energy_j=energy, mean_loss=mean_loss, feasible=feasible,
+                 iterations=1, delivered=delivered, notes=notes)
+    s.extras["energy_budget_j"] = budget
+    return s
+
+
+def solve_maxrate(problem: Problem, *, energy_budget_j: float | None = None, budget_from: str = "exact",
+                  undelivered_loss: Any = "gs") -> Schedule:
+    """Water-filling: maximise Σ log2(1 + g_t p_t/σ²) s.t. τ Σ p_t ≤ budget; p_t = max(0, μ − σ²/g_t)."""
+    budget, notes = _budget(problem, energy_budget_j, budget_from)
+    g = problem.channel_gain
+    n = np.full(problem.slots, np.inf)
+    live = g > 0
+    n[live] = problem.noise_w / g[live]
+    power = np.zeros(problem.slots)
+    total = budget / problem.slot_s  # Σ p
+    if total > 0 and np.any(live):
+        order = np.argsort(n, kind="stable")
+        ns = n[order][: int(live.sum())]
+        cum = np.cumsum(ns)
+        k_arr = np.arange(1, ns.size + 1)
+        mu = (total + cum) / k_arr
+        valid = mu > ns
+        k = int(np.flatnonzero(valid)[-1]) + 1
+        level = (total + cum[k - 1]) / k
+        p_sorted = np.maximum(0.0, level - ns[:k])
+        power[order[:k]] = p_sorted
+    return _phy_schedule(problem, "maxrate", power, budget, notes, undelivered_loss)
+
+
+def solve_fairness(problem: Problem, *, energy_budget_j: float | None = None, budget_from: str = "exact",
+                   undelivered_loss: Any = "gs") -> Schedule:
+    """Max-min rate: the same rate in every live slot, ``p_t = (σ²/g_t)·γ`` with ``τ Σ p_t = budget``.
+
+    Slots with gain 0 cannot get any rate; they are left out (lexicographic max-min) and noted.
+    """
+    budget, notes = _budget(problem, energy_budget_j, budget_from)
+    g = problem.channel_gain
+    live = g > 0
+    power = np.zeros(problem.slots)
+    if np.any(~live):
+        notes.append(f"{int((~live).sum())} slot(s) with gain 0 get no power")
+    if np.any(live) and budget > 0:
+        # γ = budget / (τ Σ σ²/g) computed as a ratio of logs-safe sums (σ²/g may be huge).
+        inv = problem.noise_w / g[live]
+        s = math.fsum(inv.tolist())
+        if math.isfinite(s) and s > 0:
+            gamma = budget / problem.slot_s / s
+            power[live] = inv * gamma
+        else:
+            notes.append("fairness: Σ σ²/g overflows; no power allocated")
+    return _phy_schedule(problem, "fairness", power, budget, notes, undelivered_loss)

@@ -1,0 +1,99 @@
+"""Uplink closed forms (pure numpy, no rclpy): rate, required power and energy, in the log domain.
+
+Shannon rate of slot t: ``R_t(p) = B·log2(1 + g_t·p/σ²)`` bits/s (``g_t = |h_t|²`` dimensionless power gain,
+``σ²`` = ``noise_w`` watts, ``B`` = ``bandwidth_hz``). Carrying ``D`` bits in one slot of ``τ`` seconds needs
+``τ·R_t(p) ≥ D``, tight at the minimum power
+
+    p = (σ²/g)·(2^{D/(τB)} − 1) = (σ²/g)·expm1(a),   a = D·ln2/(τ·B)   (natural-log SNR exponent).
+
+``2^{D/(τB)}`` overflows float64 when ``a > ~709`` (e.g. τ·B tiny), so everything is first computed as
+``ln p = ln σ² − ln g + ln expm1(a)`` with ``ln expm1(a) = a + log1p(−e^{−a})`` for large ``a``; the linear
+value is only formed where it is finite. :func:`required_power_w` returns ``inf`` (never NaN) when the power
+is not representable or the gain is 0: such a slot cannot carry ``D`` bits.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+LN2 = math.log(2.0)
+#: ln of the largest float64 kept as a finite power/energy (leaves headroom for sums and products).
+LOG_FLOAT_MAX = math.log(1e300)
+
+ArrayLike = float | np.ndarray
+
+
+def snr_exponent(bits: ArrayLike, slot_s: float, bandwidth_hz: float) -> ArrayLike:
+    """Natural-log exponent ``a = D·ln2/(τB)`` such that ``1 + SNR = e^a`` carries ``bits`` in one slot."""
+    return np.asarray(bits, dtype=np.float64) * LN2 / (slot_s * bandwidth_hz) if np.ndim(bits) else (
+        float(bits) * LN2 / (slot_s * bandwidth_hz))
+
+
+def log_expm1(a: ArrayLike) -> ArrayLike:
+    """``ln(e^a − 1)`` for ``a ≥ 0`` without overflow (``−inf`` at ``a = 0``)."""
+    arr = np.asarray(a, dtype=np.float64)
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        big = arr + np.log1p(-np.exp(-np.maximum(arr, 1.0)))
+        small = np.log(np.expm1(np.minimum(arr, 1.0)))
+    out = np.where(arr > 1.0, big, small)
+    return out if np.ndim(a) else float(out)
+
+
+def log_required_power_w(bits: ArrayLike, gain: ArrayLike, slot_s: float, bandwidth_hz: float,
+                         noise_w: float) -> ArrayLike:
+    """``ln`` of the minimum power (W) carrying ``bits`` in one slot: ``ln σ² − ln g + ln expm1(a)``.
+
+    ``+inf`` where the gain is 0 (and bits > 0), ``−inf`` where bits = 0 (no power needed).
+    """
+    a = np.asarray(snr_exponent(bits, slot_s, bandwidth_hz), dtype=np.float64)
+    g = np.asarray(gain, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log_g = np.log(g)
+        out = math.log(noise_w) - log_g + log_expm1(a)
+    # 0 bits need no power even on a dead channel (−inf − (−inf) would be NaN).
+    out = np.where(a == 0.0, -np.inf, np.where(g == 0.0, np.inf, out))
+    return out if (np.ndim(bits) or np.ndim(gain)) else float(out)
+
+
+def required_power_w(bits: ArrayLike, gain: ArrayLike, slot_s: float, bandwidth_hz: float,
+                     noise_w: float) -> ArrayLike:
+    """Minimum transmit power (W) so that ``slot_s·R(p) ≥ bits``: ``(σ²/g)·(2^{bits/(τB)} − 1)``.
+
+    Args:
+        bits: payload of the slot (bits), scalar or array.
+        gain: channel power gain ``|h|²`` (dimensionless, ≥ 0), scalar or array.
+        slot_s: slot length τ (s). bandwidth_hz: B (Hz). noise_w: σ² (W).
+
+    Returns:
+        Power in watts (float or float64 array); ``inf`` where not representable (> 1e300 W) or
+        gain 0 — the slot cannot carry ``bits``. Never NaN for valid (non-negative, finite) inputs.
+    """
+    log_p = np.asarray(log_required_power_w(bits, gain, slot_s, bandwidth_hz, noise_w))
+    with np.errstate(over="ignore"):
+        out = np.where(log_p > LOG_FLOAT_MAX, np.inf, np.exp(np.minimum(log_p, LOG_FLOAT_MAX)))
+    return out if (np.ndim(bits) or np.ndim(gain)) else float(out)
+
+
+def energy_j(power_w: ArrayLike, slot_s: float) -> float:
+    """Energy (J) of transmitting ``power_w`` (W, scalar or per-slot array) for one slot ``slot_s`` each."""
+    return float(slot_s * math.fsum(np.atleast_1d(np.asarray(power_w, dtype=np.float64)).tolist()))
+
+
+def rate_bps(power_w: ArrayLike, gain: ArrayLike, bandwidth_hz: float, noise_w: float) -> ArrayLike:
+    """Shannon rate ``B·log2(1 + g·p/σ²)`` in bits/s (``log1p`` for accuracy at low SNR)."""
+    p = np.asarray(power_w, dtype=np.float64)
+    g = np.asarray(gain, dtype=np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):
+        snr = g * p / noise_w
+        out = bandwidth_hz * np.log1p(np.where(np.isfinite(snr), snr, np.finfo(np.float64).max)) / LN2
+    out = np.where((g == 0.0) | (p == 0.0), 0.0, out)
+    return out if (np.ndim(power_w) or np.ndim(gain)) else float(out)
+
+
+def slot_bits(power_w: ArrayLike, gain: ArrayLike, slot_s: float, bandwidth_hz: float,
+              noise_w: float) -> ArrayLike:
+    """Bits carried in one slot: ``τ·R(p)``."""
+    r = rate_bps(power_w, gain, bandwidth_hz, noise_w)
+    return slot_s * np.asarray(r) if np.ndim(r) else slot_s * float(r)

@@ -1,0 +1,296 @@
+"""The GSCLO problem P_GS (paper Sec. III) and the schedule every method returns (pure, no rclpy).
+
+P_GS: slots t = 0..T−1 of τ = ``slot_s`` seconds; ``x_t = 1`` uploads an image of I = ``image_bits``,
+``x_t = 0`` a pose key of S = ``pose_bits``. Minimise ``τ·Σ p_t`` s.t. ``τ·R_t(p_t) ≥ x_t·I + (1−x_t)·S``,
+``Σ L_t·(1−x_t) ≤ T·L_th``, ``p ≥ 0``, ``x ∈ {0,1}``. ``L_t`` = ``gs_loss[t]`` is the MR loss added when
+slot t uses the GS render instead of the image (dimensionless, same scale as ``loss_threshold``).
+
+Units: ``slot_s`` s, ``image_bits``/``pose_bits`` bits, ``bandwidth_hz`` Hz, ``noise_w`` W (σ²),
+``channel_gain`` dimensionless power gain ``|h_t|²``, energies J, powers W.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+import math
+from typing import Any
+
+import numpy as np
+
+from gsrmr_server.scheduling import link
+
+#: Per-slot delivery outcome labels.
+IMAGE, KEY, NONE = "image", "key", "none"
+
+
+class ProblemError(ValueError):
+    """Invalid problem input; ``field`` names the offending input key."""
+
+    def __init__(self, field_name: str, message: str) -> None:
+        super().__init__(f"{field_name}: {message}")
+        self.field = field_name
+
+
+def _positive(name: str, value: Any) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ProblemError(name, f"must be a number, got {value!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise ProblemError(name, f"must be a positive finite number, got {value!r}")
+    return v
+
+
+def _array(name: str, value: Any) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ProblemError(name, "must be a list of numbers") from None
+    if arr.ndim != 1 or arr.size == 0:
+        raise ProblemError(name, "must be a non-empty 1-D list of numbers")
+    if not np.all(np.isfinite(arr)):
+        raise ProblemError(name, f"contains NaN or inf (first at index {int(np.argmin(np.isfinite(arr)))})")
+    if np.any(arr < 0):
+        raise ProblemError(name, f"contains a negative value (first at index {int(np.argmax(arr < 0))})")
+    return arr
+
+
+@dataclass
+class Problem:
+    """One P_GS instance (validated on construction; raises :class:`ProblemError`)."""
+
+    channel_gain: np.ndarray
+    gs_loss: np.ndarray
+    loss_threshold: float
+    slot_s: float = 0.1
+    image_bits: float = 67_200.0
+    pose_bits: float = 192.0
+    bandwidth_hz: float = 1e6
+    noise_w: float = 1e-9
+    energy_budget_j: float | None = None
+
+    def __post_init__(self) -> None:
+        self.slot_s = _positive("slot_s", self.slot_s)
+        self.image_bits = _positive("image_bits", self.image_bits)
+        self.pose_bits = _positive("pose_bits", self.pose_bits)
+        if self.image_bits <= self.pose_bits:
+            raise ProblemError("image_bits", "must exceed pose_bits (an image is larger than a pose key)")
+        self.bandwidth_hz = _positive("bandwidth_hz", self.bandwidth_hz)
+        self.noise_w = _positive("noise_w", self.noise_w)
+        self.channel_gain = _array("channel_gain", self.channel_gain)
+        self.gs_loss = _array("gs_loss", self.gs_loss)
+        if self.channel_gain.size != self.gs_loss.size:
+            raise ProblemError("gs_loss", f"has {self.gs_loss.size} values but channel_gain has "
+                               f"{self.channel_gain.size}")
+        try:
+            lth = float(self.loss_threshold)
+        except (TypeError, ValueError):
+            raise ProblemError("loss_threshold", "must be a number") from None
+        if not math.isfinite(lth) or lth < 0:
+            raise ProblemError("loss_threshold", f"must be a finite number >= 0, got {self.loss_threshold!r}")
+        self.loss_threshold = lth
+        if self.energy_budget_j is not None:
+            try:
+                eb = float(self.energy_budget_j)
+            except (TypeError, ValueError):
+                raise ProblemError("energy_budget_j", "must be a number") from None
+            if not math.isfinite(eb) or eb < 0:
+                raise ProblemError("energy_budget_j", f"must be a finite number >= 0, got {self.energy_budget_j!r}")
+            self.energy_budget_j = eb
+
+    # ---- construction -------------------------------------------------------------------------
+    REQUIRED = ("slot_s", "image_bits", "pose_bits", "bandwidth_hz", "noise_w", "channel_gain", "gs_loss",
+                "loss_threshold")
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Problem:
+        """Build from the CLI/JSON keys; raises :class:`ProblemError` naming the first bad key."""
+        if not isinstance(data, dict):
+            raise ProblemError("problem", "must be a JSON object")
+        for key in cls.REQUIRED:
+            if key not in data:
+                raise ProblemError(key, "missing")
+        for key in data:
+            if key not in (*cls.REQUIRED, "energy_budget_j"):
+                raise ProblemError(key, "unknown key")
+        for key in ("channel_gain", "gs_loss"):
+            if not isinstance(data[key], list | tuple):
+                raise ProblemError(key, "must be a list of numbers")
+            if any(isinstance(v, bool) or not isinstance(v, int | float) for v in data[key]):
+                raise ProblemError(key, "must contain only numbers")
+        for key in ("slot_s", "image_bits", "pose_bits", "bandwidth_hz", "noise_w", "loss_threshold"):
+            if isinstance(data[key], bool) or not isinstance(data[key], int | float):
+                raise ProblemError(key, f"must be a number, got {data[key]!r}")
+        return cls(channel_gain=data["channel_gain"], gs_loss=data["gs_loss"],
+                   loss_threshold=data["loss_threshold"], slot_s=data["slot_s"], image_bits=data["image_bits"],
+                   pose_bits=data["pose_bits"], bandwidth_hz=data["bandwidth_hz"], noise_w=data["noise_w"],
+                   energy_budget_j=data.get("energy_budget_j"))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict with the CLI keys."""
+        out: dict[str, Any] = {k: getattr(self, k) for k in self.REQUIRED}
+        out["channel_gain"] = self.channel_gain.tolist()
+        out["gs_loss"] = self.gs_loss.tolist()
+        if self.energy_budget_j is not None:
+            out["energy_budget_j"] = self.energy_budget_j
+        return out
+
+    # ---- derived quantities ---------------------------------------------------------------------
+    @property
+    def slots(self) -> int:
+        """Number of slots T."""
+        return int(self.gs_loss.size)
+
+    @property
+    def loss_budget(self) -> float:
+        """Right-hand side of the loss constraint in sum form: ``T·L_th``."""
+        return self.slots * self.loss_threshold
+
+    @cached_property
+    def log_energy_image_j(self) -> np.ndarray:
+        """ln of the per-slot energy (J) of an image slot, ``ln(τ·p_img)``; +inf on a dead channel."""
+        return math.log(self.slot_s) + np.asarray(link.log_required_power_w(
+            self.image_bits, self.channel_gain, self.slot_s, self.bandwidth_hz, self.noise_w))
+
+    @cached_property
+    def log_energy_key_j(self) -> np.ndarray:
+        """ln of the per-slot energy (J) of a pose-key slot."""
+        return math.log(self.slot_s) + np.asarray(link.log_required_power_w(
+            self.pose_bits, self.channel_gain, self.slot_s, self.bandwidth_hz, self.noise_w))
+
+    @cached_property
+    def _log_cap(self) -> float:
+        # A slot's energy is kept only if T of them still sum to a finite float64 (≤ 1e300 J).
+        return link.LOG_FLOAT_MAX - math.log(self.slots)
+
+    @cached_property
+    def image_ok(self) -> np.ndarray:
+        """Slots that can carry an image with a representable power (False: must be a key or nothing)."""
+        a_img = link.snr_exponent(self.image_bits, self.slot_s, self.bandwidth_hz)
+        return (self.channel_gain > 0) & (a_img < 700.0) & (self.log_energy_image_j <= self._log_cap)
+
+    @cached_property
+    def key_ok(self) -> np.ndarray:
+        """Slots that can carry a pose key with a representable power."""
+        a_key = link.snr_exponent(self.pose_bits, self.slot_s, self.bandwidth_hz)
+        return (self.channel_gain > 0) & (a_key < 700.0) & (self.log_energy_key_j <= self._log_cap)
+
+    @cached_property
+    def energy_image_j(self) -> np.ndarray:
+        """Per-slot image energy τ·p_img (J); 0 where :attr:`image_ok` is False (never used there)."""
+        return np.where(self.image_ok, np.exp(np.where(self.image_ok, self.log_energy_image_j, 0.0)), 0.0)
+
+    @cached_property
+    def energy_key_j(self) -> np.ndarray:
+        """Per-slot key energy τ·p_key (J); 0 where :attr:`key_ok` is False."""
+        return np.where(self.key_ok, np.exp(np.where(self.key_ok, self.log_energy_key_j, 0.0)), 0.0)
+
+    @cached_property
+    def saving_j(self) -> np.ndarray:
+        """Energy saved by a key instead of an image, ``τ(σ²/g)(2^{I/τB} − 2^{S/τB})`` (J, > 0 where both ok).
+
+        Computed as ``E_key·(e^{a_I} − e^{a_S})/(e^{a_S} − 1)`` in the log domain, no cancellation.
+        """
+        a_i = link.snr_exponent(self.image_bits, self.slot_s, self.bandwidth_hz)
+        a_s = link.snr_exponent(self.pose_bits, self.slot_s, self.bandwidth_hz)
+        # τσ²/g · e^{a_S} · expm1(a_I − a_S)
+        log_c = math.log(self.slot_s * self.noise_w) - np.log(np.where(self.channel_gain > 0, self.channel_gain, 1.0))
+        log_v = log_c + a_s + float(link.log_expm1(a_i - a_s))
+        ok = self.image_ok & self.key_ok
+        return np.where(ok, np.exp(np.where(ok, log_v, 0.0)), 0.0)
+
+    def power_w(self, x: np.ndarray) -> np.ndarray:
+        """Closed-form minimum power per slot for binary ``x`` (0 where the slot cannot carry its payload)."""
+        x = np.asarray(x)
+        e = np.where(x == 1, self.energy_image_j, self.energy_key_j)
+        return e / self.slot_s
+
+    def loss_sum(self, x: np.ndarray) -> float:
+        """``Σ L_t·(1 − x_t)`` (exactly rounded sum)."""
+        x = np.asarray(x)
+        return math.fsum(self.gs_loss[x == 0].tolist())
+
+    def budget_ok(self, x: np.ndarray) -> bool:
+        """Whether binary ``x`` meets ``Σ L_t(1−x_t) ≤ T·L_th`` (the single feasibility test everyone uses)."""
+        return self.loss_sum(x) <= self.loss_budget
+
+
+@dataclass
+class Schedule:
+    """Result of one method: per-slot decision, power, and diagnostics.
+
+    ``x`` int8 (1 image, 0 key), ``power_w`` float64 W (allocated transmit power), ``energy_j`` = τ·Σ p,
+    ``mean_loss`` = (1/T)·Σ loss of the delivered content, ``delivered`` per slot ``image``/``key``/``none``,
+    ``optimality_gap`` relative energy gap ``(E − E_lb)/E_lb`` certified by a bound (only ``exact``).
+    """
+
+    method: str
+    x: np.ndarray
+    power_w: np.ndarray
+    energy_j: float
+    mean_loss: float
+    feasible: bool
+    solve_time_s: float = 0.0
+    iterations: int = 0
+    history: list[dict[str, Any]] | None = None
+    optimality_gap: float | None = None
+    delivered: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready dict: the issue's CLI keys plus ``delivered``, ``notes`` and ``extras``."""
+        return {
+            "method": self.method,
+            "x": [int(v) for v in self.x],
+            "power_w": [float(v) for v in self.power_w],
+            "energy_j": float(self.energy_j),
+            "mean_loss": float(self.mean_loss),
+            "feasible": bool(self.feasible),
+            "solve_time_s": float(self.solve_time_s),
+            "iterations": int(self.iterations),
+            "history": self.history,
+            "optimality_gap": None if self.optimality_gap is None else float(self.optimality_gap),
+            "delivered": list(self.delivered),
+            "notes": list(self.notes),
+            "extras": {k: (float(v) if isinstance(v, np.floating) else v) for k, v in self.extras.items()},
+        }
+
+
+def infeasibility_reason(problem: Problem) -> str | None:
+    """Why no binary schedule can meet P_GS (None when one exists)."""
+    dead = ~problem.key_ok
+    if np.any(dead):
+        t = int(np.argmax(dead))
+        return (f"{int(dead.sum())} slot(s) cannot carry even a pose key (first t={t}: gain "
+                f"{problem.channel_gain[t]:.3g}, power not representable)")
+    forced = ~problem.image_ok
+    forced_loss = math.fsum(problem.gs_loss[forced].tolist())
+    if forced_loss > problem.loss_budget:
+        return (f"{int(forced.sum())} slot(s) cannot carry an image (2^(I/(tau*B)) or the power overflows "
+                f"float64) and their GS loss {forced_loss:.6g} exceeds the budget T*L_th = {problem.loss_budget:.6g}")
+    return None
+
+
+def schedule_from_x(problem: Problem, x: np.ndarray, method: str, **kwargs: Any) -> Schedule:
+    """Binary schedule with closed-form powers; slots that cannot carry their payload get 0 W and ``none``.
+
+    ``feasible`` is True only if every slot delivers what ``x`` says and the loss budget holds.
+    Undelivered slots are charged their GS loss ``L_t`` (as a key would be) in ``mean_loss``.
+    """
+    x = np.asarray(x, dtype=np.int8).copy()
+    ok = np.where(x == 1, problem.image_ok, problem.key_ok)
+    power = np.where(ok, problem.power_w(x), 0.0)
+    delivered = np.where(~ok, NONE, np.where(x == 1, IMAGE, KEY))
+    loss = problem.loss_sum(x) + math.fsum(problem.gs_loss[(~ok) & (x == 1)].tolist())
+    notes = list(kwargs.pop("notes", []))
+    feasible = bool(np.all(ok)) and problem.budget_ok(x)
+    if not np.all(ok):
+        notes.append(f"{int((~ok).sum())} slot(s) cannot carry their scheduled payload (power not representable "
+                     "or gain 0); they get 0 W and deliver nothing")
+    if not problem.budget_ok(x):
+        notes.append("loss budget violated")
+    return Schedule(method=method, x=x, power_w=power.astype(np.float64), energy_j=link.energy_j(power, problem.slot_s),
+                    mean_loss=loss / problem.slots, feasible=feasible, delivered=delivered.tolist(), notes=notes,
+                    **kwargs)
