@@ -108,8 +108,14 @@ def test_mock_camera_publishes_image_info_and_mask_at_the_odometry_pose(ros_proc
     images.clear()
     depths.clear()
     assert spin_until(test_node, matches, 30.0, tick=lambda: odom_pub.publish(odom_msg(*pose)))
-    assert spin_until(test_node, lambda: bool(depths), 5.0)
-    got_depth = np.frombuffer(bytes(depths[-1].data), "<f4").reshape(48, 64)
+    stamp = (images[-1].header.stamp.sec, images[-1].header.stamp.nanosec)
+
+    def depth_since_match() -> Image | None:  # the depth of the matching frame or a later one (same pose)
+        return next((m for m in depths if (m.header.stamp.sec, m.header.stamp.nanosec) >= stamp), None)
+
+    assert spin_until(test_node, lambda: depth_since_match() is not None, 5.0,
+                      tick=lambda: odom_pub.publish(odom_msg(*pose)))
+    got_depth = np.frombuffer(bytes(depth_since_match().data), "<f4").reshape(48, 64)
     assert np.allclose(got_depth, expected_depth, rtol=1e-6)
 
     # round:=0 follows the route follower's lap counter: after lap 1 the operating round starts

@@ -24,11 +24,15 @@ from typing import Any
 import yaml
 
 from gsrmr_common.camera import CameraMount, Intrinsics
+from gsrmr_server.world.events import Event, WorldState, change_times_s, world_state
 
 TEXTURES = ("flat", "checker", "noise", "stripes")
 LIGHT_TYPES = ("directional", "point")
 SHAPES = ("box", "cylinder")
 EVENT_TYPES = ("move", "add", "remove", "light", "region_light")
+__all__ = ["Agent", "AgentPath", "CameraSpec", "Event", "Light", "Material", "PointsWorld", "Room", "Route",
+           "Scene", "SceneError", "Shape", "WorldState", "load_scene", "parse_scene", "resolve_scene_path",
+           "scene_dirs"]
 
 
 class SceneError(ValueError):
@@ -113,34 +117,6 @@ class Route:
 
 
 @dataclass(frozen=True)
-class Event:
-    """A round-2 change. ``from_s``/``to_s``: active span (to_s = inf: until the end of the round).
-
-    * move: ``target`` object goes to ``position`` (and ``yaw_rad`` if given).
-    * add: ``shape`` appears. * remove: ``target`` disappears.
-    * light: ``target`` light gets ``intensity_scale`` and ``color`` (if given).
-    * region_light: surfaces inside the axis-aligned box ``region_min``..``region_max`` get ``gain``.
-    """
-
-    type: str
-    from_s: float
-    to_s: float = math.inf
-    target: str = ""
-    position: tuple[float, float] | None = None
-    yaw_rad: float | None = None
-    shape: Shape | None = None
-    intensity_scale: float = 1.0
-    color: tuple[float, float, float] | None = None
-    region_min: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    region_max: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
-
-    def active(self, t_s: float) -> bool:
-        """True while the event applies (from_s ≤ t < to_s)."""
-        return self.from_s <= t_s < self.to_s
-
-
-@dataclass(frozen=True)
 class Room:
     """The lab around the arena: an axis-aligned box seen from inside (floor, walls, ceiling)."""
 
@@ -201,50 +177,11 @@ class Scene:
 
     def state_at(self, round_index: int, t_s: float) -> WorldState:
         """Objects, lights and illumination regions of the real world at round time ``t_s``."""
-        objects = {o.id: o for o in self.objects}
-        lights = {lt.id: lt for lt in self.lights}
-        regions: list[tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, ...]]] = []
-        global_gain = 1.0
-        if round_index >= 2:
-            for ev in self.events:
-                if not ev.active(t_s):
-                    continue
-                if ev.type == "move":
-                    if ev.target not in objects:  # removed by an earlier event
-                        continue
-                    obj = objects[ev.target]
-                    yaw = obj.yaw_rad if ev.yaw_rad is None else ev.yaw_rad
-                    objects[ev.target] = replace(obj, position=ev.position or obj.position, yaw_rad=yaw)
-                elif ev.type == "add" and ev.shape is not None:
-                    objects[ev.shape.id] = ev.shape
-                elif ev.type == "remove":
-                    objects.pop(ev.target, None)
-                elif ev.type == "light":
-                    if ev.target == "ambient":
-                        global_gain *= ev.intensity_scale
-                        continue
-                    lt = lights[ev.target]
-                    lights[ev.target] = replace(lt, intensity=lt.intensity * ev.intensity_scale,
-                                                color=ev.color or lt.color)
-                elif ev.type == "region_light":
-                    regions.append((ev.region_min, ev.region_max, ev.gain))
-        return WorldState(tuple(objects.values()), tuple(lights.values()), tuple(regions),
-                          self.ambient * global_gain)
+        return world_state(self.objects, self.lights, self.ambient, self.events, round_index, t_s)
 
     def change_times_s(self) -> list[float]:
         """Sorted times at which the round-2 world changes (event starts and ends)."""
-        times = {ev.from_s for ev in self.events} | {ev.to_s for ev in self.events if math.isfinite(ev.to_s)}
-        return sorted(times)
-
-
-@dataclass(frozen=True)
-class WorldState:
-    """What the real camera sees at one time: solids, lights, illumination regions, ambient level."""
-
-    objects: tuple[Shape, ...]
-    lights: tuple[Light, ...]
-    regions: tuple[tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, ...]], ...]
-    ambient: float
+        return change_times_s(self.events)
 
 
 # ----------------------------------------------------------------------------------------------
