@@ -109,6 +109,7 @@ def bench_latency(samples: int) -> None:
         with MockLimo(link, cmd_timeout_s=5.0) as mock, LimoDriver(link, cmd_timeout_s=5.0) as drv:
             wait_until(lambda: drv.motion_mode() == p.MotionMode.DIFF, 3.0)
             lat = []
+            rng = random.Random(0)
             for i in range(samples):
                 v = 0.001 * (i % 2 + 1) * (100 + i)
                 t0 = time.monotonic()
@@ -116,7 +117,7 @@ def bench_latency(samples: int) -> None:
                 if wait_until(lambda v=v: mock._cmd is not None and abs(mock._cmd.linear_mps - round(v, 3)) < 1e-9,
                               1.0):
                     lat.append(time.monotonic() - t0)
-                time.sleep(0.013)
+                time.sleep(rng.uniform(0.005, 0.045))  # random phase w.r.t. the 20 ms tx period
     lat_ms = sorted(x * 1e3 for x in lat)
     print(f"\n## 3. Command latency set_command → 0x111 received by the mock (pty, 50 Hz, {len(lat)} samples)")
     print("| median_ms | p95_ms | max_ms |")

@@ -57,39 +57,69 @@ def link(tmp_path: Path) -> str:
     return str(tmp_path / "limo")
 
 
-def test_one_percent_bit_flips_no_corrupt_frame_and_odometry_within_2cm_over_2m(link):
-    faults = FaultConfig(bit_flip_rate=0.01, seed=5)
+def bit_flip_run(link: str, run_s: float, line_speed_mps: float, seed: int) -> dict:
+    """2 m straight line at ``line_speed_mps`` with 1 % bit flips (per frame), then arcs until ``run_s``."""
+    faults = FaultConfig(bit_flip_rate=0.01, seed=seed)
     accepted: list[bytes] = []
+    out: dict = {}
     with MockLimo(link, faults=faults, record=True) as mock, \
             LimoDriver(link, heading_source="imu", frame_observer=lambda f, m: accepted.append(f.to_bytes())) as drv:
         assert wait_until(lambda: drv.motion_mode() == p.MotionMode.DIFF, 3.0)
-        time.sleep(0.5)
-        x0, _, _ = mock.true_pose()
-        o0 = drv.snapshot().pose
-        assert x0 == 0.0 and o0.x_m == 0.0
-        # 2 m straight at 0.25 m/s (8 s), then stop and settle; ≈ 12 s in all
-        start = time.monotonic()
-        while mock.true_pose()[0] < 2.0 and time.monotonic() - start < 15.0:
-            drv.set_command(0.25, 0.0)
+        time.sleep(0.3)
+        assert mock.true_pose() == (0.0, 0.0, 0.0) and drv.snapshot().pose.x_m == 0.0
+        t_start = time.monotonic()
+        while mock.true_pose()[0] < 2.0 and time.monotonic() - t_start < 15.0:
+            drv.set_command(line_speed_mps, 0.0)
             time.sleep(0.02)
         drv.stop_motion()
         assert wait_until(lambda: mock.true_velocity().vx_mps == 0.0, 1.0)
-        time.sleep(1.0)
-        x, y, yaw = mock.true_pose()
-        snap = drv.snapshot()
-        sent = [raw for _, raw, _ in mock.sent_frames]
-        n_corrupted = mock.frames_corrupted
-    assert x >= 2.0
-    bad = corrupt_accepted(accepted, sent)
+        time.sleep(0.3)
+        out["line_true"], out["line_odom"] = mock.true_pose(), drv.snapshot().pose
+        k = 0
+        while time.monotonic() - t_start < run_s:
+            drv.set_command(0.3, 0.6 * math.sin(0.01 * k))
+            time.sleep(0.02)
+            k += 1
+        drv.stop_motion()
+        assert wait_until(lambda: mock.true_velocity().vx_mps == 0.0, 1.0)
+        time.sleep(0.3)
+        out["end_true"], out["snap"] = mock.true_pose(), drv.snapshot()
+        out["elapsed_s"] = time.monotonic() - t_start
+        out["sent"] = [raw for _, raw, _ in mock.sent_frames]
+        out["corrupted"] = mock.frames_corrupted
+    out["accepted"] = accepted
+    return out
+
+
+def check_bit_flip_run(r: dict, min_corrupted: int) -> None:
+    bad = corrupt_accepted(r["accepted"], r["sent"])
     assert bad == [], [b.hex(" ") for b in bad]
-    assert n_corrupted >= 10  # the fault injection really happened (≈1 % of ≈1800 frames)
-    rejected = snap.parser["bad_checksum"] + snap.parser["bad_length"] + snap.parser["count_mismatch"] \
-        + snap.parser["unknown_id"] + snap.parser["unconfirmed_id"] + snap.implausible_frames
-    assert rejected >= n_corrupted // 2
-    assert len(accepted) >= 0.95 * len(sent) - 50
-    err_m = math.hypot(snap.pose.x_m - x, snap.pose.y_m - y)
-    assert err_m < 0.02, (snap.pose, (x, y, yaw))
-    assert abs(snap.pose.yaw_rad - yaw) < math.radians(0.5)
+    assert r["corrupted"] >= min_corrupted  # the fault injection really happened
+    snap = r["snap"]
+    s = snap.parser
+    rejected = (s["bad_checksum"] + s["bad_length"] + s["count_mismatch"] + s["unknown_id"] + s["unconfirmed_id"]
+                + snap.implausible_frames)
+    assert rejected >= r["corrupted"] // 2
+    assert len(r["accepted"]) >= 0.95 * len(r["sent"]) - 50
+    (x, y, yaw), o = r["line_true"], r["line_odom"]
+    assert x >= 2.0
+    assert math.hypot(o.x_m - x, o.y_m - y) < 0.02, (o, (x, y, yaw))
+    assert abs(o.yaw_rad - yaw) < math.radians(0.5)
+
+
+def test_one_percent_bit_flips_no_corrupt_frame_and_odometry_within_2cm_over_2m(link):
+    r = bit_flip_run(link, run_s=6.0, line_speed_mps=0.5, seed=5)
+    check_bit_flip_run(r, min_corrupted=3)
+
+
+@pytest.mark.slow
+def test_60_s_run_with_one_percent_bit_flips(link):
+    r = bit_flip_run(link, run_s=60.0, line_speed_mps=0.25, seed=7)
+    assert r["elapsed_s"] >= 60.0
+    check_bit_flip_run(r, min_corrupted=40)  # ≈ 1 % of 9000 frames
+    # after the line, 50 s of arcs: odometry (IMU heading) still close to the truth
+    (x, y, _), o = r["end_true"], r["snap"].pose
+    assert math.hypot(o.x_m - x, o.y_m - y) < 0.1
 
 
 def test_base_stops_within_0_6_s_of_the_last_command(link):
