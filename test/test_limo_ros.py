@@ -14,7 +14,9 @@ def test_cmd_vel_moves_odom_diagnostics_and_ground_truth_then_clean_sigint(ros_p
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import Twist
     from nav_msgs.msg import Odometry
+    from rcl_interfaces.srv import SetParameters
     import rclpy
+    from rclpy.parameter import Parameter
     from sensor_msgs.msg import Imu
 
     link = str(tmp_path / "limo")
@@ -76,6 +78,23 @@ def test_cmd_vel_moves_odom_diagnostics_and_ground_truth_then_clean_sigint(ros_p
         assert values["control_mode"] == "commanded" and values["motion_mode"] == "diff"
         assert values["link_connected"] == "True" and values["errors"] == "none"
         assert int(values["parser_frames_ok"]) > 100
+        # string parameters are validated; read-only ones are refused
+        client = node.create_client(SetParameters, "/gsrmr_limo_base/set_parameters")
+        assert client.wait_for_service(timeout_sec=10.0)
+
+        def set_param(name: str, value: str) -> bool:
+            req = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
+            future = client.call_async(req)
+            end = time.monotonic() + 10.0
+            while not future.done() and time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.05)
+            return future.result().results[0].successful
+
+        assert not set_param("motion_mode", "tank")
+        assert not set_param("heading_source", "compass")
+        assert not set_param("port", "/dev/ttyUSB0")
+        assert set_param("motion_mode", "diff")
+        assert set_param("heading_source", "imu")
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=ctx)
