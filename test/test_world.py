@@ -65,6 +65,9 @@ def test_minimal_scene_gets_documented_defaults():
     ({"objects": [{"id": "a", "position": [0, 0]}, {"id": "a", "position": [1, 0]}]},
      "objects[1].id: duplicate id 'a'"),
     ({"teleporter": True}, "teleporter: unknown key"),
+    ({"objects": [{"position": [0, 0], "path": {"waypoints": [[0, 0], [1, 0]]}}]}, "objects[0].path: unknown key"),
+    ({"virtual_agents": [{"position": [0, 0], "shape": "cylinder", "size": [1, 1, 1]}]},
+     "virtual_agents[0].size: not allowed for a cylinder"),
 ])
 def test_bad_scene_values_are_errors_naming_the_key(patch, message):
     with pytest.raises(SceneError) as info:

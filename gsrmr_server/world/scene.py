@@ -267,7 +267,7 @@ _SHAPE_KEYS = {"id", "shape", "position", "size", "yaw_deg", "base_z_m", "radius
 
 
 def _shape(value: Any, path: str, default_id: str) -> Shape:
-    m = _mapping(value, path, _SHAPE_KEYS | {"path"}, ("position",))
+    m = _mapping(value, path, _SHAPE_KEYS, ("position",))
     kind = _str(m.get("shape", "box"), f"{path}.shape", SHAPES)
     if kind == "box":
         if "radius_m" in m or "height_m" in m:
@@ -451,9 +451,6 @@ def parse_scene(data: Any, source: str = "", base_dir: Path | None = None) -> Sc
     _unique([lt.id for lt in lights], "lights")
     objects = tuple(_shape(v, f"objects[{i}]", f"object{i}") for i, v in
                     enumerate(_list(m.get("objects", []), "objects")))
-    for i, v in enumerate(m.get("objects", [])):
-        if "path" in v:
-            raise _fail(f"objects[{i}].path", "only virtual_agents move along a path")
     _unique([o.id for o in objects], "objects")
     agents = tuple(_agent(v, f"virtual_agents[{i}]", i) for i, v in
                    enumerate(_list(m.get("virtual_agents", []), "virtual_agents")))
