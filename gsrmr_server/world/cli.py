@@ -38,12 +38,13 @@ def _parser() -> argparse.ArgumentParser:
 
     rec = sub.add_parser("record", help="record round 1 (nerfstudio dataset) or round 2 (evaluation slots)")
     common(rec)
-    rec.add_argument("--round", type=int, choices=(1, 2), required=True)
-    rec.add_argument("--out", type=Path, required=True)
+    rec.add_argument("--round", type=int, choices=(1, 2), required=True,
+                     help="1: mapping round (static world) -> nerfstudio dataset; 2: operating round with events")
+    rec.add_argument("--out", type=Path, required=True, help="output directory")
     rec.add_argument("--frames", type=int, help="H, round-1 frames (default: the scene's)")
     rec.add_argument("--slots", type=int, help="T, round-2 slots (default: the scene's)")
     rec.add_argument("--seed", type=int, default=0, help="seed of the round-2 start jitter")
-    rec.add_argument("--quiet", action="store_true")
+    rec.add_argument("--quiet", action="store_true", help="no progress lines")
 
     ren = sub.add_parser("render", help="render one view (MR image: real + virtual agents) to a PNG")
     common(ren)
