@@ -104,3 +104,5 @@ def test_cmd_vel_moves_odom_diagnostics_and_ground_truth_then_clean_sigint(ros_p
     assert ros_processes.interrupt(mock) < 10.0
     assert mock.returncode == 0, ros_processes.output(mock)
     assert "mock LIMO stopped" in ros_processes.output(mock)[0]
+    for proc in (base, mock):
+        assert "Traceback" not in "".join(ros_processes.output(proc))

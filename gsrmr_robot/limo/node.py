@@ -125,8 +125,14 @@ class LimoBaseNode(Node):
         self.driver.set_command(msg.linear.x, msg.angular.z, msg.linear.y)
 
     def _on_event(self, level: str, text: str) -> None:
+        # one call site per severity: rclpy refuses a severity change at the same call site
         log = self.get_logger()
-        {"info": log.info, "warn": log.warning}.get(level, log.error)(text)
+        if level == "info":
+            log.info(text)
+        elif level == "warn":
+            log.warning(text)
+        else:
+            log.error(text)
 
     def _stamp(self, t_mono_s: float, now_mono_s: float):
         """ROS time of a host-monotonic instant (receive time of a frame)."""
