@@ -23,27 +23,8 @@ import time
 
 import numpy as np
 
+from gsrmr_server.scheduling import _knapsack_kernel as kernel
 from gsrmr_server.scheduling.problem import Problem, Schedule, infeasibility_reason, schedule_from_x
-
-
-def _bounds(W: np.ndarray, V: np.ndarray, cap: float, e_s: float, e_t: float, wmin_t: float) -> np.ndarray:
-    """Upper bound on ΔV of any completion of each state (see module docstring)."""
-    slack = cap - W
-    under = slack >= 0
-    u = np.empty_like(V)
-    # Under-weight: additions have efficiency ≤ e_t, removals ≥ e_s ≥ e_t.
-    su = slack[under]
-    gen = su * e_t
-    if math.isfinite(e_s):
-        # If no remaining item fits in the slack, an addition needs a removal of ≥ w(A) − slack.
-        tight = np.maximum(0.0, (e_t - e_s) * wmin_t + e_s * su) if math.isfinite(wmin_t) else np.zeros_like(su)
-    else:
-        tight = np.zeros_like(su)
-    u[under] = V[under] + np.where(su < wmin_t, np.minimum(gen, tight), gen)
-    # Over-weight: must remove ≥ (W − C) of items with efficiency ≥ e_s.
-    so = slack[~under]
-    u[~under] = V[~under] + so * e_s if math.isfinite(e_s) else -np.inf
-    return u
 
 
 def solve_exact(problem: Problem, *, time_limit_s: float | None = None, max_states: int = 2_000_000,
@@ -71,7 +52,8 @@ def solve_exact(problem: Problem, *, time_limit_s: float | None = None, max_stat
     items = np.flatnonzero(problem.image_ok & (L > 0))
     w_all = L[items]
     v_all = problem.saving_j[items]
-    e_all = v_all / w_all
+    with np.errstate(over="ignore"):
+        e_all = np.minimum(v_all / w_all, np.finfo(np.float64).max)
     order = np.argsort(-e_all, kind="stable")
     idx, w, v, e = items[order], w_all[order], v_all[order], e_all[order]
     n = idx.size
@@ -85,67 +67,37 @@ def solve_exact(problem: Problem, *, time_limit_s: float | None = None, max_stat
     special = n == 0 or b >= n or bool(np.all(w == w[0])) or bool(np.all(v == v[0]))
     if not special:
         W0 = float(cw[b - 1]) if b > 0 else 0.0
-        wmin_suffix = np.minimum.accumulate(w[::-1])[::-1]
+        wmin_suffix = np.minimum.accumulate(w[::-1])[::-1].copy()
         Ws = np.array([W0])
         Vs = np.array([0.0])
-        s, t = b - 1, b
-        z, z_ref = 0.0, (-1, 0)
-        hist: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
+        Ns = np.zeros(1, dtype=np.int64)
+        s_i, t_i = b - 1, b
+        z, z_node = 0.0, 0
+        pool_j = np.full(1024, -1, dtype=np.int64)
+        pool_p = np.full(1024, -1, dtype=np.int64)
+        pool_n = 1  # node 0 = the break solution
         tol = rel_tol * max(float(np.sum(v[max(0, b - 1):b + 1])), float(v[b]))
         stopped = ""
-        while Ws.size and (s >= 0 or t < n):
-            if t < n and (s < 0 or steps % 2 == 0):
-                j, dw, dv = t, w[t], v[t]
-                t += 1
-            else:
-                j, dw, dv = s, -w[s], -v[s]
-                s -= 1
-            m = Ws.size
-            Wn = np.concatenate((Ws, Ws + dw))
-            Vn = np.concatenate((Vs, Vs + dv))
-            order2 = np.lexsort((-Vn, Wn))
-            Wn, Vn = Wn[order2], Vn[order2]
-            prev = np.concatenate(([-np.inf], np.maximum.accumulate(Vn)[:-1]))
-            keep = Vn > prev
-            parent = (order2 % m)[keep]
-            flag = (order2 >= m)[keep]
-            Wn, Vn = Wn[keep], Vn[keep]
-            feas = Wn <= cap
-            if np.any(feas):
-                k = int(np.argmax(np.where(feas, Vn, -np.inf)))
-                if Vn[k] > z:
-                    z, z_ref = float(Vn[k]), (-2, k)
-            e_s = float(e[s]) if s >= 0 else math.inf
-            e_t = float(e[t]) if t < n else 0.0
-            wmin_t = float(wmin_suffix[t]) if t < n else math.inf
-            U = _bounds(Wn, Vn, cap, e_s, e_t, wmin_t)
-            live = z + tol < U
-            live_idx = np.flatnonzero(live)
-            hist.append((j, parent, flag, live_idx))
-            if z_ref[0] == -2:
-                z_ref = (len(hist) - 1, z_ref[1])
-            Ws, Vs = Wn[live], Vn[live]
-            steps += 1
-            if Ws.size > max_states:
+        status = 0
+        while status == 0:
+            (Ws, Vs, Ns, s_i, t_i, steps, z, z_node, pool_j, pool_p, pool_n, status) = kernel.dp_chunk(
+                w, v, e, wmin_suffix, cap, tol, Ws, Vs, Ns, s_i, t_i, steps, z, z_node, pool_j, pool_p, pool_n,
+                64, max_states)
+            if status == 2:
                 stopped = f"state limit {max_states} reached"
-            elif time_limit_s is not None and time.perf_counter() - t0 > time_limit_s:
+            elif status == 0 and time_limit_s is not None and time.perf_counter() - t0 > time_limit_s:
                 stopped = f"time limit {time_limit_s:g} s reached"
             if stopped:
-                lb_saving_extra = max(0.0, float(U[live].max()) - z) if Ws.size else 0.0
+                ub = kernel.max_bound(w, v, e, wmin_suffix, cap, Ws, Vs, s_i, t_i)
+                lb_saving_extra = max(0.0, float(ub) - z)
                 notes.append(f"exact: {stopped} after {steps} core steps; returning the incumbent with its "
                              "certified gap")
                 break
-        # Reconstruct the incumbent: walk parents back from the step where it was recorded.
         toggles: list[int] = []
-        pos, f = z_ref
-        while pos >= 0:
-            j, parent, flag, _ = hist[pos]
-            if flag[f]:
-                toggles.append(j)
-            i_prev = int(parent[f])
-            pos -= 1
-            if pos >= 0:
-                f = int(hist[pos][3][i_prev])
+        node = int(z_node)
+        while node > 0:
+            toggles.append(int(pool_j[node]))
+            node = int(pool_p[node])
         for j in toggles:
             y[j] = ~y[j]
     x[idx[y]] = 0
