@@ -198,7 +198,10 @@ def test_nan_parameters_are_culled_and_ply_refuses_them(tmp_path):
     model.means[3] = np.nan
     model.quats[4] = 0.0
     model.sh[5, 0, 1] = np.inf
+    model.opacity_logits[6] = np.nan
+    model.log_scales[7, 1] = np.nan
     _finite(render(model, front_camera()))
+    _finite(render(model.with_degree(2), front_camera()))
     with pytest.raises(ValueError, match="NaN"):
         model.save_ply(tmp_path / "bad.ply")
 

@@ -62,7 +62,7 @@ def project_kernel(means, quats, log_scales, opacity_logits, w2c, intr, lims, wi
         if not z >= near_m:  # also rejects NaN
             continue
         opac = 1.0 / (1.0 + math.exp(-float(opacity_logits[i])))
-        if opac < ALPHA_MIN:
+        if not opac >= ALPHA_MIN:  # also rejects NaN
             continue
         qw, qx, qy, qz = float(quats[i, 0]), float(quats[i, 1]), float(quats[i, 2]), float(quats[i, 3])
         qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)

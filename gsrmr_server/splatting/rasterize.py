@@ -29,6 +29,7 @@ ALPHA_MAX = 0.99
 ALPHA_MIN = 1.0 / 255.0
 T_MIN = 1e-4
 PACK_WIDTH = 12
+SPAN_MARGIN_PX = 1e-3
 
 
 @nb.njit(cache=True)
@@ -84,12 +85,23 @@ def forward_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, bg, 
             mx, my = packed[k, 0], packed[k, 1]
             ca, cb, cc = packed[k, 2], packed[k, 3], packed[k, 4]
             opac, rad, cut = packed[k, 5], packed[k, 10], packed[k, 11]
+            ua, ub = max(box[k, 0], x0), min(box[k, 1] + 1, x1)
             for v in range(max(box[k, 2], y0), min(box[k, 3] + 1, y1)):
                 dy = v + 0.5 - my
                 if abs(dy) > rad:
                     continue
+                # exact span of this row where σ ≤ cut (½a·dx² + b·dy·dx + ½c·dy² − cut ≤ 0), widened
+                # by SPAN_MARGIN_PX so rounding never drops a pixel; each pixel is still tested below
+                disc = (cb * dy) * (cb * dy) - ca * (cc * dy * dy - 2.0 * cut)
+                if disc < 0.0:
+                    continue
+                root = math.sqrt(disc)
+                lo = mx - 0.5 + (-cb * dy - root) / ca - SPAN_MARGIN_PX
+                hi = mx - 0.5 + (-cb * dy + root) / ca + SPAN_MARGIN_PX
+                u_lo = max(ua, int(math.ceil(lo)))
+                u_hi = min(ub, int(math.floor(hi)) + 1)
                 row = (v - y0) * tw - x0
-                for u in range(max(box[k, 0], x0), min(box[k, 1] + 1, x1)):
+                for u in range(u_lo, u_hi):
                     p = row + u
                     if done[p]:
                         continue
@@ -244,6 +256,28 @@ def pack(means2d, conic, opacity, colors, depth, radius) -> np.ndarray:
     with np.errstate(divide="ignore"):
         out[:, 11] = np.log(255.0 * np.asarray(opacity, np.float64)) + 1e-9
     return out
+
+
+@nb.njit(parallel=True, cache=True)
+def gather_pack_kernel(geom, box, order, colors, sh0, out, out_box):
+    """Fused gather for the render path: packed rows and boxes of ``geom``/``box`` rows ``order``.
+
+    Colours come from ``colors`` (M×3, already evaluated) when it has M rows, otherwise from the DC
+    coefficients ``sh0`` (N×3) as max(0, C0·sh0 + 0.5).
+    """
+    use_sh0 = colors.shape[0] != order.shape[0]
+    for j in nb.prange(order.shape[0]):
+        i = order[j]
+        for c in range(5):
+            out[j, c] = geom[i, c]
+        out[j, 5] = geom[i, 5]
+        for c in range(3):
+            out[j, 6 + c] = max(0.0, 0.28209479177387814 * sh0[i, c] + 0.5) if use_sh0 else colors[j, c]
+        out[j, 9] = geom[i, 6]
+        out[j, 10] = geom[i, 7]
+        out[j, 11] = math.log(255.0 * float(geom[i, 5])) + 1e-9
+        for c in range(4):
+            out_box[j, c] = box[i, c]
 
 
 def rasterize_packed(packed: np.ndarray, box: np.ndarray, width: int, height: int, background: np.ndarray,

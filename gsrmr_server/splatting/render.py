@@ -17,7 +17,14 @@ import torch
 from gsrmr_common.camera import Camera
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.splatting.project import NEAR_M, project_numpy, project_torch
-from gsrmr_server.splatting.rasterize import TILE, RasterizeFunction, depth_order, pack, rasterize_packed
+from gsrmr_server.splatting.rasterize import (
+    PACK_WIDTH,
+    TILE,
+    RasterizeFunction,
+    depth_order,
+    gather_pack_kernel,
+    rasterize_packed,
+)
 from gsrmr_server.splatting.sh import C0, eval_sh_numpy, eval_sh_torch
 
 MAX_PIXELS = 4096 * 4096
@@ -73,15 +80,23 @@ def render(model: GaussianModel, camera: Camera, background=(0.0, 0.0, 0.0), *, 
                               camera.world_to_camera, intr, width, height, near_m)
     visible = np.nonzero((box[:, 0] <= box[:, 1]) & (box[:, 2] <= box[:, 3]))[0]
     order = visible[depth_order(geom[visible, 6])]
-    colors = gaussian_colors(model, order, camera.center_world, sh_degree)
-    bad = ~np.all(np.isfinite(colors), axis=1) | ~np.all(np.isfinite(geom[order]), axis=1)
-    if bad.any():  # NaN SH or means: drop them instead of painting NaN
-        order, colors = order[~bad], colors[~bad]
-    g = geom[order]
-    packed = pack(g[:, 0:2], g[:, 2:5], g[:, 5], colors, g[:, 6], g[:, 7])
-    rgb, alpha, depth, _, _, _ = rasterize_packed(packed, box[order], width, height, bg, tile)
+    degree = model.sh_degree if sh_degree is None else min(sh_degree, model.sh_degree)
+    if degree == 0:
+        colors = np.zeros((0, 3))
+    else:
+        colors = gaussian_colors(model, order, camera.center_world, degree)
+        bad = ~np.all(np.isfinite(colors), axis=1)
+        if bad.any():  # NaN SH: drop those Gaussians instead of painting NaN
+            order, colors = order[~bad], colors[~bad]
+    packed = np.empty((order.shape[0], PACK_WIDTH), np.float64)
+    pbox = np.empty((order.shape[0], 4), np.int64)
+    gather_pack_kernel(geom, box, order, colors, np.ascontiguousarray(model.sh[:, 0, :]), packed, pbox)
+    if degree == 0 and not np.all(np.isfinite(packed[:, 6:9])):
+        ok = np.all(np.isfinite(packed[:, 6:9]), axis=1)
+        packed, pbox = np.ascontiguousarray(packed[ok]), np.ascontiguousarray(pbox[ok])
+    rgb, alpha, depth, _, _, _ = rasterize_packed(packed, pbox, width, height, bg, tile)
     np.clip(rgb, 0.0, 1.0, out=rgb)
-    return RenderOutput(rgb, alpha, depth, int(order.shape[0]))
+    return RenderOutput(rgb, alpha, depth, int(packed.shape[0]))
 
 
 @dataclass

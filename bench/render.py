@@ -1,0 +1,112 @@
+"""Renderer benchmark: frames/s of ``render()`` on the garden test model (not a test; prints tables).
+
+Tables: fps against resolution (the 3 real garden cameras' field of view, scaled), against Gaussian
+count (random subsets of the garden model, fixed seed) and against SH degree (coefficients above
+degree 0 drawn at random so the SH path really runs). Each figure is the median over ``--repeats``
+renders per camera, over the 3 cameras. Also reports the numba first-call time with a cold cache
+(compile) and a warm cache (load), each in a fresh subprocess.
+
+Usage: .venv/bin/python bench/render.py [--repeats 7] [--threads N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+import numba
+import numpy as np
+
+from gsrmr_common.camera import Camera
+from gsrmr_server.splatting.model import GaussianModel, garden_model, load_garden
+from gsrmr_server.splatting.render import render
+
+FIRST_CALL = ("import time; t0 = time.perf_counter();"
+              "from gsrmr_server.splatting.model import garden_model, load_garden;"
+              "from gsrmr_server.splatting.render import render;"
+              "m = garden_model(); cam = load_garden()[2][0]; t1 = time.perf_counter(); render(m, cam);"
+              "t2 = time.perf_counter(); render(m, cam); t3 = time.perf_counter();"
+              "print(f'{t1 - t0:.2f} {t2 - t1:.2f} {t3 - t2:.3f}')")
+
+
+def time_renders(model: GaussianModel, cams: list[Camera], repeats: int) -> tuple[float, int]:
+    """(median seconds per render over all cameras × repeats, mean visible Gaussians)."""
+    times, vis = [], []
+    for cam in cams:
+        render(model, cam)  # warm-up (JIT already compiled; caches, page faults)
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            out = render(model, cam)
+            times.append(time.perf_counter() - t0)
+        vis.append(out.num_visible)
+    return float(np.median(times)), int(np.mean(vis))
+
+
+def scaled(cams: list[Camera], width: int, height: int) -> list[Camera]:
+    return [Camera(c.intrinsics.scaled(width, height), c.world_to_camera) for c in cams]
+
+
+def with_random_sh(model: GaussianModel, degree: int, seed: int = 0) -> GaussianModel:
+    m = model.with_degree(degree)
+    rng = np.random.default_rng(seed)
+    m.sh[:, 1:] = rng.normal(0.0, 0.1, m.sh[:, 1:].shape).astype(np.float32)
+    return m
+
+
+def first_call_times() -> list[str]:
+    rows = []
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        for label in ("cold cache (compile)", "warm cache (load)"):
+            out = subprocess.run([sys.executable, "-c", FIRST_CALL], env=env, capture_output=True, text=True,
+                                 check=True).stdout.split()
+            rows.append(f"| {label} | {out[0]} | {out[1]} | {float(out[2]) * 1000:.0f} |")
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--threads", type=int, default=None, help="numba threads (default: all cores)")
+    ap.add_argument("--skip-compile", action="store_true")
+    args = ap.parse_args()
+    if args.threads:
+        numba.set_num_threads(args.threads)
+    model = garden_model()
+    _, _, cams = load_garden()
+    print(f"# render() benchmark: garden model, {model.num_gaussians} Gaussians (SH 0), "
+          f"{numba.get_num_threads()} numba threads, {os.cpu_count()} CPUs, median of {args.repeats} × 3 cameras\n")
+    print("## fps vs resolution (all Gaussians)\n")
+    print("| resolution | ms/frame | fps | visible Gaussians |\n|---|---|---|---|")
+    for w, h in [(160, 120), (320, 240), (648, 420), (1296, 840)]:
+        t, vis = time_renders(model, scaled(cams, w, h), args.repeats)
+        print(f"| {w}×{h} | {t * 1000:.1f} | {1 / t:.1f} | {vis} |", flush=True)
+    print("\n## fps vs Gaussian count (random subsets, seed 0)\n")
+    print("| Gaussians | 320×240 ms | 320×240 fps | 648×420 ms | 648×420 fps |\n|---|---|---|---|---|")
+    rng = np.random.default_rng(0)
+    for frac in (0.1, 0.25, 0.5, 1.0):
+        sub = model if frac == 1.0 else model.subset(np.sort(rng.choice(len(model), int(frac * len(model)),
+                                                                        replace=False)))
+        t1, _ = time_renders(sub, scaled(cams, 320, 240), args.repeats)
+        t2, _ = time_renders(sub, cams, args.repeats)
+        print(f"| {len(sub)} | {t1 * 1000:.1f} | {1 / t1:.1f} | {t2 * 1000:.1f} | {1 / t2:.1f} |", flush=True)
+    print("\n## fps vs SH degree (all Gaussians)\n")
+    print("| SH degree | 320×240 ms | 320×240 fps | 648×420 ms | 648×420 fps |\n|---|---|---|---|---|")
+    for degree in range(4):
+        m = with_random_sh(model, degree) if degree else model
+        t1, _ = time_renders(m, scaled(cams, 320, 240), args.repeats)
+        t2, _ = time_renders(m, cams, args.repeats)
+        print(f"| {degree} | {t1 * 1000:.1f} | {1 / t1:.1f} | {t2 * 1000:.1f} | {1 / t2:.1f} |", flush=True)
+    if not args.skip_compile:
+        print("\n## first call in a fresh process (648×420)\n")
+        print("| numba cache | import + model build s | first render s | second render ms |\n|---|---|---|---|")
+        for row in first_call_times():
+            print(row, flush=True)
+
+
+if __name__ == "__main__":
+    main()
