@@ -98,8 +98,8 @@ def main() -> None:
         losses = []
         for t_s, pose in zip(drive.times_s, drive.poses, strict=True):
             cam = camera_from_pose(*pose, scene.camera.mount, scene.camera.intrinsics)
-            r2, depth = now.render(cam, t_s)  # type: ignore[attr-defined]
-            r1, _ = mapped.render(cam, t_s)  # type: ignore[attr-defined]
+            r2, depth = now.render(cam, t_s)
+            r1, _ = mapped.render(cam, t_s)
             v, d = virtual.render(cam, time_s=t_s, real_depth_m=depth)
             losses.append(mr_loss(mr_image(r2, v, d), mr_image(r1, v, d)))
         loss = np.asarray(losses)

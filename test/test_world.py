@@ -345,7 +345,7 @@ def test_garden_points_world_renders_with_depth_and_an_occluding_mask():
     world = make_world(s, 1)
     x, y = LoopPath(s.route.waypoints).point_at(0.0)
     cam = camera_from_pose(x, y, math.pi / 2, s.camera.mount, s.camera.intrinsics)
-    rgb, depth = world.render(cam)  # type: ignore[attr-defined]
+    rgb, depth = world.render(cam)
     assert np.isfinite(depth).mean() > 0.5 and rgb.std() > 0.05
     _, d = VirtualViewSource(s, world).render(cam, real_depth_m=depth)
     assert set(np.unique(d)) <= {0.0, 1.0}

@@ -165,7 +165,7 @@ class MockCamera(Node):
                  and (now - self.odom_time).nanoseconds * 1e-9 <= self.odom_timeout_s)
         pose = self.odom_pose if fresh and self.odom_pose is not None else self.scripted_pose(t_s)
         cam = camera_from_pose(*pose, self.scene.camera.mount, self.k)
-        rgb, depth = self.world.render(cam, t_s)  # type: ignore[attr-defined]
+        rgb, depth = self.world.render(cam, t_s)
         stamp = now.to_msg()
         rgb_u8 = np.clip(np.round(rgb * 255), 0, 255).astype(np.uint8)
         self.pub_image.publish(image_msg(rgb_u8, "rgb8", stamp))

@@ -86,7 +86,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.cmd == "render":
         cam = camera_from_pose(*args.pose, scene.camera.mount, scene.camera.intrinsics)
         world = make_world(scene, args.round)
-        rgb, depth = world.render(cam, args.time)  # type: ignore[attr-defined]
+        rgb, depth = world.render(cam, args.time)
         v, d = VirtualViewSource(scene, world).render(cam, time_s=args.time, real_depth_m=depth)
         m = mr_image(rgb, v, d)
         cv2.imwrite(str(args.out), cv2.cvtColor(np.clip(np.round(m * 255), 0, 255).astype(np.uint8),

@@ -19,11 +19,13 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
+from typing import Protocol
 
 import numba
 import numpy as np
 
 from gsrmr_common.camera import Camera
+from gsrmr_server.world.raycast import RayCastWorld
 from gsrmr_server.world.scene import PointsWorld, Scene, WorldState
 
 
@@ -141,10 +143,23 @@ class PointsWorldRenderer:
         return rgb, depth
 
 
-def make_world(scene: Scene, round_index: int = 1) -> object:
+class RealWorld(Protocol):
+    """What renders the real world: RayCastWorld or PointsWorldRenderer."""
+
+    scene: Scene
+    round_index: int
+
+    def state(self, t_s: float) -> WorldState:
+        """The real world's state at round time ``t_s``."""
+        ...
+
+    def render(self, camera: Camera, t_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """(rgb H×W×3 float32 in [0, 1], depth H×W float32 camera z in metres, +inf = nothing)."""
+        ...
+
+
+def make_world(scene: Scene, round_index: int = 1) -> RealWorld:
     """The real-world renderer a scene asks for: points if it has ``points``, else ray casting."""
     if scene.points is not None:
         return PointsWorldRenderer(scene, round_index)
-    from gsrmr_server.world.raycast import RayCastWorld
-
     return RayCastWorld(scene, round_index)

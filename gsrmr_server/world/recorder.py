@@ -20,6 +20,7 @@ record holds the real image r_t, its depth, the pose s_t, the virtual view v_t a
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 import json
 import math
@@ -68,7 +69,7 @@ def record_round1(scene: Scene, out_dir: str | Path, frames: int | None = None, 
     ds: list[DatasetFrame] = []
     for i, (t_s, pose) in enumerate(zip(drive.times_s, drive.poses, strict=True)):
         cam = camera_from_pose(*pose, mount, cam_k)
-        rgb, depth = world.render(cam, float(t_s))  # type: ignore[attr-defined]
+        rgb, depth = world.render(cam, float(t_s))
         ds.append(DatasetFrame(cam, rgb, depth, (float(pose[0]), float(pose[1]), float(pose[2]))))
         if progress and i % 20 == 0:
             print(f"round 1: frame {i}/{h}", flush=True)
@@ -102,7 +103,7 @@ def record_round2(scene: Scene, out_dir: str | Path, slots: int | None = None, s
         t_s = float(drive.times_s[t])
         pose = tuple(float(v) for v in drive.poses[t])
         cam = camera_from_pose(*pose, mount, k)
-        rgb, depth = world.render(cam, t_s)  # type: ignore[attr-defined]
+        rgb, depth = world.render(cam, t_s)
         v, d = virtual.render(cam, time_s=t_s, real_depth_m=depth)
         rel = f"slots/slot_{t:05d}.npz"
         depth_mm = np.clip(np.round(np.nan_to_num(depth, posinf=0.0) * 1000.0), 0, 65535).astype(np.uint16)
@@ -188,6 +189,6 @@ class Round2Record:
         return SlotRecord(int(entry["t"]), float(entry["time_s"]), tuple(entry["pose"]),  # type: ignore[arg-type]
                           self.camera(t), image, depth, virtual, mask, list(entry["events"]))
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[SlotRecord]:
         for t in range(len(self)):
             yield self[t]

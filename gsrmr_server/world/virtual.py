@@ -15,12 +15,16 @@ from __future__ import annotations
 
 from dataclasses import replace
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from gsrmr_common.camera import Camera
 from gsrmr_server.world.raycast import render_shapes
 from gsrmr_server.world.scene import Agent, Scene, Shape
+
+if TYPE_CHECKING:
+    from gsrmr_server.world.points import RealWorld
 
 
 def agent_pose(agent: Agent, t_s: float) -> tuple[float, float, float]:
@@ -70,12 +74,12 @@ class VirtualViewSource:
     """Virtual view and mask at a camera pose: ``render(camera) -> (v H×W×3 f32, d H×W f32 in {0, 1})``.
 
     The real depth used for occlusion is ``real_depth_m`` if given, else the depth of ``real_world``
-    (anything with ``render(camera, t_s) -> (rgb, depth)``, e.g. the digital twin
-    :class:`~gsrmr_server.world.raycast.RayCastWorld`) at ``time_s``. Set ``time_s`` (round seconds)
+    (a :class:`~gsrmr_server.world.points.RealWorld`, e.g. the digital twin
+    ``make_world(scene, round)``) at ``time_s``. Set ``time_s`` (round seconds)
     before rendering so moving agents are where they should be.
     """
 
-    def __init__(self, scene: Scene, real_world: object | None = None, time_s: float = 0.0) -> None:
+    def __init__(self, scene: Scene, real_world: RealWorld | None = None, time_s: float = 0.0) -> None:
         self.scene = scene
         self.real_world = real_world
         self.time_s = float(time_s)
@@ -89,7 +93,7 @@ class VirtualViewSource:
             if self.real_world is None:
                 real_depth_m = np.full((camera.height, camera.width), np.inf, np.float32)
             else:
-                real_depth_m = self.real_world.render(camera, t)[1]  # type: ignore[attr-defined]
+                real_depth_m = self.real_world.render(camera, t)[1]
         if real_depth_m.shape != (camera.height, camera.width):
             raise ValueError(f"real depth is {real_depth_m.shape}, camera is {camera.height}×{camera.width}")
         shapes = agents_at(self.scene, t)
