@@ -47,6 +47,8 @@ class _DcProblem:
 
     def __init__(self, problem: Problem, free: np.ndarray, cap: float) -> None:
         n = int(free.sum())
+        # DPP compilation builds an O(n²) parameter map: only worth it for small n (re-solved every iteration).
+        self.dpp = n <= 1000
         a = link.snr_exponent(problem.pose_bits, problem.slot_s, problem.bandwidth_hz)
         a_i = link.snr_exponent(problem.image_bits, problem.slot_s, problem.bandwidth_hz)
         self.q_img = float(np.expm1(a_i))
@@ -77,7 +79,7 @@ class _DcProblem:
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")  # "inaccurate" is recorded in the notes instead
-                    self.prob.solve(solver=solver)
+                    self.prob.solve(solver=solver, ignore_dpp=not self.dpp)
                 status = self.prob.status
             except (cp.error.SolverError, ValueError, ArithmeticError) as exc:
                 notes.append(f"{solver} (scale x{factor:g}) failed: {type(exc).__name__}: {str(exc)[:80]}")
