@@ -11,22 +11,25 @@ from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
 
-def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
+def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, *, threads: int = 1) -> int:
     """Init rclpy, build the node, spin until SIGINT/SIGTERM or shutdown, clean up; return an exit code.
 
     The pattern of ``ros2/examples``: Ctrl-C ends the spin with KeyboardInterrupt or
-    ExternalShutdownException, both a normal exit (code 0).
+    ExternalShutdownException, both a normal exit (code 0). ``threads`` > 1 spins a
+    MultiThreadedExecutor, so callbacks in different callback groups run concurrently (a node whose
+    slot work takes tens of milliseconds still receives messages meanwhile).
     """
     argv = list(sys.argv if args is None else args)
     node: Node | None = None
     try:
         rclpy.init(args=argv)
         node = factory()
-        rclpy.spin(node)
+        executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else None
+        rclpy.spin(node, executor=executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

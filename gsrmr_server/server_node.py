@@ -28,6 +28,7 @@ import threading
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Twist, Vector3Stamped
 import numpy as np
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CompressedImage, Image
@@ -107,18 +108,22 @@ class ServerNode(Node):
         self.recorder = RunRecorder(record_dir) if record_dir else None
         self.eval_rows: list[dict] = []
 
+        # Uploads are received in their own callback group while a slot is being composed.
+        io = MutuallyExclusiveCallbackGroup()
         self._pub_mr = self.create_publisher(Image, "mr/image", 5)
         self._pub_mr_c = self.create_publisher(CompressedImage, "mr/image/compressed", 5)
         self._pub_loss = self.create_publisher(Float64MultiArray, "gsrmr/loss_sample", UPLINK_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(Vector3Stamped, "uplink/pose_key", self._on_key, UPLINK_QOS)
+        self.create_subscription(Vector3Stamped, "uplink/pose_key", self._on_key, UPLINK_QOS, callback_group=io)
         self.create_subscription(CompressedImage, "uplink/image_raw/compressed", self._on_image,
-                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-        self.create_subscription(Float64MultiArray, "gsrmr/schedule", self._on_schedule, SCHEDULE_QOS)
-        self.create_subscription(Float64MultiArray, "gsrmr/ledger", self._on_ledger, UPLINK_QOS)
-        self.create_subscription(Twist, "cmd_vel", self._on_cmd, 10)
+                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE), callback_group=io)
+        self.create_subscription(Float64MultiArray, "gsrmr/schedule", self._on_schedule, SCHEDULE_QOS,
+                                 callback_group=io)
+        self.create_subscription(Float64MultiArray, "gsrmr/ledger", self._on_ledger, UPLINK_QOS, callback_group=io)
+        self.create_subscription(Twist, "cmd_vel", self._on_cmd, 10, callback_group=io)
         if self.evaluate:
-            self.create_subscription(Image, "camera/image_raw", self._on_camera, qos_profile_sensor_data)
+            self.create_subscription(Image, "camera/image_raw", self._on_camera, qos_profile_sensor_data,
+                                     callback_group=io)
         self.create_timer(0.005, self._tick)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(f"server: model {model_path} ({model.num_gaussians} Gaussians), scene "
@@ -275,6 +280,6 @@ class ServerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-server``."""
-    return run_node(ServerNode, args)
+    return run_node(ServerNode, args, threads=2)
 
 

@@ -61,7 +61,7 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
     over = overrides or {}
     specs = [
         ProcessSpec("gsrmr-mock-limo", "gsrmr_mock_limo", ros=True,
-                    arguments=["--link", link_path, "--start-pose", f"{a0},{b0},{t0}"]),
+                    arguments=["--link", link_path, f"--start-pose={a0},{b0},{t0}"]),
         ProcessSpec("gsrmr-limo-base", "gsrmr_limo_base", [robot], {"port": link_path}),
         ProcessSpec("gsrmr-mock-camera", "gsrmr_mock_camera", [], {"scene": scene, "round": 2}),
         ProcessSpec("gsrmr-route-follower", "gsrmr_route_follower", [],
