@@ -164,6 +164,29 @@ def test_floor_depth_back_projects_onto_the_floor_plane_with_a_pitched_camera():
     assert np.allclose(uv[:, 0], expected_u, atol=1e-6)
 
 
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-180, 180), st.floats(0.1, 0.8),
+       st.floats(0.1, 0.8), st.floats(0.1, 0.6), st.floats(-0.6, 0.6))
+def test_every_hit_pixel_back_projects_onto_the_yawed_box_surface(x, y, yaw_deg, sx, sy, sz, look):
+    s = parse_scene(_scene(room=None, objects=[{"position": [x, y], "size": [sx, sy, sz], "yaw_deg": yaw_deg}],
+                           camera={"width": 48, "height": 36}))
+    # robot 2.5 m away from the box, facing it (± look rad)
+    cam = camera_from_pose(x - 2.5, y, look, s.camera.mount, s.camera.intrinsics)
+    _, depth = RayCastWorld(s).render(cam)
+    hit = np.isfinite(depth)
+    pts = (cam.ray_directions_camera()[hit] * depth[hit][:, None]) @ cam.camera_to_world[:3, :3].T \
+        + cam.center_world
+    c, si = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    rel = pts - np.array([x, y, sz / 2])
+    local = np.stack([c * rel[:, 0] + si * rel[:, 1], -si * rel[:, 0] + c * rel[:, 1], rel[:, 2]], axis=1)
+    ratio = np.max(np.abs(local) / (0.5 * np.array([sx, sy, sz])), axis=1)
+    assert np.all(np.abs(ratio - 1.0) < 1e-4), ratio
+    # and the box is seen whenever its centre is in the image
+    uv, z = cam.project(np.array([[x, y, sz / 2]]))
+    if z[0] > 0 and 1 <= uv[0, 0] < 47 and 1 <= uv[0, 1] < 35:
+        assert hit[int(uv[0, 1]), int(uv[0, 0])]
+
+
 def test_directional_light_shadow_darkens_the_floor_behind_a_box():
     data = _scene(ambient=0.3, room={"min": [-5, -5, 0], "max": [5, 5, 3],
                                      "floor": {"texture": "flat", "color": [0.5, 0.5, 0.5]}},
