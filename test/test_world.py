@@ -374,6 +374,31 @@ def test_garden_points_world_renders_with_depth_and_an_occluding_mask():
     assert set(np.unique(d)) <= {0.0, 1.0}
 
 
+def test_point_splatter_puts_each_point_at_its_projected_pixel_with_its_depth(tmp_path):
+    pts = np.array([[2.0, 0.3, 0.2], [3.0, -0.5, 0.4], [1.5, 0.0, 0.1]], np.float32)
+    cols = np.array([[255, 0, 0], [0, 255, 0], [0, 0, 255]], np.uint8)
+    np.savez(tmp_path / "pts.npz", means3d=pts, colors=cols)
+    s = parse_scene(_scene(room=None, background=[0, 0, 0],
+                           points={"path": str(tmp_path / "pts.npz"), "up": [0, 0, 1], "max_radius_px": 0},
+                           camera={"width": 64, "height": 48}))
+    world = make_world(s, 1)
+    cam = camera_from_pose(0.0, 0.0, 0.0, s.camera.mount, s.camera.intrinsics)
+    rgb, depth = world.render(cam)
+    uv, z = cam.project(pts.astype(np.float64))
+    assert np.isfinite(depth).sum() == 3
+    for (u, v), zi, col in zip(uv, z, cols, strict=True):
+        px = (int(np.floor(v)), int(np.floor(u)))
+        assert depth[px] == pytest.approx(zi, rel=1e-5)
+        assert np.allclose(rgb[px], col / 255.0)
+    # round-2 ambient dimming scales the captured colours
+    s2 = parse_scene({**_scene(room=None, background=[0, 0, 0], ambient=1.0,
+                               points={"path": str(tmp_path / "pts.npz"), "up": [0, 0, 1], "max_radius_px": 0},
+                               camera={"width": 64, "height": 48}),
+                      "events": [{"type": "light", "light": "ambient", "from_s": 0.0, "intensity_scale": 0.5}]})
+    dim, _ = make_world(s2, 2).render(cam, 1.0)
+    assert np.allclose(dim, 0.5 * rgb, atol=1e-6)
+
+
 def test_cli_records_round_one_and_reports_bad_scenes(tmp_path, capsys):
     assert cli.main(["record", "--scene", "sandbox", "--round", "1", "--out", str(tmp_path / "ds"),
                      "--frames", "3", "--width", "40", "--height", "30", "--quiet"]) == 0
