@@ -55,8 +55,8 @@ def yaw_of(q) -> float:
 class RobotNode(Node):
     """Slot-clocked uplink: image or pose key, with an energy ledger."""
 
-    def __init__(self) -> None:
-        super().__init__("gsrmr_robot")
+    def __init__(self, **node_kwargs) -> None:
+        super().__init__("gsrmr_robot", **node_kwargs)
         self.slot_s = declare(self, "slot_s", 0.1, "Slot length τ [s]; must equal the server's", min_value=0.01,
                               max_value=10.0, read_only=True)
         self.jpeg_quality = declare(self, "jpeg_quality", 80, "JPEG quality of uploaded images (1-100)",

@@ -46,8 +46,8 @@ PLANNING_PARAMS = {"loss_threshold", "horizon", "method", "solver_options", "ima
 class SchedulerNode(Node):
     """Online GSCLO scheduler."""
 
-    def __init__(self) -> None:
-        super().__init__("gsrmr_scheduler")
+    def __init__(self, **node_kwargs) -> None:
+        super().__init__("gsrmr_scheduler", **node_kwargs)
         self.slot_s = declare(self, "slot_s", 0.1, "Slot length τ [s]", min_value=0.01, max_value=10.0,
                               read_only=True)
         self.loss_threshold = declare(self, "loss_threshold", 0.03, "Average MR-loss budget L_th",

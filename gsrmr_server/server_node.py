@@ -63,8 +63,8 @@ SCHEDULE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 class ServerNode(Node):
     """Composes and publishes m̂_t every slot; measures L_t in image slots."""
 
-    def __init__(self) -> None:
-        super().__init__("gsrmr_server")
+    def __init__(self, **node_kwargs) -> None:
+        super().__init__("gsrmr_server", **node_kwargs)
         self.slot_s = declare(self, "slot_s", 0.1, "Slot length τ [s]; must equal the robot's", min_value=0.01,
                               max_value=10.0, read_only=True)
         self.process_delay_s = declare(self, "process_delay_s", 0.03, "Compose slot k this long after its "
