@@ -20,7 +20,7 @@ from gsrmr_server.world.raycast import RayCastWorld
 from gsrmr_server.world.recorder import Round2Record, record_round1, record_round2, with_resolution
 from gsrmr_server.world.route import LoopPath, PurePursuit
 from gsrmr_server.world.scene import SceneError, load_scene, parse_scene, resolve_scene_path
-from gsrmr_server.world.virtual import VirtualViewSource, agent_pose, mr_image
+from gsrmr_server.world.virtual import VirtualViewSource, agent_pose, compose_mask, mr_image
 
 MINIMAL = {"route": {"waypoints": [[0, 0], [1, 0], [1, 1]]}}
 
@@ -254,6 +254,12 @@ def test_virtual_agent_behind_a_real_box_is_hidden_and_in_front_is_shown():
                                 "mount": {"pitch_deg": 0, "forward_m": 0, "height_m": 0.15}}})
     cam = camera_from_pose(0.0, 0.0, 0.0, s.camera.mount, s.camera.intrinsics)
     assert (VirtualViewSource(s, RayCastWorld(s)).render(cam)[1] == 0).sum() > 0
+
+
+def test_mask_treats_missing_real_depth_as_no_surface():
+    virtual = np.array([[1.0, 1.0, 1.0, np.inf]], np.float32)
+    real = np.array([[0.0, np.nan, 0.5, 0.5]], np.float32)
+    assert compose_mask(virtual, real).tolist() == [[0.0, 0.0, 1.0, 1.0]]
 
 
 def test_moving_agent_goes_there_and_back():

@@ -59,8 +59,11 @@ def agents_at(scene: Scene, t_s: float) -> list[Shape]:
 
 
 def compose_mask(virtual_depth_m: np.ndarray, real_depth_m: np.ndarray) -> np.ndarray:
-    """d_t: 1.0 where the real surface is nearer than (or no) virtual agent, 0.0 where an agent shows."""
-    real = np.where(np.isfinite(real_depth_m), real_depth_m, np.inf)
+    """d_t: 1.0 where the real surface is nearer than (or no) virtual agent, 0.0 where an agent shows.
+
+    Real depth +inf, NaN or ≤ 0 means "no real surface" (0 is the no-depth value of depth PNGs).
+    """
+    real = np.where(np.isfinite(real_depth_m) & (real_depth_m > 0), real_depth_m, np.inf)
     return np.where(np.isfinite(virtual_depth_m) & (virtual_depth_m < real), 0.0, 1.0).astype(np.float32)
 
 
