@@ -30,12 +30,15 @@ def wait_until(cond, timeout_s: float, period_s: float = 0.01) -> bool:
     return cond()
 
 
-def drive_for(driver: LimoDriver, seconds: float, vx: float, wz: float = 0.0, period_s: float = 0.05) -> None:
-    """Publish a command like a cmd_vel source at 20 Hz."""
+def drive_for(driver: LimoDriver, seconds: float, vx: float, wz: float = 0.0, period_s: float = 0.05) -> float:
+    """Publish a command like a cmd_vel source at 20 Hz; return the time of the last one."""
     end = time.monotonic() + seconds
+    last = time.monotonic()
     while time.monotonic() < end:
+        last = time.monotonic()
         driver.set_command(vx, wz)
         time.sleep(period_s)
+    return last
 
 
 def corrupt_accepted(accepted: list[bytes], sent: list[bytes]) -> list[bytes]:
@@ -126,12 +129,11 @@ def test_base_stops_within_0_6_s_of_the_last_command(link):
     # the mock's own watchdog is set long, so the stop must come from the driver's 0.5 s timeout
     with MockLimo(link, cmd_timeout_s=10.0) as mock, LimoDriver(link, cmd_timeout_s=0.5) as drv:
         assert wait_until(lambda: drv.motion_mode() == p.MotionMode.DIFF, 3.0)
-        drive_for(drv, 1.0, 0.4, 0.3)
-        last_cmd_t = time.monotonic()  # drive_for's last set_command was < 0.05 s ago
+        last_cmd_t = drive_for(drv, 1.0, 0.4, 0.3)
         assert mock.true_velocity().vx_mps == pytest.approx(0.4)
         assert wait_until(lambda: mock.true_velocity().vx_mps == 0.0, 2.0, period_s=0.002)
         stopped_after_s = time.monotonic() - last_cmd_t
-        assert 0.4 < stopped_after_s < 0.6
+        assert 0.5 <= stopped_after_s < 0.6
         assert not drv.snapshot().command_active
         x_stop = mock.true_pose()[0]
         time.sleep(0.5)
@@ -205,3 +207,18 @@ def test_survives_garbage_drops_flips_and_silence_without_corrupt_frames(link):
     assert len(accepted) > 0.5 * len(sent)
     assert snap.parser["skipped_bytes"] > 0 and snap.parser["bad_checksum"] > 0
     assert snap.link.connected and snap.link.disconnects == 0
+
+
+def test_a_raising_callback_is_reported_and_does_not_kill_the_driver(link):
+    events: list[tuple[str, str]] = []
+
+    def broken(_snapshot) -> None:
+        raise RuntimeError("subscriber bug")
+
+    with MockLimo(link) as mock, LimoDriver(link, on_event=lambda lvl, txt: events.append((lvl, txt))) as drv:
+        drv.on_odometry = broken
+        assert wait_until(lambda: drv.motion_mode() == p.MotionMode.DIFF, 3.0)
+        drive_for(drv, 0.5, 0.3)
+        assert mock.true_velocity().vx_mps == pytest.approx(0.3)
+        assert drv.callback_errors > 10 and drv.snapshot().pose.x_m > 0.05
+    assert sum("subscriber bug" in txt for _, txt in events) == 1

@@ -150,6 +150,7 @@ class LimoDriver:
         self._implausible = 0
         self._frames_by_id: dict[int, int] = {}
         self._threads: list[threading.Thread] = []
+        self.callback_errors = 0
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> LimoDriver:
@@ -307,21 +308,26 @@ class LimoDriver:
 
     def _io_loop(self) -> None:
         backoff = self.reconnect_min_s
+        fails_in_row = reported_max = 0
         while not self._stop.is_set():
             try:
                 port = self._open()
             except (serial.SerialException, OSError, ValueError) as exc:
                 with self._lock:
-                    first = self._link.failed_opens == 0 and self._link.connects == 0
                     self._link.failed_opens += 1
                     self._link.last_error = f"open: {exc}"
                     self._link.next_retry_in_s = backoff
-                if first or backoff >= self.reconnect_max_s:
+                    fails_in_row += 1
+                # report the first failure, the first at full backoff, then every 10th
+                at_max = backoff >= self.reconnect_max_s
+                reported_max += at_max
+                if fails_in_row == 1 or (at_max and reported_max % 10 == 1):
                     self._event("warn", f"cannot open {self.port_url} ({exc}); retry in {backoff:.2f} s")
                 self._stop.wait(backoff)
                 backoff = min(2 * backoff, self.reconnect_max_s)
                 continue
             backoff = self.reconnect_min_s
+            fails_in_row = reported_max = 0
             self._write_failed.clear()
             with self._lock:
                 self._parser.reset()
@@ -389,11 +395,22 @@ class LimoDriver:
             self._send_enable()
         if self.frame_observer is not None:
             for frame, msg in observed:
-                self.frame_observer(frame, msg)
+                self._callback(self.frame_observer, frame, msg)
         if imu_sample is not None and self.on_imu is not None:
-            self.on_imu(imu_sample)
+            self._callback(self.on_imu, imu_sample)
         if odom_snapshot and self.on_odometry is not None:
-            self.on_odometry(self.snapshot())
+            self._callback(self.on_odometry, self.snapshot())
+
+    def _callback(self, fn: Callable[..., Any], *args: Any) -> None:
+        """Run a user callback; an exception in it is reported, never allowed to kill the io thread."""
+        try:
+            fn(*args)
+        except Exception as exc:
+            with self._lock:
+                self.callback_errors += 1
+                first = self.callback_errors == 1
+            if first:
+                self._event("error", f"callback {getattr(fn, '__name__', fn)} raised {exc!r} (reported once)")
 
     def _tx_loop(self) -> None:
         period = 1.0 / self.command_rate_hz

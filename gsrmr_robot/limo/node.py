@@ -155,7 +155,7 @@ class LimoBaseNode(Node):
         msg.twist.twist.linear.y = snap.velocity.vy_mps
         msg.twist.twist.angular.z = snap.velocity.wz_radps
         msg.twist.covariance = snap.twist_covariance
-        self._odom_pub.publish(msg)
+        self._publish(self._odom_pub, msg)
         if self._tf_pub is not None:
             from geometry_msgs.msg import TransformStamped
             tf = TransformStamped()
@@ -164,7 +164,17 @@ class LimoBaseNode(Node):
             tf.transform.translation.x = snap.pose.x_m
             tf.transform.translation.y = snap.pose.y_m
             tf.transform.rotation = msg.pose.pose.orientation
-            self._tf_pub.publish(self._tf_msg_type(transforms=[tf]))
+            self._publish(self._tf_pub, self._tf_msg_type(transforms=[tf]))
+
+    def _publish(self, pub, msg) -> None:
+        """Publish from the driver's io thread; silent once the context is shutting down (SIGINT)."""
+        if not self._alive or not self.context.ok():
+            return
+        try:
+            pub.publish(msg)
+        except Exception:
+            if self.context.ok():
+                raise
 
     def _publish_imu(self, sample: ImuSample) -> None:
         if not self._alive:
@@ -189,7 +199,7 @@ class LimoBaseNode(Node):
             msg.linear_acceleration_covariance = _diag3(0.1 ** 2)
         else:
             msg.linear_acceleration_covariance = [-1.0] + [0.0] * 8
-        self._imu_pub.publish(msg)
+        self._publish(self._imu_pub, msg)
 
     def _publish_diagnostics(self) -> None:
         snap = self.driver.snapshot()
