@@ -2,8 +2,9 @@
 
 Each point is projected with the shared camera model (pixel centres at +0.5) and drawn as a square
 of half-width ``clip(round(0.5 · f · point_size_m / z), 0, max_radius_px)`` pixels; the nearest point
-wins each pixel (depth = camera-space z, metres). Pixels no point reaches get the scene background
-and depth +inf. It is a point-cloud stand-in for a photograph — honest about holes and blockiness
+wins each pixel (depth = camera-space z, metres). Then ``fill_passes`` passes close pin-holes: an
+empty pixel with ≥ 5 of its 8 neighbours filled takes the nearest neighbour. Pixels still empty get the
+scene background and depth +inf. It is a point-cloud stand-in for a photograph — honest about holes and blockiness
 at close range — not a Gaussian-splatting render.
 
 Lighting: the points' colours are already lit (captured); round-2 events change them through the
@@ -140,7 +141,46 @@ class PointsWorldRenderer:
         cam_pts = camera.to_camera(self.points_m)
         splat_kernel(cam_pts, self._colors_at(state), k.fx, k.fy, k.cx, k.cy, self.scene.points.point_size_m,
                      self.scene.points.max_radius_px, self.NEAR_M, rgb, depth)
+        for _ in range(self.scene.points.fill_passes):
+            fill_holes_kernel(rgb, depth, 5)
         return rgb, depth
+
+
+@numba.njit(cache=True)
+def fill_holes_kernel(rgb: np.ndarray, depth: np.ndarray, min_neighbours: int) -> None:
+    """One pass: an empty pixel with ≥ ``min_neighbours`` filled 8-neighbours takes the nearest one.
+
+    Closes the pin-holes between splats on surfaces without growing silhouettes into empty space.
+    """
+    H, W = depth.shape
+    src_d = depth.copy()
+    src_c = rgb.copy()
+    for y in range(H):
+        for x in range(W):
+            if np.isfinite(src_d[y, x]):
+                continue
+            count = 0
+            best = np.inf
+            by = -1
+            bx = -1
+            for dy in range(-1, 2):
+                for dx in range(-1, 2):
+                    yy = y + dy
+                    xx = x + dx
+                    if (dy == 0 and dx == 0) or yy < 0 or yy >= H or xx < 0 or xx >= W:
+                        continue
+                    z = src_d[yy, xx]
+                    if np.isfinite(z):
+                        count += 1
+                        if z < best:
+                            best = z
+                            by = yy
+                            bx = xx
+            if count >= min_neighbours:
+                depth[y, x] = best
+                rgb[y, x, 0] = src_c[by, bx, 0]
+                rgb[y, x, 1] = src_c[by, bx, 1]
+                rgb[y, x, 2] = src_c[by, bx, 2]
 
 
 class RealWorld(Protocol):

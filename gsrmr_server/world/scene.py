@@ -143,6 +143,7 @@ class PointsWorld:
     height_m: float = 0.0
     point_size_m: float = 0.02
     max_radius_px: int = 3
+    fill_passes: int = 2
 
 
 @dataclass(frozen=True)
@@ -475,7 +476,7 @@ def parse_scene(data: Any, source: str = "", base_dir: Path | None = None) -> Sc
     points = None
     if m.get("points") is not None:
         pm = _mapping(m["points"], "points", {"path", "scale", "yaw_deg", "origin", "up", "height_m",
-                                              "point_size_m", "max_radius_px"}, ("path",))
+                                              "point_size_m", "max_radius_px", "fill_passes"}, ("path",))
         raw = Path(_str(pm["path"], "points.path"))
         if not raw.is_absolute() and base_dir is not None:
             raw = (base_dir / raw).resolve()
@@ -488,6 +489,7 @@ def parse_scene(data: Any, source: str = "", base_dir: Path | None = None) -> Sc
             point_size_m=_num(pm.get("point_size_m", 0.02), "points.point_size_m", positive=True),
             max_radius_px=int(_num(pm.get("max_radius_px", 3), "points.max_radius_px", lo=0, hi=16,
                                    integer=True)),
+            fill_passes=int(_num(pm.get("fill_passes", 2), "points.fill_passes", lo=0, hi=8, integer=True)),
         )
     return Scene(name=name, camera=camera, route=route, slot_s=slot_s, slots=slots, frames=frames,
                  ambient=ambient, background=background, room=room, lights=lights,  # type: ignore[arg-type]
