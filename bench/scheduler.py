@@ -69,7 +69,7 @@ def table_sizes(quick: bool) -> None:
                 reps = 5 if T < 100_000 else 3
                 opts = {"energy_budget_j": ex.energy_j} if m in ("maxrate", "fairness") else {}
                 if m == "search":
-                    opts["time_limit_s"] = 120.0
+                    opts["time_limit_s"] = 60.0
                 t, s = timed(p, m, reps, **opts)
             gap = s.energy_j / ex.energy_j - 1
             extra = f" (certified gap {s.optimality_gap})" if m == "exact" else ""

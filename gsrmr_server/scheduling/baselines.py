@@ -168,8 +168,9 @@ def solve_rounding(problem: Problem, threshold: float = 0.5) -> Schedule:
 def solve_search(problem: Problem, *, max_iterations: int = 10_000, time_limit_s: float | None = None) -> Schedule:
     """Iterative local search from the ranking solution (best improvement, deterministic).
 
-    Moves: image→key if it fits the remaining budget; swap (image i→key, key j→image) if the budget still
-    holds. Stops at a local optimum (no improving move), after ``max_iterations`` or ``time_limit_s``.
+    Moves: image→key if it fits the remaining budget; exchange (image i→key, and the keys with the lowest
+    saving per unit loss back to images until the budget holds) if the net saving is positive.
+    Stops at a local optimum (no improving move), after ``max_iterations`` or ``time_limit_s``.
     """
     t0 = time.perf_counter()
     start = solve_ranking(problem)
@@ -196,28 +197,29 @@ def solve_search(problem: Problem, *, max_iterations: int = 10_000, time_limit_s
         fits = imgs[L[imgs] <= slack]
         if fits.size:
             i = fits[np.argmax(v[fits])]
-            best_gain, move = float(v[i]), (int(i), -1)
+            best_gain, move = float(v[i]), (int(i), None)
         if keys.size:
-            ko = keys[np.argsort(L[keys], kind="stable")]
-            suff_min_v = np.minimum.accumulate(v[ko][::-1])[::-1]
-            need = L[imgs] - slack  # key j must free at least this much
-            pos = np.searchsorted(L[ko], need, side="left")
-            valid = pos < ko.size
+            # Insert image i as a key and eject the keys with the lowest saving per unit loss until it fits
+            # (a 1-for-k exchange; k = 1 is the plain swap).
+            ko = keys[np.argsort(v[keys] / L[keys], kind="stable")]
+            cw = np.cumsum(L[ko])
+            cv = np.cumsum(v[ko])
+            need = L[imgs] - slack
+            pos = np.searchsorted(cw, need, side="left")  # eject ko[:pos+1]
+            valid = (need > 0) & (pos < ko.size)
             if np.any(valid):
                 gains = np.full(imgs.size, -np.inf)
-                gains[valid] = v[imgs[valid]] - suff_min_v[pos[valid]]
+                gains[valid] = v[imgs[valid]] - cv[pos[valid]]
                 r = int(np.argmax(gains))
                 if gains[r] > best_gain:
-                    pr = int(pos[r])
-                    jj = pr + int(np.argmin(v[ko[pr:]]))
-                    best_gain, move = float(gains[r]), (int(imgs[r]), int(ko[jj]))
+                    best_gain, move = float(gains[r]), (int(imgs[r]), ko[: int(pos[r]) + 1])
         if move is None or best_gain <= 0:
             break
-        i, j = move
+        i, ejected = move
         x_try = x.copy()
         x_try[i] = 0
-        if j >= 0:
-            x_try[j] = 1
+        if ejected is not None:
+            x_try[ejected] = 1
         if not problem.budget_ok(x_try):  # float round-off at the boundary: stop rather than cycle
             break
         x = x_try
