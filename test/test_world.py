@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
-from gsrmr_common.camera import CameraMount, camera_from_pose
+from gsrmr_common.camera import Camera, CameraMount, camera_from_pose
 from gsrmr_common.nerfstudio import read_dataset
 from gsrmr_server.world import cli
 from gsrmr_server.world.kinematics import drive_route, lap_time_s, start_pose, unicycle_step
@@ -185,6 +185,25 @@ def test_every_hit_pixel_back_projects_onto_the_yawed_box_surface(x, y, yaw_deg,
     uv, z = cam.project(np.array([[x, y, sz / 2]]))
     if z[0] > 0 and 1 <= uv[0, 0] < 47 and 1 <= uv[0, 1] < 35:
         assert hit[int(uv[0, 1]), int(uv[0, 0])]
+
+
+def test_screen_space_culling_never_changes_the_image(monkeypatch, small_sandbox):
+    from gsrmr_server.world import raycast
+
+    drive = drive_route(small_sandbox.route, 16, 1.8)
+    world = RayCastWorld(small_sandbox, 2)
+    cams = [camera_from_pose(*p, small_sandbox.camera.mount, small_sandbox.camera.intrinsics) for p in drive.poses]
+    culled = [world.render(c, 20.0) for c in cams]
+
+    def whole_image(camera: Camera, corners: np.ndarray, near_m: float = 1e-3) -> np.ndarray:
+        out = np.empty((corners.shape[0], 4), np.int64)
+        out[:] = (0, camera.width - 1, 0, camera.height - 1)
+        return out
+
+    monkeypatch.setattr(raycast, "screen_rects", whole_image)
+    for cam, (rgb, depth) in zip(cams, culled, strict=True):
+        rgb_all, depth_all = world.render(cam, 20.0)
+        assert np.array_equal(rgb, rgb_all) and np.array_equal(depth, depth_all)
 
 
 def test_directional_light_shadow_darkens_the_floor_behind_a_box():

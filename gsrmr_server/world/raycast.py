@@ -75,6 +75,54 @@ def pack_lights(state: WorldState) -> tuple[np.ndarray, np.ndarray]:
             np.array(regions, dtype=np.float64).reshape(-1, 9))
 
 
+def box_corners(boxes: np.ndarray) -> np.ndarray:
+    """(N, 8, 3) world corners of packed boxes."""
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], np.float64)
+    local = signs[None] * boxes[:, None, 3:6]
+    c, s = boxes[:, None, 6], boxes[:, None, 7]
+    x = c * local[..., 0] - s * local[..., 1] + boxes[:, None, 0]
+    y = s * local[..., 0] + c * local[..., 1] + boxes[:, None, 1]
+    z = local[..., 2] + boxes[:, None, 2]
+    return np.stack([x, y, z], axis=-1)
+
+
+def cylinder_corners(cyls: np.ndarray) -> np.ndarray:
+    """(M, 8, 3) corners of the axis-aligned boxes around packed cylinders."""
+    signs = np.array([[sx, sy] for sx in (-1, 1) for sy in (-1, 1)], np.float64)
+    xy = cyls[:, None, 0:2] + signs[None] * cyls[:, None, 4:5]
+    bottom = np.concatenate([xy, np.broadcast_to(cyls[:, None, 2:3], (len(cyls), 4, 1))], axis=-1)
+    top = np.concatenate([xy, np.broadcast_to(cyls[:, None, 3:4], (len(cyls), 4, 1))], axis=-1)
+    return np.concatenate([bottom, top], axis=1)
+
+
+def screen_rects(camera: Camera, corners: np.ndarray, near_m: float = 1e-3) -> np.ndarray:
+    """(N, 4) int64 pixel rectangles x0 x1 y0 y1 (inclusive) that contain each convex solid's image.
+
+    The image of a convex solid entirely in front of the camera lies in the convex hull of its
+    projected corners; a solid reaching behind ``near_m`` gets the whole image. Rectangles are
+    widened by one pixel, so the culling never drops a pixel centre the solid covers.
+    """
+    n = corners.shape[0]
+    out = np.empty((n, 4), np.int64)
+    out[:] = (0, camera.width - 1, 0, camera.height - 1)
+    if n == 0:
+        return out
+    cam = camera.to_camera(corners.reshape(-1, 3)).reshape(n, 8, 3)
+    k = camera.intrinsics
+    for i in range(n):
+        z = cam[i, :, 2]
+        if np.any(z <= near_m):
+            continue
+        u = k.fx * cam[i, :, 0] / z + k.cx
+        v = k.fy * cam[i, :, 1] / z + k.cy
+        x0, x1 = int(np.floor(u.min())) - 1, int(np.ceil(u.max())) + 1
+        y0, y1 = int(np.floor(v.min())) - 1, int(np.ceil(v.max())) + 1
+        out[i] = (max(x0, 0), min(x1, camera.width - 1), max(y0, 0), min(y1, camera.height - 1))
+        if x0 > camera.width - 1 or x1 < 0 or y0 > camera.height - 1 or y1 < 0:
+            out[i] = (1, 0, 1, 0)  # empty: off screen
+    return out
+
+
 def world_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """(origin (3,), H×W×3 world ray directions whose camera-frame z is 1) — ray t equals depth."""
     c2w = camera.camera_to_world
@@ -259,6 +307,7 @@ def _occluded(boxes: np.ndarray, cyls: np.ndarray, ox: float, oy: float, oz: flo
 
 @numba.njit(cache=True)
 def render_kernel(origin: np.ndarray, dirs: np.ndarray, boxes: np.ndarray, cyls: np.ndarray,
+                  box_rects: np.ndarray, cyl_rects: np.ndarray,
                   room: np.ndarray, has_room: bool, mats: np.ndarray, lights: np.ndarray,
                   regions: np.ndarray, ambient: float, background: np.ndarray, pixel_angle: float,
                   out_rgb: np.ndarray, out_depth: np.ndarray) -> None:
@@ -278,11 +327,17 @@ def render_kernel(origin: np.ndarray, dirs: np.ndarray, boxes: np.ndarray, cyls:
             tbest = np.inf
             mat = -1
             for i in range(boxes.shape[0]):
+                r = box_rects[i]
+                if x < r[0] or x > r[1] or y < r[2] or y > r[3]:
+                    continue
                 if _hit_box(boxes[i], ox, oy, oz, dx, dy, dz, tbest, res):
                     tbest = res[0]
                     mat = int(boxes[i, 8])
                     best[:] = res
             for i in range(cyls.shape[0]):
+                r = cyl_rects[i]
+                if x < r[0] or x > r[1] or y < r[2] or y > r[3]:
+                    continue
                 if _hit_cyl(cyls[i], ox, oy, oz, dx, dy, dz, tbest, res):
                     tbest = res[0]
                     mat = int(cyls[i, 5])
@@ -388,7 +443,10 @@ def render_shapes(camera: Camera, shapes: tuple[Shape, ...] | list[Shape], state
     origin, dirs = world_rays(camera)
     rgb = np.empty((camera.height, camera.width, 3), np.float32)
     depth = np.empty((camera.height, camera.width), np.float32)
-    render_kernel(origin, dirs, boxes, cyls, room if room is not None else np.zeros(9), room is not None,
+    box_rects = screen_rects(camera, box_corners(boxes))
+    cyl_rects = screen_rects(camera, cylinder_corners(cyls))
+    render_kernel(origin, dirs, boxes, cyls, box_rects, cyl_rects,
+                  room if room is not None else np.zeros(9), room is not None,
                   mats.array(), lights, regions, float(state.ambient), np.asarray(background, np.float64),
                   1.0 / camera.intrinsics.fx, rgb, depth)
     return rgb, depth
