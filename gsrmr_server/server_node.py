@@ -105,6 +105,7 @@ class ServerNode(Node):
         self.slots_done = self.slots_on_time = 0
         self.sources: dict[str, int] = {}
         self.latencies_ms: deque[float] = deque(maxlen=1000)
+        self.stage_ms: dict[str, deque[float]] = {}
         self.recorder = RunRecorder(record_dir) if record_dir else None
         self.eval_rows: list[dict] = []
 
@@ -203,6 +204,8 @@ class ServerNode(Node):
             best = self.uplink.best_pose(slot)
         time_s = (slot - (self._t0_slot or slot)) * self.slot_s
         result = self.composer.compose(uploads, best, time_s, measure_loss=self.measure_loss)
+        for stage, ms in result.timings_ms.items():
+            self.stage_ms.setdefault(stage, deque(maxlen=1000)).append(ms)
         for fault in result.faults:
             if fault not in uploads.faults:
                 self.uplink.count(fault)
@@ -260,7 +263,8 @@ class ServerNode(Node):
         values = {"slots": self.slots_done, "slots_on_time": self.slots_on_time,
                   "latency_ms_p50": round(float(np.percentile(lat, 50)), 2),
                   "latency_ms_p99": round(float(np.percentile(lat, 99)), 2),
-                  "sources": json.dumps(self.sources), "faults": json.dumps(dict(self.uplink.faults))}
+                  "sources": json.dumps(self.sources), "faults": json.dumps(dict(self.uplink.faults)),
+                  "compose_ms_p50": json.dumps(self._stage_medians())}
         level = DiagnosticStatus.OK if not self.uplink.faults else DiagnosticStatus.WARN
         status = DiagnosticStatus(level=level, name=f"{self.get_name()}: MR composition", hardware_id="gsrmr_server",
                                   message="ok" if level == DiagnosticStatus.OK else "uplink faults counted",
@@ -269,12 +273,18 @@ class ServerNode(Node):
         arr.header.stamp = self.get_clock().now().to_msg()
         self._pub_diag.publish(arr)
 
+    def _stage_medians(self) -> dict[str, float]:
+        return {k: round(float(np.median(v)), 2) for k, v in self.stage_ms.items() if v}
+
     def on_shutdown(self) -> None:
         """Close the recording (called by run_node on exit)."""
         if self.recorder is not None:
             self.recorder.close()
+            lat = np.asarray(self.latencies_ms) if self.latencies_ms else np.zeros(1)
             summary = {"slots": self.slots_done, "slots_on_time": self.slots_on_time, "sources": self.sources,
-                       "faults": dict(self.uplink.faults)}
+                       "faults": dict(self.uplink.faults), "compose_ms_p50": self._stage_medians(),
+                       "latency_ms_p50": float(np.percentile(lat, 50)),
+                       "latency_ms_p99": float(np.percentile(lat, 99))}
             Path(self.recorder.out_dir, "server_summary.json").write_text(json.dumps(summary, indent=1))
 
 
