@@ -101,6 +101,21 @@ def test_shipped_scenes_load_by_name():
     assert garden.points is not None and find_points_file(garden.points.path).exists()
 
 
+def test_scene_names_resolve_from_the_install_share_dir_without_the_source_tree(tmp_path, monkeypatch):
+    from gsrmr_server.world import scene as scene_mod
+
+    share = tmp_path / "share" / "gsrmr" / "config" / "scenes"
+    share.mkdir(parents=True)
+    (share / "sandbox.yaml").write_text(resolve_scene_path("sandbox").read_text())
+    monkeypatch.setattr(scene_mod, "REPO_SCENES_DIR", tmp_path / "no_repo")
+    monkeypatch.setattr(scene_mod.sys, "prefix", str(tmp_path))
+    found = resolve_scene_path("sandbox")
+    assert found.exists() and "no_repo" not in str(found)
+    assert load_scene("sandbox").name == "sandbox"
+    with pytest.raises(FileNotFoundError, match="no scene named 'nowhere'"):
+        resolve_scene_path("nowhere")
+
+
 def test_events_apply_only_in_round_two_and_only_in_their_span():
     s = load_scene("sandbox")
     lamp = {lt.id: lt for lt in s.lights}["lamp"]

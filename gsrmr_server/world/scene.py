@@ -509,9 +509,13 @@ def _unique(ids: list[str], path: str) -> None:
 # finding and loading scene files
 
 
+REPO_SCENES_DIR = Path(__file__).resolve().parents[2] / "config" / "scenes"
+
+
 def scene_dirs() -> list[Path]:
-    """Where scene names are looked up: ``<repo>/config/scenes`` then the installed share dir."""
-    dirs = [Path(__file__).resolve().parents[2] / "config" / "scenes"]
+    """Where scene names are looked up: ``<repo>/config/scenes``, the ament share dir of ``gsrmr``,
+    then ``<sys.prefix>/share/gsrmr/config/scenes`` (where setup.py installs ``config/**/*.yaml``)."""
+    dirs = [REPO_SCENES_DIR]
     try:
         from ament_index_python.packages import get_package_share_directory
 
