@@ -24,7 +24,6 @@ import time
 from typing import Any
 import warnings
 
-import cvxpy as cp
 import numpy as np
 
 from gsrmr_server.scheduling import link
@@ -46,6 +45,7 @@ class _DcProblem:
     """The convex DC subproblem over the free slots, compiled once (DPP parameters in the objective)."""
 
     def __init__(self, problem: Problem, free: np.ndarray, cap: float) -> None:
+        import cvxpy as cp  # late: importing cvxpy costs ~1 s, and only APO needs it
         n = int(free.sum())
         # DPP compilation builds an O(n²) parameter map: only worth it for small n (re-solved every iteration).
         self.dpp = n <= 1000
@@ -67,6 +67,7 @@ class _DcProblem:
 
     def solve(self, lin_x_j: np.ndarray, solvers: tuple[str, ...]) -> tuple[np.ndarray | None, str, list[str]]:
         """Minimise ``Σ E_img u + lin_x·x`` (both in J); returns (x or None, solver/status, notes)."""
+        import cvxpy as cp
         scale = max(float(np.max(self.e_img)), float(np.max(np.abs(lin_x_j))) if lin_x_j.size else 0.0, 1e-300)
         attempts: list[tuple[str, float]] = []
         for s in solvers:
