@@ -21,9 +21,9 @@ import cv2
 import numpy as np
 
 from gsrmr_common.camera import CameraMount, Intrinsics, camera_from_pose
-from gsrmr_common.jpeg import ImageRejected, decode_jpeg
+from gsrmr_common.jpeg import ImageRejected, decode_jpeg, jpeg_header
 from gsrmr_common.metrics import mr_loss
-from gsrmr_common.wire import PoseKey
+from gsrmr_common.wire import MAX_IMAGE_PIXELS, PoseKey
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.splatting.render import render
 from gsrmr_server.uplink import SlotUploads
@@ -67,8 +67,8 @@ class MRComposer:
         if uploads.jpeg is not None:
             try:
                 image = decode_jpeg(uploads.jpeg, expected_shape=(k.height, k.width))
-            except ImageRejected as err:
-                faults.append("corrupt_image" if "size" not in str(err) else "wrong_size")
+            except ImageRejected:
+                faults.append(refusal_fault(uploads.jpeg, k.width, k.height))
         t_decode = time.perf_counter()
         pose = uploads.key if uploads.key is not None else best_pose
         if pose is None:
@@ -101,6 +101,21 @@ class MRComposer:
                    "virtual": 1e3 * (t_virtual - t_render), "loss": 1e3 * (t_end - t_virtual),
                    "total": 1e3 * (t_end - t0)}
         return ComposedSlot(uploads.slot, mr, r_hat, v, d, source, pose, gs_loss, faults, timings)
+
+
+def refusal_fault(jpeg: bytes, width_px: int, height_px: int) -> str:
+    """Fault name for a refused upload: ``oversized_header`` (frame header claims more than
+    :data:`~gsrmr_common.wire.MAX_IMAGE_PIXELS`), ``wrong_size`` (a readable header of another size than
+    ``width_px`` × ``height_px``) or ``corrupt_image`` (unreadable header, truncated or corrupt data)."""
+    try:
+        header = jpeg_header(jpeg)
+    except ImageRejected:
+        return "corrupt_image"
+    if header.width * header.height > MAX_IMAGE_PIXELS:
+        return "oversized_header"
+    if (header.width, header.height) != (width_px, height_px):
+        return "wrong_size"
+    return "corrupt_image"
 
 
 def to_u8(img: np.ndarray) -> np.ndarray:
