@@ -363,3 +363,35 @@ def test_cli_console_script_and_make_problem(tmp_path):
     r = subprocess.run([sys.executable, "-m", "gsrmr_server.scheduling.cli", str(tmp_path / "missing.json"),
                         "--method", "exact"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "problem" in r.stderr
+
+
+# ---- property: no method ever returns NaN, negative power, or a false feasibility claim ----------------
+hyp = pytest.importorskip("hypothesis")
+st = hyp.strategies
+
+
+@hyp.settings(max_examples=40, deadline=None)
+@hyp.given(
+    T=st.integers(1, 24),
+    log_gain_lo=st.floats(-16, 2),
+    log_gain_span=st.floats(0, 18),
+    lth=st.floats(0, 0.2),
+    log_bw=st.floats(1, 7),
+    seed=st.integers(0, 2**16),
+)
+def test_property_every_method_is_sane(T, log_gain_lo, log_gain_span, lth, log_bw, seed):
+    rng = np.random.default_rng(seed)
+    gains = 10.0 ** rng.uniform(log_gain_lo, min(2.0, log_gain_lo + log_gain_span), T)
+    losses = np.where(rng.random(T) < 0.2, 0.0, rng.uniform(0, 0.1, T))
+    p = Problem(channel_gain=gains, gs_loss=losses, loss_threshold=lth, bandwidth_hz=10.0**log_bw)
+    ex = solve(p, "exact")
+    if T <= 12:
+        best = brute_force_energy(p)
+        assert ex.feasible == (best is not None)
+        if best is not None:
+            assert ex.energy_j == pytest.approx(best, rel=1e-9)
+    for m in FAST_METHODS:
+        s = solve(p, m)
+        check_invariants(p, s)
+        if s.feasible and m not in ("maxrate", "fairness"):
+            assert ex.feasible and ex.energy_j <= s.energy_j * (1 + 1e-12), m
