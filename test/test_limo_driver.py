@@ -222,3 +222,22 @@ def test_a_raising_callback_is_reported_and_does_not_kill_the_driver(link):
         assert mock.true_velocity().vx_mps == pytest.approx(0.3)
         assert drv.callback_errors > 10 and drv.snapshot().pose.x_m > 0.05
     assert sum("subscriber bug" in txt for _, txt in events) == 1
+
+
+def test_forced_mecanum_mode_switches_the_base_and_odometry_tracks_lateral_motion(link):
+    with MockLimo(link, motion_mode=p.MotionMode.DIFF) as mock, \
+            LimoDriver(link, motion_mode="mecanum", heading_source="gyro_integration") as drv:
+        assert wait_until(lambda: mock.motion_mode == p.MotionMode.MECANUM, 3.0)  # 0x421 d2 = 0x01
+        end = time.monotonic() + 1.5
+        while time.monotonic() < end:
+            drv.set_command(0.1, 0.0, vy_mps=0.3)
+            time.sleep(0.05)
+        v = mock.true_velocity()
+        assert v.vx_mps == pytest.approx(0.1) and v.vy_mps == pytest.approx(0.3)
+        drv.stop_motion()
+        assert wait_until(lambda: mock.true_velocity().vy_mps == 0.0, 1.0)
+        time.sleep(0.1)
+        x, y, _ = mock.true_pose()
+        o = drv.snapshot().pose
+        assert y > 0.3
+        assert math.hypot(o.x_m - x, o.y_m - y) < 0.01

@@ -9,8 +9,9 @@ No rclpy here (the ROS node in :mod:`gsrmr_robot.limo.node` is a thin wrapper). 
   (``reconnect_min_s`` doubling up to ``reconnect_max_s``), re-sending the enable frame each time.
 * **tx thread**: every ``1/command_rate_hz`` s sends one 0x111 built from the latest command
   (:meth:`LimoDriver.set_command`), clamped and mapped by :mod:`kinematics` for the current motion
-  mode. A command older than ``cmd_timeout_s`` — or no command yet, or an unknown motion mode —
-  sends zeros, so the base stops even if the caller dies. Zeros are streamed while stopped.
+  mode. A command older than ``cmd_timeout_s`` — or no command yet, an unknown motion mode, or no
+  0x221 accepted yet on this connection — sends zeros, so the base stops even if the caller dies and
+  never moves before its motion feedback is flowing. Zeros are streamed while stopped.
 
 The 0x421 enable is re-sent (at most once per ``reenable_period_s``) while 0x211 reports a control
 mode other than "commanded", e.g. after the remote control took over and released.
@@ -151,6 +152,7 @@ class LimoDriver:
         self._frames_by_id: dict[int, int] = {}
         self._threads: list[threading.Thread] = []
         self.callback_errors = 0
+        self._feedback_ready = False  # a 0x221 has been accepted on the current connection
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> LimoDriver:
@@ -219,12 +221,13 @@ class LimoDriver:
         return self._system.motion_mode
 
     def wire_command(self, now_s: float | None = None) -> tuple[proto.MotionCommand, bool]:
-        """(0x111 to send now, command_active). Zero when timed out, absent, or the mode is unknown."""
+        """(0x111 to send now, command_active). Zero when timed out, absent, the mode is unknown, or no
+        0x221 has been accepted yet on this connection (so odometry never misses the start of a motion)."""
         now = self._clock() if now_s is None else now_s
         with self._lock:
             active = self._cmd_t is not None and now - self._cmd_t <= self.cmd_timeout_s
-            if not active:
-                return proto.MotionCommand(), False
+            if not active or not self._feedback_ready:
+                return proto.MotionCommand(), active
             vx, wz, vy = self._cmd
             return kin.command_to_wire(self._effective_mode(), vx, wz, vy, self.limits, self.geometry), True
 
@@ -276,6 +279,7 @@ class LimoDriver:
         with contextlib.suppress(serial.SerialException, OSError):
             port.close()
         with self._lock:
+            self._feedback_ready = False
             self._link.connected = False
             self._link.last_error = reason
             if report:
@@ -372,6 +376,7 @@ class LimoDriver:
                 self._frames_by_id[frame.can_id] = self._frames_by_id.get(frame.can_id, 0) + 1
                 observed.append((frame, msg))
                 if isinstance(msg, proto.MotionState):
+                    self._feedback_ready = True
                     vel = kin.feedback_to_body(self._effective_mode(), msg, self.geometry)
                     self._odom.update_velocity(vel, t_s)
                     odom_snapshot = True
