@@ -39,6 +39,7 @@ CONSOLE_SCRIPTS = [
     "gsrmr-scheduler = gsrmr_server.scheduler_node:main",
     "gsrmr-experiments = gsrmr_server.experiments.cli:main",
     "gsrmr-demo = gsrmr_server.demo:main",
+    "gsrmr-uplink-relay = gsrmr_server.fault_relay:main",
 ]
 
 
