@@ -58,7 +58,7 @@ def bin_kernel(box, tile, tiles_x, tiles_y):
     return offsets, lst
 
 
-@nb.njit(parallel=True, cache=True, fastmath=False)
+@nb.njit(parallel=True, cache=True, fastmath=True)
 def forward_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, bg, out_rgb, out_alpha, out_depth,
                    out_t, out_last):
     """Composite every pixel; writes rgb, alpha, depth, final transmittance and last list position.
@@ -79,6 +79,7 @@ def forward_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, bg, 
         col = np.zeros((npix, 4))
         last = np.full(npix, start)
         done = np.zeros(npix, np.bool_)
+        row_left = np.full(y1 - y0, tw)  # pixels of each tile row still compositing
         n_done = 0
         for j in range(start, end):
             k = lst[j]
@@ -88,7 +89,7 @@ def forward_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, bg, 
             ua, ub = max(box[k, 0], x0), min(box[k, 1] + 1, x1)
             for v in range(max(box[k, 2], y0), min(box[k, 3] + 1, y1)):
                 dy = v + 0.5 - my
-                if abs(dy) > rad:
+                if abs(dy) > rad or row_left[v - y0] == 0:
                     continue
                 # exact span of this row where σ ≤ cut (½a·dx² + b·dy·dx + ½c·dy² − cut ≤ 0), widened
                 # by SPAN_MARGIN_PX so rounding never drops a pixel; each pixel is still tested below
@@ -100,18 +101,25 @@ def forward_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, bg, 
                 hi = mx - 0.5 + (-cb * dy + root) / ca + SPAN_MARGIN_PX
                 u_lo = max(ua, int(math.ceil(lo)))
                 u_hi = min(ub, int(math.floor(hi)) + 1)
+                if u_lo >= u_hi:
+                    continue
                 row = (v - y0) * tw - x0
+                # exp(−σ) along the row by recurrence: σ(dx + 1) − σ(dx) = a·dx + a/2 + b·dy, whose
+                # increments grow by a per pixel, so two multiplications replace one exp per pixel
+                dx0 = u_lo + 0.5 - mx
+                gauss = math.exp(-(0.5 * (ca * dx0 * dx0 + cc * dy * dy) + cb * dx0 * dy))
+                ratio = math.exp(-(ca * dx0 + 0.5 * ca + cb * dy))
+                ratio_step = math.exp(-ca)
                 for u in range(u_lo, u_hi):
+                    g_u = gauss
+                    gauss *= ratio
+                    ratio *= ratio_step
                     p = row + u
                     if done[p]:
                         continue
-                    dx = u + 0.5 - mx
-                    if abs(dx) > rad:
+                    if abs(u + 0.5 - mx) > rad:
                         continue
-                    sig = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                    if sig < 0.0 or sig > cut:
-                        continue
-                    alpha = min(ALPHA_MAX, opac * math.exp(-sig))
+                    alpha = min(ALPHA_MAX, opac * g_u)
                     if alpha < ALPHA_MIN:
                         continue
                     tp = trans[p]
@@ -119,6 +127,7 @@ def forward_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, bg, 
                     if t_next < T_MIN:
                         done[p] = True
                         n_done += 1
+                        row_left[v - y0] -= 1
                         continue
                     w = alpha * tp
                     col[p, 0] += w * packed[k, 6]
@@ -143,7 +152,7 @@ def forward_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, bg, 
                 out_last[v, u] = last[p]
 
 
-@nb.njit(parallel=True, cache=True, fastmath=False)
+@nb.njit(parallel=True, cache=True, fastmath=True)
 def backward_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, bg, final_t, last_pos, g_rgb,
                     g_alpha, n_chunks, grads):
     """Gradients of the loss w.r.t. each packed row, given dL/d rgb (H×W×3) and dL/d alpha (H×W).
@@ -187,22 +196,35 @@ def backward_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, bg,
                 ca, cb, cc = packed[k, 2], packed[k, 3], packed[k, 4]
                 opac, rad, cut = packed[k, 5], packed[k, 10], packed[k, 11]
                 c0, c1, c2 = packed[k, 6], packed[k, 7], packed[k, 8]
+                ua, ub = max(box[k, 0], x0), min(box[k, 1] + 1, x1)
                 for v in range(max(box[k, 2], y0), min(box[k, 3] + 1, y1)):
                     dy = v + 0.5 - my
                     if abs(dy) > rad:
                         continue
+                    # same row span and exp recurrence as forward_kernel
+                    disc = (cb * dy) * (cb * dy) - ca * (cc * dy * dy - 2.0 * cut)
+                    if disc < 0.0:
+                        continue
+                    root = math.sqrt(disc)
+                    u_lo = max(ua, int(math.ceil(mx - 0.5 + (-cb * dy - root) / ca - SPAN_MARGIN_PX)))
+                    u_hi = min(ub, int(math.floor(mx - 0.5 + (-cb * dy + root) / ca + SPAN_MARGIN_PX)) + 1)
+                    if u_lo >= u_hi:
+                        continue
                     row = (v - y0) * tw - x0
-                    for u in range(max(box[k, 0], x0), min(box[k, 1] + 1, x1)):
+                    dx0 = u_lo + 0.5 - mx
+                    g_next = math.exp(-(0.5 * (ca * dx0 * dx0 + cc * dy * dy) + cb * dx0 * dy))
+                    ratio = math.exp(-(ca * dx0 + 0.5 * ca + cb * dy))
+                    ratio_step = math.exp(-ca)
+                    for u in range(u_lo, u_hi):
+                        gauss = g_next
+                        g_next *= ratio
+                        ratio *= ratio_step
                         p = row + u
                         if j >= last[p]:
                             continue
                         dx = u + 0.5 - mx
                         if abs(dx) > rad:
                             continue
-                        sig = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                        if sig < 0.0 or sig > cut:
-                            continue
-                        gauss = math.exp(-sig)
                         raw = opac * gauss
                         alpha = min(ALPHA_MAX, raw)
                         if alpha < ALPHA_MIN:

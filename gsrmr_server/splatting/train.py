@@ -99,6 +99,7 @@ class TrainConfig:
     checkpoint_every: int = 1000
     near_m: float = NEAR_M
     final_prune: bool = True
+    torch_threads: int | None = 1  # torch.set_num_threads for the process (None = leave as is)
 
     def to_dict(self) -> dict:
         """JSON-friendly dict."""
@@ -249,6 +250,9 @@ class Trainer:
                  test_frames: list[DatasetFrame] | None = None) -> None:
         self.config = config or TrainConfig()
         cfg = self.config
+        if cfg.torch_threads:
+            # The torch ops here are small; a second OpenMP pool next to numba's costs up to 5× per step.
+            torch.set_num_threads(cfg.torch_threads)
         if not frames:
             raise ValueError("Trainer: no training frames")
         self.frames = _resize_frames(frames, cfg.resolution)
