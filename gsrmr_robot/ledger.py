@@ -35,6 +35,7 @@ class LedgerRow:
     energy_j: float
     upload_all_bits: int
     upload_all_energy_j: float
+    frame_stamp_s: float = float("nan")  # capture stamp of the camera frame this slot used (NaN: none)
 
 
 # Order of the values in a ``gsrmr/ledger`` Float64MultiArray (one message per slot).
@@ -61,7 +62,7 @@ class EnergyLedger:
         return power, self.slot_s * power
 
     def record(self, slot: int, x: int, scheduled_power_w: float, jpeg_bytes: int | None, gain: float,
-               reference_jpeg_bytes: int | None) -> LedgerRow:
+               reference_jpeg_bytes: int | None, frame_stamp_s: float = float("nan")) -> LedgerRow:
         """Record one slot. ``jpeg_bytes`` is None for a key-only slot; ``reference_jpeg_bytes`` is the
         size this slot's frame has (or would have) as a JPEG, for the upload-all reference."""
         bits = POSE_KEY_BITS + (8 * jpeg_bytes if jpeg_bytes is not None else 0)
@@ -69,7 +70,7 @@ class EnergyLedger:
         ref_bits = 8 * reference_jpeg_bytes if reference_jpeg_bytes else 0
         _, ref_energy_j = self._energy(ref_bits, gain)
         row = LedgerRow(slot, int(x), float(scheduled_power_w), bits, float(gain), power_w, energy_j,
-                        ref_bits, ref_energy_j)
+                        ref_bits, ref_energy_j, float(frame_stamp_s))
         self.slots += 1
         self.images += int(jpeg_bytes is not None)
         self.keys_only += int(jpeg_bytes is None)

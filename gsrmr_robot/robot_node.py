@@ -22,6 +22,7 @@ It keeps an energy ledger (:mod:`gsrmr_robot.ledger`) under the link model of
 
 from __future__ import annotations
 
+from collections import deque
 import math
 import threading
 
@@ -37,7 +38,7 @@ from std_msgs.msg import Float64MultiArray
 
 from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.ros_node import declare, run_node
-from gsrmr_common.ros_wire import compressed_to_msg, image_from_msg, pose_key_to_msg, schedule_from_msg
+from gsrmr_common.ros_wire import compressed_to_msg, image_from_msg, pose_key_to_msg, schedule_from_msg, stamp_to_ns
 from gsrmr_common.wire import PoseKey, ScheduleMsg, slot_ns, slot_start_ns
 from gsrmr_robot.ledger import LEDGER_FIELDS, EnergyLedger
 from gsrmr_server.link_params import LinkBudget
@@ -74,7 +75,10 @@ class RobotNode(Node):
         self._lock = threading.Lock()
         self._frame: np.ndarray | None = None
         self._frame_ns = 0
+        self._frame_stamp_ns = 0
         self._pose: tuple[float, float, float] | None = None
+        # Recent (stamp_ns, pose in map): the key is the pose at the capture time of the frame it stands for.
+        self._poses: deque[tuple[int, tuple[float, float, float]]] = deque(maxlen=100)
         self._schedule: ScheduleMsg | None = None
         self._last_slot: int | None = None
         self.schedule_misses = self.no_frame = self.no_pose = 0
@@ -115,6 +119,7 @@ class RobotNode(Node):
             return
         with self._lock:
             self._frame, self._frame_ns = rgb, self.get_clock().now().nanoseconds
+            self._frame_stamp_ns = stamp_to_ns(msg.header.stamp)
 
     def _on_odom(self, msg: Odometry) -> None:
         p = msg.pose.pose
@@ -125,6 +130,7 @@ class RobotNode(Node):
         if all(math.isfinite(v) for v in pose):
             with self._lock:
                 self._pose = pose
+                self._poses.append((stamp_to_ns(msg.header.stamp), pose))
 
     def _on_schedule(self, msg: Float64MultiArray) -> None:
         try:
@@ -137,6 +143,12 @@ class RobotNode(Node):
             return
         with self._lock:
             self._schedule = sched
+
+    def _pose_at(self, stamp_ns: int) -> tuple[float, float, float] | None:
+        """Odometry pose (map) nearest in time to ``stamp_ns`` (caller holds the lock)."""
+        if not self._poses:
+            return self._pose
+        return min(self._poses, key=lambda item: abs(item[0] - stamp_ns))[1]
 
     # ---------------------------------------------------------------- slots
     def _tick(self) -> None:
@@ -157,7 +169,9 @@ class RobotNode(Node):
         """Upload for one slot (public for tests)."""
         with self._lock:
             frame = self._frame if now_ns - self._frame_ns <= self.max_frame_age_s * 1e9 else None
-            pose, sched = self._pose, self._schedule
+            frame_stamp_ns = self._frame_stamp_ns if frame is not None else None
+            pose = self._pose_at(frame_stamp_ns) if frame_stamp_ns is not None else self._pose
+            sched = self._schedule
         entry = sched.lookup(slot) if sched is not None else None
         if entry is None:
             self.schedule_misses += 1
@@ -178,7 +192,8 @@ class RobotNode(Node):
         else:
             self._pub_key.publish(pose_key_to_msg(PoseKey(slot, *pose), self._slot_len_ns))
             gain = self.link.gain(slot, pose[:2])
-        row = self.ledger.record(slot, x, power_w, sent_image, gain, len(jpeg) if jpeg is not None else None)
+        row = self.ledger.record(slot, x, power_w, sent_image, gain, len(jpeg) if jpeg is not None else None,
+                                 frame_stamp_ns / 1e9 if frame_stamp_ns is not None else float("nan"))
         if pose is None and sent_image is None:
             return
         self._pub_ledger.publish(Float64MultiArray(data=[float(getattr(row, f)) for f in LEDGER_FIELDS]))

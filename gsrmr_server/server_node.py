@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections import deque
 import json
+import math
 from pathlib import Path
 import threading
 
@@ -99,7 +100,7 @@ class ServerNode(Node):
         self._schedule: ScheduleMsg | None = None
         self._ledger: dict[int, dict] = {}
         self._cmd: tuple[float, float] | None = None
-        self._frames: deque[tuple[int, np.ndarray]] = deque(maxlen=8)
+        self._frames: deque[tuple[int, np.ndarray]] = deque(maxlen=30)
         self._next_slot: int | None = None
         self._t0_slot: int | None = None
         self.slots_done = self.slots_on_time = 0
@@ -222,17 +223,26 @@ class ServerNode(Node):
             p = result.pose
             self._pub_loss.publish(Float64MultiArray(data=[float(slot), p.a_m, p.b_m, p.theta_rad,
                                                            float(result.gs_loss)]))
-        quality = self._evaluate(start_ns, result) if self.evaluate else None
+        quality = self._evaluate(slot, start_ns, result) if self.evaluate else None
         if self.recorder is not None:
             self._record(slot, start_ns, result, quality, latency_ms, jpeg, entry)
 
-    def _evaluate(self, start_ns: int, result) -> dict | None:
-        """True m_t from the camera frame the robot had at the slot start (simulation only)."""
+    def _evaluate(self, slot: int, start_ns: int, result) -> dict | None:
+        """True m_t from the camera frame r_t the robot used for this slot (simulation only).
+
+        The robot's ledger row names that frame's stamp; without it, the newest frame at the slot start.
+        """
         with self._lock:
-            frames = [f for f in self._frames if f[0] <= start_ns + 5_000_000]
-        if not frames:
+            led = self._ledger.get(slot)
+            frames = list(self._frames)
+        used = led.get("frame_stamp_s") if led else None
+        if used is not None and math.isfinite(used):
+            match = [f for f in frames if abs(f[0] / 1e9 - used) < 1e-3]
+        else:
+            match = [f for f in frames if f[0] <= start_ns + 5_000_000][-1:]
+        if not match:
             return None
-        frame = frames[-1][1]
+        frame = match[0][1]
         if frame.shape[:2] != result.mr.shape[:2]:
             return None
         truth = mr_image(frame.astype(np.float32) / 255.0, result.virtual, result.mask)
