@@ -61,7 +61,6 @@ def solve_exact(problem: Problem, *, time_limit_s: float | None = None, max_stat
     b = int(np.searchsorted(cw, cap, side="right"))
     y = np.zeros(n, dtype=bool)
     y[:b] = True
-    gap = 0.0
     steps = 0
     lb_saving_extra = 0.0  # upper bound on extra saving beyond the returned solution
     special = n == 0 or b >= n or bool(np.all(w == w[0])) or bool(np.all(v == v[0]))
@@ -101,19 +100,25 @@ def solve_exact(problem: Problem, *, time_limit_s: float | None = None, max_stat
         for j in toggles:
             y[j] = ~y[j]
     x[idx[y]] = 0
+    e_found = math.fsum(np.where(x == 1, problem.energy_image_j, problem.energy_key_j).tolist())
+    e_lb = e_found - lb_saving_extra  # certified lower bound on the optimal energy
+    repaired = False
     if not problem.budget_ok(x):
         # Float round-off at the capacity boundary: drop the least efficient keys until it fits.
-        keys = np.flatnonzero(y)[::-1]
-        for j in keys:
+        for j in np.flatnonzero(y)[::-1]:
             x[idx[j]] = 1
             if problem.budget_ok(x):
                 break
-        notes.append("exact: rounding repair at the capacity boundary")
+        repaired = True
+        notes.append("exact: rounding repair at the capacity boundary (gap no longer 0)")
     out = schedule_from_x(problem, x, "exact", notes=notes, iterations=steps)
-    if lb_saving_extra > 0:
-        e_lb = max(out.energy_j - lb_saving_extra, 0.0)
-        gap = (out.energy_j - e_lb) / e_lb if e_lb > 0 else math.inf
-    out.optimality_gap = gap if math.isfinite(gap) else 1.0e300
-    out.extras["energy_lower_bound_j"] = out.energy_j - lb_saving_extra
+    if lb_saving_extra == 0 and not repaired:
+        out.optimality_gap = 0.0
+    elif e_lb > 0:
+        out.optimality_gap = max(0.0, (out.energy_j - e_lb) / e_lb)
+    else:
+        out.optimality_gap = None
+        out.notes.append("exact: lower bound is 0 J, relative gap undefined")
+    out.extras["energy_lower_bound_j"] = max(e_lb, 0.0)
     out.solve_time_s = time.perf_counter() - t0
     return out
