@@ -1,0 +1,99 @@
+"""Pure tests of the node suite's cores: energy ledger, MR composer, online planner (no ROS graph)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from gsrmr_common.camera import CameraMount, Intrinsics
+from gsrmr_common.jpeg import encode_jpeg
+from gsrmr_common.wire import POSE_KEY_BITS, PoseKey
+from gsrmr_robot.ledger import LEDGER_FIELDS, EnergyLedger
+from gsrmr_server.compose import MRComposer
+from gsrmr_server.horizon import OnlinePlanner, RoutePredictor
+from gsrmr_server.link_params import LinkBudget
+from gsrmr_server.loss_map import LossMap
+from gsrmr_server.scheduling.link import required_power_w
+from gsrmr_server.splatting.model import GaussianModel
+from gsrmr_server.uplink import SlotUploads
+from gsrmr_server.world.scene import load_scene
+from gsrmr_server.world.virtual import VirtualViewSource
+
+
+def test_ledger_prices_actual_bits_and_upload_all_reference():
+    led = EnergyLedger(required_power_w, 0.1, 1e6, 1e-9)
+    g = 1e-6
+    key = led.record(1, 0, 1e-6, None, g, 8000)
+    img = led.record(2, 1, 0.1, 8000, g, 8000)
+    assert key.bits_sent == POSE_KEY_BITS and img.bits_sent == POSE_KEY_BITS + 64000
+    assert key.energy_j == pytest.approx(0.1 * required_power_w(POSE_KEY_BITS, g, 0.1, 1e6, 1e-9))
+    assert img.energy_j == pytest.approx(0.1 * required_power_w(64192, g, 0.1, 1e6, 1e-9))
+    totals = led.totals()
+    assert totals["images_sent"] == 1 and totals["keys_only"] == 1
+    assert totals["energy_upload_all_j"] == pytest.approx(2 * 0.1 * required_power_w(64000, g, 0.1, 1e6, 1e-9))
+    assert totals["energy_ratio_vs_upload_all"] > 1
+    dead = led.record(3, 1, 0.0, 8000, 0.0, 8000)  # a slot that cannot carry anything: inf, not NaN
+    assert math.isinf(dead.energy_j) and led.totals()["undeliverable"] == 1
+    assert math.isfinite(led.totals()["energy_j"])
+    assert len(LEDGER_FIELDS) == len(EnergyLedger.row_dict(dead))
+
+
+@pytest.fixture(scope="module")
+def composer():
+    scene = load_scene("sandbox")
+    k = Intrinsics.from_fov(48, 36, math.radians(70))
+    pts = np.array([[x, y, z] for x in (1.0, 1.5) for y in (-0.5, 0.0, 0.5) for z in (0.1, 0.3)], float)
+    model = GaussianModel.from_points(pts, np.full((len(pts), 3), 0.7), scales_m=0.2, opacities=0.9)
+    return MRComposer(model, VirtualViewSource(scene), k, CameraMount(), (0.2, 0.2, 0.2))
+
+
+def test_composer_sources_and_faults(composer):
+    k = composer.intrinsics
+    frame = np.full((k.height, k.width, 3), 200, np.uint8)
+    key = PoseKey(7, -1.0, 0.0, 0.0)
+    img = composer.compose(SlotUploads(7, key=key, jpeg=encode_jpeg(frame, 90)), None, 0.0)
+    assert img.source == "image" and img.gs_loss is not None and img.gs_loss > 0
+    assert img.mr.shape == (k.height, k.width, 3) and np.all(np.isfinite(img.mr))
+    rnd = composer.compose(SlotUploads(8, key=key), None, 0.0)
+    assert rnd.source == "render" and rnd.gs_loss is None
+    bad = composer.compose(SlotUploads(9, key=key, jpeg=b"\xff\xd8garbage"), None, 0.0)
+    assert bad.source == "fallback" and "corrupt_image" in bad.faults
+    small = encode_jpeg(np.zeros((10, 10, 3), np.uint8), 90)
+    wrong = composer.compose(SlotUploads(10, key=key, jpeg=small), None, 0.0)
+    assert wrong.source == "fallback" and wrong.faults
+    lost = composer.compose(SlotUploads(11), key, 0.0)  # no upload at all: render at the best estimate
+    assert lost.source == "fallback" and lost.pose == key
+    blind = composer.compose(SlotUploads(12), None, 0.0)  # never had a pose: background, still an image
+    assert blind.source == "none" and blind.mr.shape == (k.height, k.width, 3)
+
+
+def test_route_predictor_follows_the_loop():
+    scene = load_scene("sandbox")
+    pred = RoutePredictor(scene.route.waypoints, scene.route.speed_mps)
+    start = scene.route.waypoints[0]
+    poses = pred.predict((start[0], start[1], 0.0), 50, 0.1)
+    assert poses.shape == (50, 3)
+    steps = np.hypot(*np.diff(poses[:, :2], axis=0).T)
+    assert np.allclose(steps[steps > 0.005], scene.route.speed_mps * 0.1, atol=0.02)
+    lap = pred.predict(None, int(round(pred.path.length_m / (scene.route.speed_mps * 0.1))), 0.1)
+    assert np.hypot(*(lap[-1, :2] - np.asarray(start))) < 0.05  # one lap comes back to the start
+
+
+def test_planner_meets_budget_carries_it_over_and_detects_drift():
+    scene = load_scene("sandbox")
+    lm = LossMap(prior=0.02)
+    planner = OnlinePlanner(RoutePredictor(scene.route.waypoints, scene.route.speed_mps), lm, LinkBudget(),
+                            slot_s=0.1, image_bits=67200, pose_bits=192, loss_threshold=0.03, horizon=40,
+                            drift_threshold=0.05, drift_window=2)
+    first = planner.plan(1000, None)
+    assert first.feasible and first.images == 0  # prior 0.02 < L_th: every slot can be a key
+    assert first.mean_predicted_loss <= 0.03 + 1e-12
+    # Losses turn out much higher than predicted: drift is detected after drift_window samples.
+    p = RoutePredictor(scene.route.waypoints, scene.route.speed_mps).predict(None, 3, 0.1)
+    assert planner.observe(1001, *p[0], 0.3) is False
+    assert planner.observe(1002, *p[1], 0.3) is True
+    # 40 key slots at predicted 0.02 were spent: the next budget still lets the run's mean meet L_th.
+    second = planner.plan(1040, None)
+    assert second.budget == pytest.approx((0.03 * 80 - 40 * 0.02) / 40)
+    assert second.schedule.first_slot == 1041 and len(second.schedule.x) == 40
+    assert np.all(np.isfinite(second.schedule.power_w)) and np.all(second.schedule.power_w >= 0)
