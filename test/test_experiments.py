@@ -1,0 +1,108 @@
+"""gsrmr-experiments --quick: the report is complete and internally consistent (pure, no ROS)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from gsrmr_server.experiments import cli
+from gsrmr_server.experiments.report import PAPER_CLAIMS
+
+SCENES = ("sandbox", "garden")
+LTH = ("0.02", "0.025", "0.03", "0.035", "0.04")
+METHODS = {"robomr", "ranking", "rounding", "search", "maxrate", "fairness", "robogs", "apo", "exact"}
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory) -> Path:
+    base = tmp_path_factory.mktemp("experiments")
+    out = base / "report"
+    assert cli.main(["--out", str(out), "--quick", "--cache", str(base / "cache")]) == 0
+    return out
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with path.open() as f:
+        return list(csv.DictReader(f))
+
+
+def test_every_expected_file_exists(report: Path) -> None:
+    expected = ["fig4a_apo_convergence.png", "fig4a_apo_convergence.csv", "fig5a_strip.png", "fig5b_profile.png",
+                "fig5b_profile.csv", "tradeoff_scheduler.png", "tradeoff_scheduler_apo_n.csv",
+                "tradeoff_scheduler_methods.csv", "tradeoff_scheduler_horizon.csv", "tradeoff_renderer.png",
+                "tradeoff_renderer.csv", "tradeoff_jpeg.png", "tradeoff_jpeg.csv", "tradeoff_training.png",
+                "tradeoff_training.csv", "summary.md", "summary.json"]
+    for sc in SCENES:
+        expected += [f"fig4b_energy_{sc}.png", f"fig4b_energy_{sc}.csv", f"table1_{sc}.csv"]
+    for name in expected:
+        p = report / name
+        assert p.is_file() and p.stat().st_size > 0, name
+        if name.endswith(".png"):
+            assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
+    listed = set(json.loads((report / "summary.json").read_text())["files"])
+    assert set(expected) <= listed
+    assert listed == {p.name for p in report.iterdir() if p.is_file()}
+
+
+def test_summary_json_has_stable_keys(report: Path) -> None:
+    s = json.loads((report / "summary.json").read_text())
+    for key in ("command", "argv", "quick", "started_utc", "git", "cache", "channel_seed", "seed", "main_scene",
+                "settings", "scenes", "fig5", "tradeoffs", "checks", "elapsed_s", "files"):
+        assert key in s, key
+    assert s["quick"] is True and s["command"].startswith("gsrmr-experiments ") and "--quick" in s["command"]
+    assert set(s["scenes"]) == set(SCENES)
+    for sc in SCENES:
+        r = s["scenes"][sc]
+        assert set(r["claims"]) == set(PAPER_CLAIMS)
+        for c in r["claims"].values():
+            assert {"paper", "ours", "holds"} <= set(c)
+        assert set(r["fig4b"]["per_threshold"]) == set(LTH)
+        for v in r["fig4b"]["per_threshold"].values():
+            assert set(v["energy_j"]) == METHODS
+            assert v["saving_factor_apo"] >= 1.0  # APO never spends more than uploading every image
+        assert r["data"]["slots"] == s["settings"][sc]["slots"]
+    assert "fig4a" in s["scenes"][s["main_scene"]]
+    assert set(s["tradeoffs"]) == {"scheduler", "renderer", "jpeg", "training"}
+    assert all(s["checks"].values()), s["checks"]
+    md = (report / "summary.md").read_text()
+    assert s["command"] in md and "Claims: paper vs ours" in md and "Table 1" in md
+
+
+def test_energies_and_losses_consistent(report: Path) -> None:
+    for sc in SCENES:
+        rows = _rows(report / f"fig4b_energy_{sc}.csv")
+        assert {r["loss_threshold"] for r in rows} == set(LTH)
+        for lth in LTH:
+            by = {r["method"]: r for r in rows if r["loss_threshold"] == lth}
+            assert set(by) == METHODS
+            e = {m: float(r["energy_j"]) for m, r in by.items()}
+            assert all(math.isfinite(v) and v > 0 for v in e.values()), e
+            for m, r in by.items():
+                if r["feasible"] == "True" and m != "exact":
+                    assert e["exact"] <= e[m] * (1 + 1e-9), (sc, lth, m)
+            assert float(by["robomr"]["mean_loss_predicted"]) == 0.0
+            assert by["apo"]["feasible"] == "True" and float(by["apo"]["mean_loss_predicted"]) <= float(lth) + 1e-12
+            assert e["robogs"] <= e["apo"] <= e["robomr"]
+            total = sum(int(by["apo"][k]) for k in ("images", "keys", "undelivered"))
+            assert total == json.loads((report / "summary.json").read_text())["scenes"][sc]["data"]["slots"]
+        t1 = _rows(report / f"table1_{sc}.csv")
+        for r in t1:
+            assert float(r["loss"]) >= 0.0 and 0.0 <= float(r["ssim"]) <= 1.0 + 1e-9
+            if r["method"] == "apo":
+                # composited loss on the actual images equals the scheduler's predicted loss (same L_t)
+                assert float(r["loss"]) <= float(r["loss_threshold"]) + 1e-9
+                assert float(r["loss"]) == pytest.approx(float(r["predicted_loss"]), rel=1e-6, abs=1e-9)
+
+
+def test_apo_convergence_and_profile(report: Path) -> None:
+    conv = _rows(report / "fig4a_apo_convergence.csv")
+    assert conv and all(0.0 <= float(r["phi"]) <= 0.25 and float(r["dx_norm"]) >= 0 for r in conv)
+    prof = _rows(report / "fig5b_profile.csv")
+    s = json.loads((report / "summary.json").read_text())
+    assert len(prof) == s["scenes"][s["main_scene"]]["data"]["slots"]
+    assert sum(int(r["x"]) for r in prof) == s["fig5"]["apo_images"]
+    assert all(float(r["power_w"]) > 0 for r in prof)
