@@ -241,3 +241,23 @@ def test_forced_mecanum_mode_switches_the_base_and_odometry_tracks_lateral_motio
         o = drv.snapshot().pose
         assert y > 0.3
         assert math.hypot(o.x_m - x, o.y_m - y) < 0.01
+
+
+def test_opens_any_pyserial_url():
+    # loop:// echoes what is written: the driver's own enable and command frames come back and parse
+    with LimoDriver("loop://", command_rate_hz=100.0) as drv:
+        assert wait_until(lambda: drv.snapshot().frames_by_id.get(p.ID_MOTION_COMMAND, 0) > 5, 3.0)
+        snap = drv.snapshot()
+    assert snap.link.connected and snap.link.connects == 1 and snap.enables_sent == 1
+    assert snap.parser["bad_checksum"] == 0 and snap.commands_sent > 5
+
+
+def test_second_driver_on_the_same_device_is_locked_out(link):
+    with MockLimo(link), LimoDriver(link) as first:
+        assert wait_until(lambda: first.snapshot().link.connected, 3.0)
+        with LimoDriver(link, reconnect_min_s=0.05, reconnect_max_s=0.1) as second:
+            time.sleep(0.5)
+            snap = second.snapshot()
+        assert not snap.link.connected and snap.link.failed_opens >= 2
+        assert "lock" in snap.link.last_error.lower()
+        assert first.snapshot().link.connected

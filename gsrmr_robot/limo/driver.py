@@ -266,6 +266,8 @@ class LimoDriver:
                                      bytesize=serial.EIGHTBITS, parity=serial.PARITY_NONE,
                                      stopbits=serial.STOPBITS_ONE, rtscts=False, xonxoff=False, dsrdtr=False,
                                      timeout=self.read_timeout_s, write_timeout=0.2)
+        if "://" not in self.port_url:
+            port.exclusive = True  # flock: a second driver on the same device fails to open (and retries)
         port.open()
         with contextlib.suppress(serial.SerialException, OSError, NotImplementedError):
             port.reset_input_buffer()
