@@ -106,3 +106,63 @@ def test_cmd_vel_moves_odom_diagnostics_and_ground_truth_then_clean_sigint(ros_p
     assert "mock LIMO stopped" in ros_processes.output(mock)[0]
     for proc in (base, mock):
         assert "Traceback" not in "".join(ros_processes.output(proc))
+
+
+def test_port_removed_and_restored_during_motion_node_keeps_driving(ros_processes, tmp_path, monkeypatch):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import Twist
+    from nav_msgs.msg import Odometry
+    import rclpy
+
+    link = str(tmp_path / "limo")
+    # the mock closes its port (the link path disappears) 4 s after start, for 0.5 s, every 4 s
+    mock = ros_processes.start("gsrmr-mock-limo", "--link", link, "--reopen-every-s", "4.0", "--reopen-gap-s", "0.5")
+    ros_processes.wait_for(mock, "mock LIMO ready", timeout_s=20)
+    base = ros_processes.start("gsrmr-limo-base", "--ros-args", "-p", f"port:={link}", "-p",
+                               "diagnostics_period_s:=0.2")
+    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
+        monkeypatch.setenv(key, ros_processes.env[key])
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    try:
+        node = rclpy.create_node("test_limo_reconnect", context=ctx)
+        diag: list = []
+        truth: list = []
+        node.create_subscription(DiagnosticArray, "/diagnostics", diag.append, 10)
+        node.create_subscription(Odometry, "/sim/ground_truth/odom", truth.append, 10)
+        pub = node.create_publisher(Twist, "cmd_vel", 10)
+        executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        cmd = Twist()
+        cmd.linear.x = 0.2
+
+        def drive(seconds: float, until=None) -> None:
+            end = time.monotonic() + seconds
+            next_pub = 0.0
+            while time.monotonic() < end and not (until and until()):
+                if time.monotonic() >= next_pub:
+                    pub.publish(cmd)
+                    next_pub = time.monotonic() + 0.05
+                executor.spin_once(timeout_sec=0.01)
+
+        def values() -> dict[str, str]:
+            return {kv.key: kv.value for kv in diag[-1].status[0].values} if diag else {}
+
+        def count(key: str) -> int:
+            return int(values().get(key, "0"))
+
+        drive(20.0, until=lambda: count("disconnects") >= 1 and truth)
+        assert count("disconnects") >= 1, "the node never saw the port disappear"
+        drive(10.0, until=lambda: count("connects") >= 2 and values().get("link_connected") == "True")
+        assert count("connects") >= 2
+        x_back = truth[-1].pose.pose.position.x
+        drive(1.0)
+        assert truth[-1].pose.pose.position.x > x_back + 0.1  # driving resumed, same node process
+        assert base.poll() is None
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+    out, err = ros_processes.output(base)
+    assert "link lost" in err + out and "connection #2" in err + out
+    assert ros_processes.interrupt(base) < 10.0 and base.returncode == 0
+    assert ros_processes.interrupt(mock) < 10.0 and mock.returncode == 0
