@@ -216,9 +216,9 @@ class MockLimo:
         try:
             data = os.read(master, 4096)
         except OSError as exc:
-            if exc.errno in (errno.EAGAIN, errno.EIO, errno.EBADF):  # EIO: nobody has the slave open
-                return
-            raise
+            if exc.errno not in (errno.EAGAIN, errno.EIO, errno.EBADF):  # EIO: nobody has the slave open
+                print(f"mock LIMO: pty read failed: {exc}", file=sys.stderr, flush=True)
+            return
         now = time.monotonic()
         with self._lock:
             for frame in self._parser.feed(data, now):
@@ -295,7 +295,7 @@ class MockLimo:
                 os.write(self._master, bytes(out))
             except OSError as exc:
                 if exc.errno not in (errno.EAGAIN, errno.EIO, errno.EBADF):
-                    raise
+                    print(f"mock LIMO: pty write failed: {exc}", file=sys.stderr, flush=True)
 
     def _system_state(self) -> bytes:
         return proto.encode_message(proto.SystemState(
