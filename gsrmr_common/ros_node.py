@@ -32,6 +32,11 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, *, 
         rclpy.spin(node, executor=executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:
+        # SIGINT shuts the context down while the executor may be taking a message; rclpy then raises a
+        # RuntimeError from take_message instead of ExternalShutdownException. Only a real error re-raises.
+        if node is None or node.context.ok():
+            raise
     finally:
         if node is not None:
             on_shutdown = getattr(node, "on_shutdown", None)
