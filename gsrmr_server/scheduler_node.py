@@ -144,7 +144,11 @@ class SchedulerNode(Node):
 
     # ---------------------------------------------------------------- inputs
     def _on_key(self, msg: Vector3Stamped) -> None:
-        key = pose_key_from_msg(msg, self._slot_len_ns)
+        try:
+            key = pose_key_from_msg(msg, self._slot_len_ns)
+        except ValueError as err:  # wrong frame or invalid stamp: ignore, never raise out of the callback
+            self.get_logger().warning(f"pose key refused: {err}", throttle_duration_sec=5.0)
+            return
         if key.is_valid():
             self._pose = (key.a_m, key.b_m, key.theta_rad)
 

@@ -46,12 +46,12 @@ from gsrmr_common.ros_wire import (
     schedule_from_msg,
     stamp_to_ns,
 )
-from gsrmr_common.wire import MAX_COMPRESSED_BYTES, ScheduleMsg, slot_index, slot_ns, slot_start_ns
+from gsrmr_common.wire import MAX_COMPRESSED_BYTES, PoseKey, ScheduleMsg, slot_index, slot_ns, slot_start_ns
 from gsrmr_robot.ledger import LEDGER_FIELDS
 from gsrmr_server.compose import MRComposer, to_u8
 from gsrmr_server.recording import RunRecorder
 from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.uplink import UplinkAssembler
+from gsrmr_server.uplink import SlotUploads, UplinkAssembler
 from gsrmr_server.world.recorder import with_resolution
 from gsrmr_server.world.scene import load_scene
 from gsrmr_server.world.virtual import VirtualViewSource, mr_image
@@ -94,6 +94,9 @@ class ServerNode(Node):
         model = GaussianModel.load_ply(model_path)
         self.composer = MRComposer(model, VirtualViewSource(scene), self.intrinsics, scene.camera.mount,
                                    scene.background)
+        # Warm-up: the first render compiles/loads the rasterizer (~1.5 s); doing it before the slot clock
+        # starts keeps the first slots on time instead of skipping the ones that elapsed meanwhile.
+        self.composer.compose(SlotUploads(0), PoseKey(0, 0.0, 0.0, 0.0), 0.0, measure_loss=False)
         self._slot_len_ns = slot_ns(self.slot_s)
         self.uplink = UplinkAssembler()
         self._lock = threading.Lock()
@@ -138,8 +141,14 @@ class ServerNode(Node):
 
     def _on_key(self, msg: Vector3Stamped) -> None:
         slot, now_ns = self._now_slot()
+        try:
+            key = pose_key_from_msg(msg, self._slot_len_ns)
+        except ValueError:  # wrong frame or an invalid stamp: refuse, never raise out of the callback
+            with self._lock:
+                self.uplink.count("malformed_key")
+            return
         with self._lock:
-            self.uplink.on_key(pose_key_from_msg(msg, self._slot_len_ns), slot, now_ns)
+            self.uplink.on_key(key, slot, now_ns)
 
     def _on_image(self, msg: CompressedImage) -> None:
         slot, now_ns = self._now_slot()
@@ -148,7 +157,12 @@ class ServerNode(Node):
             if len(data) > MAX_COMPRESSED_BYTES:
                 self.uplink.count("oversized_image")
                 return
-            self.uplink.on_image(slot_index(stamp_to_ns(msg.header.stamp), self._slot_len_ns), data, slot, now_ns)
+            try:
+                stamp_ns = stamp_to_ns(msg.header.stamp)
+            except ValueError:
+                self.uplink.count("malformed_image")
+                return
+            self.uplink.on_image(slot_index(stamp_ns, self._slot_len_ns), data, slot, now_ns)
 
     def _on_schedule(self, msg: Float64MultiArray) -> None:
         try:

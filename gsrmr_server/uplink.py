@@ -10,7 +10,10 @@ Fault counters (all cumulative): ``duplicate_key``, ``duplicate_image``, ``inval
 inf), ``late`` (arrived after its slot was taken), ``future`` (more than ``max_future_slots`` ahead
 of the slot clock: a wrong clock or a forged stamp), ``missing_key`` / ``missing_image``
 (nothing arrived for the slot, or the schedule expected an image and none came), ``corrupt_image``
-(reported by the decoder through :meth:`count`).
+(reported by the decoder through :meth:`count`); counted by the server node: ``wrong_size``,
+``oversized_header`` (refused JPEGs, see :func:`gsrmr_server.compose.refusal_fault`),
+``oversized_image`` (payload over the byte limit), ``malformed_key`` / ``malformed_image`` (wrong frame
+or an invalid stamp).
 """
 
 from __future__ import annotations
