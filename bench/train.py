@@ -2,14 +2,16 @@
 
 48 views of the garden test model rendered by the engine at 160×120 on a circle around the scene
 (radius 1.1 m, heights 0.35/0.6 m, looking at (0, 0, 0.1), 68° horizontal field of view); every
-6th view (8) is held out, the other 40 train. Training stops after ``--time-budget-s`` of wall time
-(default 300 s = the issue's 5 minutes) or ``--iterations``. The table lists held-out PSNR (fast
-renderer vs the ground-truth views), iterations, elapsed seconds and the Gaussian count.
+6th view (8) is held out, the other 40 train. Training stops after ``--cpu-budget-s`` of process CPU time
+(default 300 s = the issue's 5 minutes of CPU time, summed over both threads, so about 150 s of wall
+time on an idle 2-core machine), ``--time-budget-s`` of wall time or ``--iterations``. The table
+lists held-out PSNR (fast renderer vs the ground-truth views), iterations, elapsed wall and CPU
+seconds and the Gaussian count.
 
 ``--no-depth`` drops the rendered depth maps so the trainer starts from random points instead of
 back-projected depth.
 
-Usage: .venv/bin/python bench/train.py [--time-budget-s 300] [--no-depth] [--out garden.ply]
+Usage: .venv/bin/python bench/train.py [--cpu-budget-s 300] [--no-depth] [--out garden.ply]
 """
 
 from __future__ import annotations
@@ -17,7 +19,6 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import time
 
 import numba
 
@@ -29,7 +30,8 @@ from gsrmr_server.splatting.train import TrainConfig, Trainer
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--time-budget-s", type=float, default=300.0)
+    ap.add_argument("--time-budget-s", type=float, default=None, help="wall-time budget")
+    ap.add_argument("--cpu-budget-s", type=float, default=300.0, help="process CPU-time budget (both threads)")
     ap.add_argument("--iterations", type=int, default=6000)
     ap.add_argument("--eval-every", type=int, default=250)
     ap.add_argument("--budget", type=int, default=200_000)
@@ -45,22 +47,22 @@ def main() -> None:
     train = [f for i, f in enumerate(frames) if i % 6 != 5]
     cfg = TrainConfig(iterations=args.iterations, budget=args.budget, sh_degree=args.sh_degree,
                       init_points=args.init_points, densify_until=(2 * args.iterations) // 3)
-    t0 = time.process_time()
     trainer = Trainer(train, cfg, test)
     print(f"# training benchmark: garden model ({model.num_gaussians} Gaussians) → {len(train)} train / "
           f"{len(test)} held-out views at 160×120, init from {'random points' if args.no_depth else 'depth'}, "
           f"{numba.get_num_threads()} numba threads, {os.cpu_count()} CPUs")
     print(f"# initial: {trainer.num_gaussians} Gaussians, held-out PSNR {trainer.evaluate():.2f} dB\n")
-    trainer.train(eval_every=args.eval_every, progress=False, time_budget_s=args.time_budget_s)
-    cpu_s = time.process_time() - t0
-    print("| iteration | wall s | train loss | held-out PSNR dB | Gaussians |\n|---|---|---|---|---|")
-    for it, elapsed, loss, test_psnr, count in trainer.state.history:
-        print(f"| {it} | {elapsed:.1f} | {loss:.4f} | {test_psnr:.2f} | {count} |")
-    best = max(h[3] for h in trainer.state.history)
-    print(f"\nfinal: {trainer.num_gaussians} Gaussians after the unused-Gaussian prune (budget {cfg.budget}); "
-          f"last held-out PSNR {trainer.state.history[-1][3]:.2f} dB (best {best:.2f}); process CPU time "
-          f"{cpu_s:.0f} s over {numba.get_num_threads()} threads; mean "
-          f"{1000 * trainer.state.history[-1][1] / max(trainer.state.step, 1):.1f} ms/iteration (incl. evals)")
+    trainer.train(eval_every=args.eval_every, progress=False, time_budget_s=args.time_budget_s,
+                  cpu_budget_s=args.cpu_budget_s)
+    print("| iteration | wall s | CPU s (training, both threads) | train loss | held-out PSNR dB | Gaussians |")
+    print("|---|---|---|---|---|---|")
+    for h in trainer.state.history:
+        print(f"| {h.iteration} | {h.wall_s:.1f} | {h.cpu_s:.1f} | {h.loss:.4f} | {h.test_psnr_db:.2f} | "
+              f"{h.num_gaussians} |")
+    last = trainer.state.history[-1]
+    print(f"\nfinal: {last.num_gaussians} Gaussians after the unused-Gaussian prune (budget {cfg.budget}); "
+          f"held-out PSNR {last.test_psnr_db:.2f} dB after {last.iteration} iterations, {last.wall_s:.0f} s wall, "
+          f"{last.cpu_s:.0f} s CPU; load average during the run {os.getloadavg()[1]:.1f} (1 = one busy core)")
     if args.out:
         trainer.model().save_ply(args.out)
         print(f"wrote {args.out}")

@@ -129,6 +129,7 @@ def train_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--checkpoint", default=None, help="checkpoint file (default: MODEL.ply + .ckpt)")
     ap.add_argument("--resume", action="store_true", help="continue from --checkpoint")
     ap.add_argument("--time-budget-s", type=float, default=None, help="stop after this wall time")
+    ap.add_argument("--cpu-budget-s", type=float, default=None, help="stop after this process CPU time")
     ap.add_argument("--seed", type=int, default=d.seed)
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
@@ -148,9 +149,11 @@ def train_main(argv: list[str] | None = None) -> int:
         return 2
     print(f"gsrmr-train: {len(trainer.frames)} training views, {len(trainer.test_frames)} test views, "
           f"scene extent {trainer.extent:.3f} m, {trainer.num_gaussians} initial Gaussians")
-    model = trainer.train(checkpoint=ckpt, progress=not args.no_progress, time_budget_s=args.time_budget_s)
+    model = trainer.train(checkpoint=ckpt, progress=not args.no_progress, time_budget_s=args.time_budget_s,
+                          cpu_budget_s=args.cpu_budget_s)
     model.save_ply(args.out)
-    step, elapsed, loss, test_psnr, count = trainer.state.history[-1]
-    print(f"gsrmr-train: wrote {args.out}: {count} Gaussians (budget {cfg.budget}), {step} iterations, "
-          f"{elapsed:.1f} s, final loss {loss:.4f}, held-out PSNR {test_psnr:.2f} dB")
+    h = trainer.state.history[-1]
+    print(f"gsrmr-train: wrote {args.out}: {h.num_gaussians} Gaussians (budget {cfg.budget}), {h.iteration} "
+          f"iterations, {h.wall_s:.1f} s wall, {h.cpu_s:.1f} s CPU, final loss {h.loss:.4f}, "
+          f"held-out PSNR {h.test_psnr_db:.2f} dB")
     return 0

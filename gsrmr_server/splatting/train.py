@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass, field
 import math
 from pathlib import Path
 import time
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -104,6 +105,17 @@ class TrainConfig:
     def to_dict(self) -> dict:
         """JSON-friendly dict."""
         return asdict(self)
+
+
+class HistoryRow(NamedTuple):
+    """One progress record of :meth:`Trainer.train`."""
+
+    iteration: int
+    wall_s: float
+    cpu_s: float
+    loss: float
+    test_psnr_db: float
+    num_gaussians: int
 
 
 @dataclass
@@ -473,7 +485,8 @@ class Trainer:
         torch.save({"config": self.config.to_dict(), "params": st.params, "exp_avg": st.exp_avg,
                     "exp_avg_sq": st.exp_avg_sq, "step": st.step, "grad_accum": st.grad_accum,
                     "grad_count": st.grad_count, "max_radius": st.max_radius, "last_seen": st.last_seen,
-                    "sh_active": st.sh_active, "history": st.history, "rng": self.rng.bit_generator.state,
+                    "sh_active": st.sh_active, "history": [tuple(h) for h in st.history],
+                    "rng": self.rng.bit_generator.state,
                     "torch_rng": self.torch_gen.get_state(), "extent": self.extent, "perm": list(self._perm)}, path)
         return path
 
@@ -484,39 +497,50 @@ class Trainer:
         st.params, st.exp_avg, st.exp_avg_sq = ck["params"], ck["exp_avg"], ck["exp_avg_sq"]
         st.step, st.grad_accum, st.grad_count = ck["step"], ck["grad_accum"], ck["grad_count"]
         st.max_radius, st.last_seen, st.sh_active = ck["max_radius"], ck["last_seen"], ck["sh_active"]
-        st.history = ck["history"]
+        st.history = [HistoryRow(*h) for h in ck["history"]]
         self.rng.bit_generator.state = ck["rng"]
         self.torch_gen.set_state(ck["torch_rng"])
         self.extent = ck["extent"]
         self._perm = [int(i) for i in ck["perm"]]
 
     def train(self, iterations: int | None = None, *, checkpoint: str | Path | None = None,
-              eval_every: int = 0, progress: bool = True, time_budget_s: float | None = None) -> GaussianModel:
-        """Run until ``iterations`` (default: config) or ``time_budget_s`` of wall time; returns the model.
+              eval_every: int = 0, progress: bool = True, time_budget_s: float | None = None,
+              cpu_budget_s: float | None = None) -> GaussianModel:
+        """Run until ``iterations`` (default: config), ``time_budget_s`` of wall time or ``cpu_budget_s``
+        of process CPU time (all threads; excludes held-out evaluation); returns the model.
 
-        Appends (iteration, elapsed s, train loss, test PSNR or NaN, count) to ``state.history`` at
-        every ``eval_every`` iterations (and at the end).
+        Appends :class:`HistoryRow` (iteration, wall s, CPU s, train loss, held-out PSNR or NaN,
+        Gaussian count) to ``state.history`` every ``eval_every`` iterations and at the end.
         """
         total = self.config.iterations if iterations is None else iterations
         st = self.state
-        t0 = time.perf_counter() - (st.history[-1][1] if st.history else 0.0)
+        wall0 = time.perf_counter() - (st.history[-1].wall_s if st.history else 0.0)
+        cpu_used = st.history[-1].cpu_s if st.history else 0.0
         bar = tqdm(total=total, initial=st.step, disable=not progress, unit="it", dynamic_ncols=True)
         loss = float("nan")
         while st.step < total:
+            c0 = time.process_time()
             loss, view_psnr = self.step()
+            cpu_used += time.process_time() - c0
             bar.update(1)
             if st.step % 10 == 0:
                 bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{view_psnr:.2f}", n=self.num_gaussians)
             if eval_every and st.step % eval_every == 0:
-                st.history.append((st.step, time.perf_counter() - t0, loss, self.evaluate(), self.num_gaussians))
+                st.history.append(HistoryRow(st.step, time.perf_counter() - wall0, cpu_used, loss, self.evaluate(),
+                                             self.num_gaussians))
             if checkpoint and self.config.checkpoint_every and st.step % self.config.checkpoint_every == 0:
                 self.save_checkpoint(checkpoint)
-            if time_budget_s is not None and time.perf_counter() - t0 >= time_budget_s:
+            if time_budget_s is not None and time.perf_counter() - wall0 >= time_budget_s:
+                break
+            if cpu_budget_s is not None and cpu_used >= cpu_budget_s:
                 break
         bar.close()
         if self.config.final_prune:
+            c0 = time.process_time()
             self.prune_unused()
-        st.history.append((st.step, time.perf_counter() - t0, loss, self.evaluate(), self.num_gaussians))
+            cpu_used += time.process_time() - c0
+        st.history.append(HistoryRow(st.step, time.perf_counter() - wall0, cpu_used, loss, self.evaluate(),
+                                     self.num_gaussians))
         if checkpoint:
             self.save_checkpoint(checkpoint)
         return self.model()
