@@ -29,7 +29,9 @@ forged_header  no    yes   frame header (SOF) rewritten to claim 20000×20000 �
 Units: stamps and times are integer nanoseconds of the ROS clock; the slot length is ``slot_s``
 seconds (must equal the robot's and the server's). Pose keys are (a_m, b_m, theta_rad) in ``map``.
 
-Counts of what was injected are published on ``/diagnostics`` once a second (keys ``key.<fault>``,
+Messages arriving while nothing subscribes to the output topic are discarded before any draw (counted
+as ``<kind>.no_subscriber`` under ``mutation_errors``), so every count refers to a message that had a
+receiver. Counts of what was injected are published on ``/diagnostics`` once a second (keys ``key.<fault>``,
 ``image.<fault>``, ``key.forwarded``, …) and written as JSON to ``summary_path`` (and the log) on exit.
 The core (:class:`FaultInjector`, the ``*_jpeg`` mutators) has no rclpy import; :class:`FaultRelayNode`
 and :func:`main` import rclpy lazily.
@@ -366,15 +368,29 @@ def _node_class():  # defined lazily: the pure core above imports without rclpy
         def _now(self) -> int:
             return self.get_clock().now().nanoseconds
 
+        def _stamp(self, msg, kind: str) -> int | None:
+            if self._pub[kind].get_subscription_count() == 0:  # nobody to deliver to: no draw, no count
+                self.injector.errors[f"{kind}.no_subscriber"] += 1
+                return None
+            try:
+                return stamp_to_ns(msg.header.stamp)
+            except ValueError:
+                self.injector.errors[f"{kind}.malformed_stamp"] += 1
+                return None
+
         def _on_key(self, msg) -> None:
-            v = msg.vector
-            up = Upload("key", stamp_to_ns(msg.header.stamp), (v.x, v.y, v.z), msg.header.frame_id)
-            self._send(self.injector.push(up, self._now()))
+            stamp = self._stamp(msg, "key")
+            if stamp is not None:
+                v = msg.vector
+                up = Upload("key", stamp, (v.x, v.y, v.z), msg.header.frame_id)
+                self._send(self.injector.push(up, self._now()))
 
         def _on_image(self, msg) -> None:
-            up = Upload("image", stamp_to_ns(msg.header.stamp), bytes(msg.data), msg.header.frame_id)
-            self._fmt = msg.format
-            self._send(self.injector.push(up, self._now()))
+            stamp = self._stamp(msg, "image")
+            if stamp is not None:
+                self._fmt = msg.format
+                self._send(self.injector.push(Upload("image", stamp, bytes(msg.data), msg.header.frame_id),
+                                              self._now()))
 
         def _release(self) -> None:
             self._send(self.injector.due(self._now()))

@@ -282,3 +282,310 @@ def test_training_checkpoint_load_refuses_arbitrary_pickle():
         if not safe:
             pytest.xfail(f"{train.__file__}:{call.lineno}: torch.load(..., weights_only=False) unpickles "
                          "arbitrary objects (reported to the splatting owner)")
+
+
+# ==================================================================================== over DDS
+
+RELAY_RATES = {"drop": 0.10, "duplicate": 0.05, "reorder": 0.05, "delay": 0.05, "stale": 0.05, "nan_key": 0.05,
+               "truncate": 0.05, "corrupt": 0.05, "wrong_size": 0.05, "forged_header": 0.05}
+# Each relay fault → the server counter(s) that must show it.
+EXPECTED_SERVER_FAULTS = ("missing_key", "missing_image", "duplicate_key", "duplicate_image", "late", "invalid_key",
+                          "corrupt_image", "wrong_size", "oversized_header")
+
+
+def _harness():
+    from pathlib import Path
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    import stack_harness
+
+    return stack_harness
+
+
+@pytest.fixture(scope="module")
+def relay_stack(tmp_path_factory):
+    """robot → /robot/uplink/* → relay (every fault on, seed 0) → uplink/* → server; scheduler plans all images."""
+    from conftest import ros_env
+
+    from gsrmr_server.sim_stack import ProcessSpec, config_dir
+
+    h = _harness()
+    tmp = tmp_path_factory.mktemp("relay_stack")
+    model = h.make_point_model(tmp)
+    remap = [("uplink/pose_key", "/robot/uplink/pose_key"),
+             ("uplink/image_raw/compressed", "/robot/uplink/image_raw/compressed")]
+    relay = ProcessSpec("gsrmr-uplink-relay", "gsrmr_uplink_relay", [str(config_dir() / "link.yaml")],
+                        {"input_prefix": "/robot", "seed": 0, "summary_path": str(tmp / "relay_summary.json"),
+                         **{f"{k}_rate": v for k, v in RELAY_RATES.items()}})
+    s = h.Stack(tmp, model, ros_env(), remappings={"gsrmr_robot": remap}, extra=(relay,),
+                overrides={"gsrmr_scheduler": {"loss_threshold": 0.0, "horizon": 400, "replan_period_s": 1.0}})
+    s.start_all()
+    try:
+        yield s
+    finally:
+        s.stop()
+
+
+@pytest.fixture(scope="module")
+def relay_client(relay_stack):
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    with _harness().ros_client(relay_stack.env, "test_reliability") as (node, ex):
+        latest: dict[str, dict[str, str]] = {}
+
+        def on_diag(msg: DiagnosticArray) -> None:
+            for st in msg.status:
+                latest[st.name.split(":")[0]] = {kv.key: kv.value for kv in st.values}
+
+        node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 50)
+        yield node, ex, latest
+
+
+def _server_faults(latest) -> Counter:
+    import json
+
+    return Counter(json.loads(latest.get("gsrmr_server", {}).get("faults", "{}")))
+
+
+def _consecutive(rows) -> bool:
+    slots = [int(r["slot"]) for r in rows]
+    return slots == list(range(slots[0], slots[0] + len(slots)))
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_uplink_faults_through_relay_every_slot_composed_every_fault_counted(relay_stack, relay_client):
+    h = _harness()
+    _node, ex, latest = relay_client
+    # Server up first (it loads for seconds; keys sent before reach only the scheduler): then a server
+    # snapshot S1 and a relay snapshot R1 taken after it — every fault the relay counts after R1 was
+    # sent after S1, so the server's count grows by at least as much.
+    assert h.spin_until(ex, lambda: "gsrmr_server" in latest, 60), relay_stack.log("gsrmr_server")[-2000:]
+    server1 = _server_faults(latest)
+    latest.pop("gsrmr_uplink_relay", None)
+    assert h.spin_until(ex, lambda: "gsrmr_uplink_relay" in latest, 10)
+    relay1 = Counter({k: int(v) for k, v in latest["gsrmr_uplink_relay"].items() if k.startswith(("key.", "image."))})
+
+    def relay_injected_all() -> bool:
+        r = latest.get("gsrmr_uplink_relay", {})  # each fault injected at least once after R1
+        return all(int(r.get(f"key.{f}", 0)) > relay1[f"key.{f}"] for f in KEY_FAULTS) and \
+            all(int(r.get(f"image.{f}", 0)) > relay1[f"image.{f}"] for f in IMAGE_FAULTS)
+
+    assert h.spin_until(ex, relay_injected_all, 90), (latest.get("gsrmr_uplink_relay"),
+                                                      relay_stack.log("gsrmr_uplink_relay")[-2000:])
+    relay = Counter({k: int(v) for k, v in latest["gsrmr_uplink_relay"].items() if k.startswith(("key.", "image."))})
+    assert h.spin_until(ex, lambda: all(_server_faults(latest)[f] > 0 for f in EXPECTED_SERVER_FAULTS), 30), \
+        (_server_faults(latest), relay)
+    h.spin_until(ex, lambda: False, 2.5)  # a server diagnostic published after the relay's snapshot
+    server = _server_faults(latest)
+    new_server, new_relay = server - server1, relay - relay1
+    assert new_relay["key.nan_key"] > 0
+    assert new_server["invalid_key"] >= new_relay["key.nan_key"], (server, relay)  # refused on arrival
+    for name, proc in relay_stack.procs.items():
+        assert proc.poll() is None, (name, relay_stack.log(name)[-2000:])
+    rows = h.slot_rows(relay_stack.tmp / "rec")
+    assert len(rows) > 30 and _consecutive(rows), [r["slot"] for r in rows][:20]
+    assert {r["source"] for r in rows} <= {"image", "render", "fallback"}
+    assert {"image", "fallback"} <= {r["source"] for r in rows}
+    # Refusals found while composing are in the per-slot log too.
+    logged = Counter(f for r in rows for f in (r["faults"] or "").split(";") if f)
+    for fault in ("corrupt_image", "wrong_size", "oversized_header", "missing_key"):
+        assert logged[fault] > 0, logged
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_kill9_robot_and_scheduler_others_carry_on_scheduler_resumes(relay_stack, relay_client):
+    import json
+    import re
+    import time
+
+    h = _harness()
+    _node, ex, _latest = relay_client
+    rec, state = relay_stack.tmp / "rec", relay_stack.tmp / "sched_state" / "schedule.json"
+    assert h.spin_until(ex, state.exists, 30), relay_stack.log("gsrmr_scheduler")[-2000:]
+    relay_stack.kill9("gsrmr_scheduler")
+    saved_seq = int(json.loads(state.read_text())["data"][2])
+    rows_before = h.slot_rows(rec)
+    relay_stack.kill9("gsrmr_robot")
+    h.spin_until(ex, lambda: False, 1.5)
+    for name, proc in relay_stack.procs.items():
+        if name not in ("gsrmr_robot", "gsrmr_scheduler"):
+            assert proc.poll() is None, (name, relay_stack.log(name)[-2000:])
+    rows = h.slot_rows(rec)
+    assert rows[:len(rows_before)] == rows_before  # nothing the recorder wrote was lost
+    assert len(rows) > len(rows_before)  # and the server kept composing without robot and scheduler
+    assert _consecutive(rows)
+    restart_slot = int(rows[-1]["slot"])
+    t0 = time.monotonic()
+    relay_stack.start("gsrmr_scheduler")
+    relay_stack.start("gsrmr_robot")
+    assert h.spin_until(ex, lambda: "resumed schedule seq" in relay_stack.log("gsrmr_scheduler"), 60), \
+        relay_stack.log("gsrmr_scheduler")[-2000:]
+    resumed = int(re.findall(r"resumed schedule seq (\d+)", relay_stack.log("gsrmr_scheduler"))[-1])
+    assert resumed == saved_seq, (resumed, saved_seq, time.monotonic() - t0)
+    # The restarted robot uploads again: image slots after the restart.
+    assert h.spin_until(ex, lambda: any(int(r["slot"]) > restart_slot and r["source"] == "image"
+                                        for r in h.slot_rows(rec)), 60), relay_stack.log("gsrmr_robot")[-2000:]
+    assert _consecutive(h.slot_rows(rec))
+
+
+def _set_params(node, ex, target: str, params: dict) -> list:
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    h = _harness()
+    cli = node.create_client(SetParameters, f"{target}/set_parameters")
+    assert cli.wait_for_service(timeout_sec=15)
+    fut = cli.call_async(SetParameters.Request(
+        parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in params.items()]))
+    assert h.spin_until(ex, fut.done, 20)
+    return fut.result().results
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_hostile_messages_and_parameters_at_the_server(relay_stack, relay_client):
+    from geometry_msgs.msg import Vector3Stamped
+    from sensor_msgs.msg import CompressedImage
+
+    from gsrmr_common.ros_wire import compressed_to_msg, ns_to_stamp
+
+    h = _harness()
+    node, ex, latest = relay_client
+    # Out-of-range parameters are refused with a reason (relay, server).
+    res = _set_params(node, ex, "gsrmr_uplink_relay", {"drop_rate": 2.0})
+    assert not res[0].successful and res[0].reason
+    for k in RELAY_RATES:  # turn the relay transparent, so the counters below are the test's alone
+        assert _set_params(node, ex, "gsrmr_uplink_relay", {f"{k}_rate": 0.0})[0].successful
+    res = _set_params(node, ex, "gsrmr_uplink_relay", {"drop_rate": 0.6})
+    assert res[0].successful
+    res = _set_params(node, ex, "gsrmr_uplink_relay", {"duplicate_rate": 0.6})
+    assert not res[0].successful and "sum to" in res[0].reason, res[0].reason
+    assert _set_params(node, ex, "gsrmr_uplink_relay", {"drop_rate": 0.0})[0].successful
+    res = _set_params(node, ex, "gsrmr_server", {"process_delay_s": -1.0})
+    assert not res[0].successful and res[0].reason
+    res = _set_params(node, ex, "gsrmr_server", {"jpeg_quality": 1000})
+    assert not res[0].successful and res[0].reason
+    h.spin_until(ex, lambda: False, 2.5)  # held messages flushed, a fresh server diagnostic
+    before = _server_faults(latest)
+
+    img_pub = node.create_publisher(CompressedImage, "uplink/image_raw/compressed", 10)
+    key_pub = node.create_publisher(Vector3Stamped, "uplink/pose_key", 10)
+    h.spin_until(ex, lambda: False, 1.0)  # discovery
+    now_ns = node.get_clock().now().nanoseconds
+    slot_ns = 100_000_000
+    future = (now_ns // slot_ns + 3) * slot_ns  # a slot not yet composed: the forged image is decoded there
+    real = encode_jpeg(np.zeros((120, 160, 3), np.uint8), 80)
+    img_pub.publish(compressed_to_msg(forge_jpeg_header(real), future, "camera_optical_frame"))
+    img_pub.publish(compressed_to_msg(b"\xff\xd8" + bytes(9 * 1024 * 1024), future, "camera_optical_frame"))
+    bad_stamp = compressed_to_msg(real, future, "camera_optical_frame")
+    bad_stamp.header.stamp.nanosec = 2_000_000_000
+    img_pub.publish(bad_stamp)
+    key = Vector3Stamped()
+    key.header.stamp, key.header.frame_id = ns_to_stamp(future), "odom"
+    key_pub.publish(key)
+
+    def counted() -> bool:
+        d = _server_faults(latest) - before
+        return all(d[f] >= 1 for f in ("oversized_header", "oversized_image", "malformed_image", "malformed_key"))
+
+    assert h.spin_until(ex, counted, 20), (_server_faults(latest) - before)
+    for name in ("gsrmr_server", "gsrmr_scheduler", "gsrmr_uplink_relay"):
+        assert relay_stack.procs[name].poll() is None, (name, relay_stack.log(name)[-3000:])
+    assert _consecutive(h.slot_rows(relay_stack.tmp / "rec"))
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_relay_stack_exits_cleanly_with_summaries(relay_stack):
+    import json
+
+    took = relay_stack.stop()
+    for name, proc in relay_stack.procs.items():
+        assert proc.returncode == 0, (name, proc.returncode, relay_stack.log(name)[-1500:])
+        assert took[name] < 15, name
+    summary = json.loads((relay_stack.tmp / "rec" / "server_summary.json").read_text())
+    for fault in EXPECTED_SERVER_FAULTS:
+        assert summary["faults"].get(fault, 0) > 0, summary["faults"]
+    relay = json.loads((relay_stack.tmp / "relay_summary.json").read_text())
+    assert relay["injected"]["key.forwarded"] > 0
+    assert "relay summary" in relay_stack.log("gsrmr_uplink_relay")
+
+
+# ------------------------------------------------------------------------------------ serial faults
+
+def _finite_odom(msg) -> bool:
+    p, q, t = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist
+    vals = [p.x, p.y, p.z, q.x, q.y, q.z, q.w, t.linear.x, t.linear.y, t.angular.z,
+            *msg.pose.covariance, *msg.twist.covariance]
+    return all(math.isfinite(v) for v in vals)
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_serial_faults_garbage_bitflips_silence_port_loss_during_motion(ros_processes, tmp_path):
+    """Mock LIMO with every serial fault on under gsrmr-limo-base: odometry stays finite, the driver
+    resyncs and reconnects, the base stops when its commands stop (port loss, then cmd_vel ends)."""
+    import time
+
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import Twist
+    from nav_msgs.msg import Odometry
+
+    h = _harness()
+    link = str(tmp_path / "limo")
+    mock = ros_processes.start("gsrmr-mock-limo", "--link", link, "--cmd-timeout-s", "0.3", "--seed", "4",
+                               "--garbage-rate", "0.05", "--bit-flip-rate", "0.05", "--silence-every-s", "2.0",
+                               "--silence-s", "0.4", "--reopen-every-s", "3.0", "--reopen-gap-s", "0.6")
+    ros_processes.wait_for(mock, "mock LIMO ready", timeout_s=20)
+    base = ros_processes.start("gsrmr-limo-base", "--ros-args", "-p", f"port:={link}", "-p",
+                               "diagnostics_period_s:=0.2", "-p", "cmd_timeout_s:=0.5")
+    with h.ros_client(ros_processes.env, "test_serial_faults") as (node, ex):
+        odom: list = []
+        truth: list[tuple[float, float]] = []  # (monotonic s, true forward speed m/s)
+        diag: dict[str, str] = {}
+        link_states: set[str] = set()
+
+        def on_diag(msg: DiagnosticArray) -> None:
+            for st in msg.status:
+                if st.name.startswith("gsrmr_limo_base"):
+                    diag.update({kv.key: kv.value for kv in st.values})
+                    link_states.add(diag.get("link_connected", ""))
+
+        node.create_subscription(Odometry, "odom", odom.append, 50)
+        node.create_subscription(Odometry, "/sim/ground_truth/odom",
+                                 lambda m: truth.append((time.monotonic(), m.twist.twist.linear.x)), 50)
+        node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 50)
+        pub = node.create_publisher(Twist, "cmd_vel", 10)
+        cmd = Twist()
+        cmd.linear.x, cmd.angular.z = 0.3, 0.2
+
+        def drive(seconds: float, command: Twist | None, until=None) -> None:
+            end, next_pub = time.monotonic() + seconds, 0.0
+            while time.monotonic() < end and not (until and until()):
+                if command is not None and time.monotonic() >= next_pub:
+                    pub.publish(command)
+                    next_pub = time.monotonic() + 0.05
+                ex.spin_once(timeout_sec=0.01)
+
+        assert h.spin_until(ex, lambda: bool(odom) and pub.get_subscription_count() > 0, 30), \
+            ros_processes.output(base)
+        t_start = time.monotonic()
+        drive(20.0, cmd, until=lambda: int(diag.get("connects", "0")) >= 3 and time.monotonic() - t_start > 7)
+        moving = [v for t, v in truth if t > t_start + 0.5]
+        assert max(moving) > 0.2, "the base never moved"
+        assert min(moving) < 0.02, "port loss during motion: the base must stop (watchdog)"
+        assert moving[-1] > 0.2 or max(v for t, v in truth if t > time.monotonic() - 2.5) > 0.2, \
+            "driving did not resume after the reconnect"
+        drive(2.0, None)  # cmd_vel stops: the driver's watchdog (0.5 s) stops the base
+        assert abs(truth[-1][1]) < 0.02 and abs(odom[-1].twist.twist.linear.x) < 0.05
+        assert all(_finite_odom(m) for m in odom), "NaN/inf in odometry"
+        assert len(odom) > 100
+        assert int(diag["connects"]) >= 3 and int(diag["disconnects"]) >= 2  # reconnected
+        assert "False" in link_states  # the port loss was reported
+        assert int(diag["parser_skipped_bytes"]) > 0 and int(diag["parser_bad_checksum"]) > 0  # resynced
+        assert base.poll() is None
+    assert ros_processes.interrupt(base) < 10.0 and base.returncode == 0
+    assert ros_processes.interrupt(mock) < 10.0 and mock.returncode == 0

@@ -1,0 +1,161 @@
+"""Test helpers shared by the node-suite and reliability tests: the simulated stack as processes.
+
+:class:`Stack` starts the processes of :func:`gsrmr_server.sim_stack.sim_stack` (plus any extra
+:class:`~gsrmr_server.sim_stack.ProcessSpec`) in one isolated ROS domain; :func:`ros_client` gives the
+test an rclpy node and executor in that domain; :func:`make_small_model` trains the small GS model the
+node suite uses, :func:`make_point_model` writes a cheap untrained one (enough for fault tests).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+import contextlib
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+WIDTH, HEIGHT = 160, 120
+
+
+def make_small_model(folder: Path, width: int = WIDTH, height: int = HEIGHT) -> Path:
+    """A GS model of the sandbox from 12 round-1 frames (depth-initialised, briefly trained)."""
+    from gsrmr_server.splatting.train import TrainConfig, Trainer
+    from gsrmr_server.world.recorder import record_round1, with_resolution
+    from gsrmr_server.world.scene import load_scene
+
+    scene = with_resolution(load_scene("sandbox"), width, height)
+    dataset = record_round1(scene, folder / "round1", frames=12)
+    trainer = Trainer.from_dataset(dataset, TrainConfig(init_points=6000, sh_degree=0, iterations=60,
+                                                        densify_from=10_000))
+    model = trainer.train(progress=False)
+    return model.save_ply(folder / "model.ply")
+
+
+def make_point_model(folder: Path, n: int = 2000, seed: int = 0) -> Path:
+    """An untrained model: ``n`` random coloured Gaussians over the sandbox (x, y in ±5 m, z in 0..2 m)."""
+    from gsrmr_server.splatting.model import GaussianModel
+
+    rng = np.random.default_rng(seed)
+    model = GaussianModel.from_points(rng.uniform([-5, -5, 0], [5, 5, 2], (n, 3)), rng.uniform(0, 1, (n, 3)),
+                                      scales_m=0.08, opacities=0.6)
+    return model.save_ply(Path(folder) / "points.ply")
+
+
+class Stack:
+    """The simulated system as processes in one isolated ROS domain.
+
+    ``overrides`` are merged into the node suite's defaults (per node name); ``remappings`` are added
+    to the named node's spec; ``extra`` specs (e.g. a relay) are started after the others.
+    """
+
+    def __init__(self, tmp: Path, model: Path, env: dict[str, str], *, overrides: dict[str, dict] | None = None,
+                 remappings: dict[str, list[tuple[str, str]]] | None = None, extra: tuple = ()) -> None:
+        from gsrmr_server.sim_stack import sim_stack
+
+        self.tmp, self.env = tmp, env
+        self.link = str(tmp / "limo_pty")
+        size = {"width": WIDTH, "height": HEIGHT}
+        over: dict[str, dict] = {"gsrmr_server": dict(size), "gsrmr_mock_camera": dict(size),
+                                 "gsrmr_scheduler": {"horizon": 60, "replan_period_s": 1.0}}
+        for name, params in (overrides or {}).items():
+            over.setdefault(name, {}).update(params)
+        self.specs = {s.name: s for s in sim_stack(
+            model_path=str(model), record_dir=str(tmp / "rec"), link_path=self.link, laps=0,
+            state_dir=str(tmp / "sched_state"), overrides=over)}
+        for name, remaps in (remappings or {}).items():
+            self.specs[name].remappings.extend(remaps)
+        for spec in extra:
+            self.specs[spec.name] = spec
+        self.procs: dict[str, subprocess.Popen] = {}
+
+    def start(self, name: str) -> subprocess.Popen:
+        from gsrmr_server.sim_stack import command_line
+
+        argv = command_line(self.specs[name], Path(sys.executable).parent, self.tmp / "params")
+        log = (self.tmp / f"{name}.log").open("a")
+        proc = subprocess.Popen(argv, env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        self.procs[name] = proc
+        return proc
+
+    def start_all(self) -> None:
+        for name in self.specs:
+            self.start(name)
+            if name == "gsrmr_mock_limo":
+                deadline = time.monotonic() + 10
+                while not os.path.exists(self.link) and time.monotonic() < deadline:
+                    time.sleep(0.05)
+                assert os.path.exists(self.link), self.log(name)[-2000:]
+
+    def log(self, name: str) -> str:
+        return (self.tmp / f"{name}.log").read_text()
+
+    def kill9(self, name: str) -> None:
+        """SIGKILL a node's process group and reap it."""
+        proc = self.procs[name]
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+
+    def stop(self) -> dict[str, float]:
+        """SIGINT every process; seconds each took to exit."""
+        took = {}
+        for proc in self.procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+        for name, proc in self.procs.items():
+            t0 = time.monotonic()
+            try:
+                proc.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+            took[name] = time.monotonic() - t0
+        return took
+
+
+@contextlib.contextmanager
+def ros_client(env: dict[str, str], name: str = "test_client") -> Iterator[tuple]:
+    """An rclpy node and a SingleThreadedExecutor in the ROS domain of ``env`` (its own context)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    old = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
+    os.environ.update({k: env[k] for k in old})
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node(name, context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    try:
+        yield node, ex
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def spin_until(ex, predicate, timeout_s: float) -> bool:
+    """Spin ``ex`` until ``predicate()`` is true or ``timeout_s`` passed; return whether it became true."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        ex.spin_once(timeout_sec=0.05)
+        if predicate():
+            return True
+    return False
+
+
+def slot_rows(record_dir: Path) -> list[dict]:
+    """Rows of ``record_dir/slots.csv`` (empty until the server wrote one)."""
+    from gsrmr_server.recording import read_slots_csv
+
+    path = Path(record_dir) / "slots.csv"
+    return read_slots_csv(path) if path.exists() else []
