@@ -9,89 +9,24 @@ key path, replanning through the service, parameter rejection, and a server kill
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 import signal
-import subprocess
 import sys
 import time
 
 import numpy as np
 import pytest
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow]
+sys.path.insert(0, str(Path(__file__).parent))
+from stack_harness import HEIGHT, WIDTH, Stack, make_small_model, ros_client, slot_rows, spin_until
 
-WIDTH, HEIGHT = 160, 120
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")
 def small_model(tmp_path_factory) -> Path:
     """A GS model of the sandbox from 12 round-1 frames (depth-initialised, briefly trained)."""
-    from gsrmr_server.splatting.train import TrainConfig, Trainer
-    from gsrmr_server.world.recorder import record_round1, with_resolution
-    from gsrmr_server.world.scene import load_scene
-
-    folder = tmp_path_factory.mktemp("model")
-    scene = with_resolution(load_scene("sandbox"), WIDTH, HEIGHT)
-    dataset = record_round1(scene, folder / "round1", frames=12)
-    trainer = Trainer.from_dataset(dataset, TrainConfig(init_points=6000, sh_degree=0, iterations=60,
-                                                        densify_from=10_000))
-    model = trainer.train(progress=False)
-    return model.save_ply(folder / "model.ply")
-
-
-class Stack:
-    """The simulated system as processes in one isolated ROS domain."""
-
-    def __init__(self, tmp: Path, model: Path, env: dict[str, str]) -> None:
-        from gsrmr_server.sim_stack import sim_stack
-
-        self.tmp, self.env = tmp, env
-        self.link = str(tmp / "limo_pty")
-        size = {"width": WIDTH, "height": HEIGHT}
-        self.specs = {s.name: s for s in sim_stack(
-            model_path=str(model), record_dir=str(tmp / "rec"), link_path=self.link, laps=0,
-            state_dir=str(tmp / "sched_state"),
-            overrides={"gsrmr_server": size, "gsrmr_mock_camera": size,
-                       "gsrmr_scheduler": {"horizon": 60, "replan_period_s": 1.0}})}
-        self.procs: dict[str, subprocess.Popen] = {}
-
-    def start(self, name: str) -> subprocess.Popen:
-        from gsrmr_server.sim_stack import command_line
-
-        argv = command_line(self.specs[name], Path(sys.executable).parent, self.tmp / "params")
-        log = (self.tmp / f"{name}.log").open("a")
-        proc = subprocess.Popen(argv, env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-        self.procs[name] = proc
-        return proc
-
-    def start_all(self) -> None:
-        for name in self.specs:
-            self.start(name)
-            if name == "gsrmr_mock_limo":
-                deadline = time.monotonic() + 10
-                while not os.path.exists(self.link) and time.monotonic() < deadline:
-                    time.sleep(0.05)
-                assert os.path.exists(self.link), self.log(name)[-2000:]
-
-    def log(self, name: str) -> str:
-        return (self.tmp / f"{name}.log").read_text()
-
-    def stop(self) -> dict[str, float]:
-        """SIGINT every process; seconds each took to exit."""
-        took = {}
-        for proc in self.procs.values():
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-        for name, proc in self.procs.items():
-            t0 = time.monotonic()
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-            took[name] = time.monotonic() - t0
-        return took
+    return make_small_model(tmp_path_factory.mktemp("model"), WIDTH, HEIGHT)
 
 
 @pytest.fixture(scope="module")
@@ -111,44 +46,16 @@ def stack(small_model, tmp_path_factory):
 @pytest.fixture(scope="module")
 def client(stack):
     """An rclpy node in the stack's domain, for subscriptions and service calls from the test."""
-    import rclpy
-    from rclpy.context import Context
-
-    old = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
-    os.environ.update({k: stack.env[k] for k in old})
-    ctx = Context()
-    rclpy.init(context=ctx)
-    node = rclpy.create_node("test_node_suite", context=ctx)
-    from rclpy.executors import SingleThreadedExecutor
-
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    try:
-        yield node, ex
-    finally:
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+    with ros_client(stack.env, "test_node_suite") as pair:
+        yield pair
 
 
 def _spin_until(ex, predicate, timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        ex.spin_once(timeout_sec=0.05)
-        if predicate():
-            return True
-    return False
+    return spin_until(ex, predicate, timeout_s)
 
 
 def _rows(stack) -> list[dict]:
-    from gsrmr_server.recording import read_slots_csv
-
-    path = stack.tmp / "rec" / "slots.csv"
-    return read_slots_csv(path) if path.exists() else []
+    return slot_rows(stack.tmp / "rec")
 
 
 def test_mr_images_flow_through_image_and_key_paths(stack, client):
