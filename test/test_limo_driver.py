@@ -15,6 +15,7 @@ from pathlib import Path
 import time
 
 import pytest
+import serial
 
 from gsrmr_robot.limo import protocol as p
 from gsrmr_robot.limo.driver import LimoDriver
@@ -140,15 +141,31 @@ def test_base_stops_within_0_6_s_of_the_last_command(link):
         assert mock.true_pose()[0] == x_stop  # stays stopped (zeros streamed)
 
 
-def test_mock_stops_by_itself_when_commands_stop(link):
-    with MockLimo(link, cmd_timeout_s=0.3) as mock, LimoDriver(link) as drv:
-        assert wait_until(lambda: drv.motion_mode() == p.MotionMode.DIFF, 3.0)
-        drive_for(drv, 0.5, 0.3)
-        drv.close(stop_frames=0)  # no more frames at all: only the base's own watchdog can stop it
-        t0 = time.monotonic()
-        assert mock.true_velocity().vx_mps == pytest.approx(0.3)
-        assert wait_until(lambda: mock.true_velocity().vx_mps == 0.0, 1.0, period_s=0.002)
-        assert time.monotonic() - t0 < 0.4
+def test_mock_obeys_raw_doc_frames_and_stops_by_itself_when_commands_stop(link):
+    with MockLimo(link, cmd_timeout_s=0.3) as mock:
+        port = serial.Serial(link, 460800, timeout=0.05)
+        try:
+            frame_a = bytes.fromhex("55 0E 01 11 00 C8 FE 0C 00 00 00 00 00 D2")  # doc §7 A: 0.2 m/s, -0.5 rad/s
+            port.write(frame_a)
+            time.sleep(0.1)
+            assert mock.true_velocity().vx_mps == 0.0  # not enabled: ignored
+            port.write(bytes.fromhex("55 0E 04 21 01 00 00 00 00 00 00 00 00 01"))  # doc §7 B: enable
+            end = time.monotonic() + 0.5
+            while time.monotonic() < end:
+                last = time.monotonic()
+                port.write(frame_a)
+                time.sleep(0.02)
+            v = mock.true_velocity()
+            assert (v.vx_mps, v.wz_radps) == (pytest.approx(0.2), pytest.approx(-0.5))
+            # no more frames at all: only the base's own 0.3 s watchdog can stop it
+            assert wait_until(lambda: mock.true_velocity().vx_mps == 0.0, 1.0, period_s=0.002)
+            assert 0.3 <= time.monotonic() - last < 0.4
+            # and the base really streams the doc's frame layout back
+            data = port.read(2000)
+            frames = p.FrameParser(confirm_frames=1).feed(data)
+            assert {f.can_id for f in frames} == {p.ID_SYSTEM_STATE, p.ID_MOTION_STATE, p.ID_IMU_EULER}
+        finally:
+            port.close()
 
 
 def test_port_removed_and_restored_during_motion_resumes_driving(link):
