@@ -51,7 +51,7 @@ def test_every_expected_file_exists(report: Path) -> None:
 def test_summary_json_has_stable_keys(report: Path) -> None:
     s = json.loads((report / "summary.json").read_text())
     for key in ("command", "argv", "quick", "started_utc", "git", "cache", "channel_seed", "seed", "main_scene",
-                "settings", "scenes", "fig5", "tradeoffs", "checks", "elapsed_s", "files"):
+                "settings", "scenes", "fig5", "tradeoffs", "checks", "elapsed_s", "files", "load_average"):
         assert key in s, key
     assert s["quick"] is True and s["command"].startswith("gsrmr-experiments ") and "--quick" in s["command"]
     assert set(s["scenes"]) == set(SCENES)

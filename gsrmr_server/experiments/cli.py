@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, replace
 import datetime as dt
 import math
+import os
 from pathlib import Path
 import shlex
 import subprocess
@@ -140,6 +141,7 @@ def run(out: Path, *, quick: bool, cache: Path, scenes: Sequence[str], channel_s
         }
         _log(f"trade-offs done ({time.perf_counter() - t0:.1f} s)")
     summary["checks"] = consistency_checks(summary["scenes"], sols)
+    summary["load_average"] = [round(v, 2) for v in os.getloadavg()]
     summary["elapsed_s"] = time.perf_counter() - t_start
     summary["files"] = sorted({*(p.name for p in out.iterdir() if p.is_file()), "summary.json", "summary.md"})
     write_summary(out, summary)

@@ -54,9 +54,11 @@ class DataSettings:
     channel_seed: int = 1
 
     def key(self) -> str:
-        """Cache key: hash of the scene file text, these settings and :data:`CACHE_VERSION`."""
+        """Cache key: hash of the scene file text, these settings (but the channel seed, which only changes
+        the gains computed after loading) and :data:`CACHE_VERSION`."""
         text = resolve_scene_path(self.scene).read_text()
-        blob = text + json.dumps(asdict(self), sort_keys=True) + f"v{CACHE_VERSION}"
+        fields = {k: v for k, v in asdict(self).items() if k != "channel_seed"}
+        blob = text + json.dumps(fields, sort_keys=True) + f"v{CACHE_VERSION}"
         return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 

@@ -207,7 +207,7 @@ def fig5(data: SceneData, sols: dict[float, dict[str, Schedule]], cfg: PaperConf
     axm.plot(poses[[0, -1], 0], poses[[0, -1], 1], "rs", ms=7, label="start/end")
     for i, t in enumerate(slots):
         axm.annotate("ABCDEFGHIJ"[i], poses[t, :2], color="k", fontsize=9, weight="bold")
-    axm.set_aspect("equal")
+    axm.set_aspect("equal", adjustable="datalim")
     axm.set_title("route (map frame, m)")
     axm.legend(fontsize=6, loc="lower left")
     rows = []
