@@ -1,0 +1,219 @@
+"""Load benchmark: N namespaced robots uploading at 1/τ to ONE server process for D seconds.
+
+Layout (two processes, one isolated ROS domain, localhost discovery):
+
+* server process (this one): N :class:`~gsrmr_server.server_node.ServerNode` instances, one per
+  namespace ``/r0 … /r{N-1}``, spun by one ``MultiThreadedExecutor`` (``--threads``);
+* robot process (``--role robots``, started by this script): N :class:`~gsrmr_robot.robot_node.RobotNode`
+  instances in the same namespaces plus, per robot, a feeder publishing a synthetic camera frame
+  (``camera/image_raw``, rgb8 W×H) and odometry (``odom``, a slow circle) at 1/τ. No schedule is
+  published, so every robot uploads its JPEG and pose key every slot (the heaviest uplink).
+
+Per slot and robot the server's own latency (MR image published − slot start, ms) is collected; drops
+are the slots whose key did not arrive in time (``missing_key``), slots composed without the uploaded
+image (``no_image``: every robot uploads one per slot), uploads that arrived after their slot (``late``)
+and slots the server skipped. Prints one table row per run and the median over
+``--repeats`` runs.
+
+    .venv/bin/python bench/load.py                      # 10 robots, 10 Hz, 60 s, 160×120
+    .venv/bin/python bench/load.py --robots 4 --duration-s 20
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+from pathlib import Path
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+
+def _feeder_class():
+    from nav_msgs.msg import Odometry
+    from rclpy.node import Node
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Image
+
+    from gsrmr_common.ros_wire import image_to_msg
+
+    class Feeder(Node):
+        """Synthetic camera frames and odometry (odom frame: circle of 1 m radius at 0.2 rad/s)."""
+
+        def __init__(self, width: int, height: int, slot_s: float, seed: int, **kw) -> None:
+            super().__init__("load_feeder", **kw)
+            rng = np.random.default_rng(seed)
+            yy, xx = np.mgrid[0:height, 0:width]
+            base = np.stack([xx * 255 // width, yy * 255 // height, (xx + yy) % 256], axis=2)
+            self.frame = np.clip(base + rng.integers(0, 40, (height, width, 3)), 0, 255).astype(np.uint8)
+            self.t0 = time.monotonic()
+            self.img_pub = self.create_publisher(Image, "camera/image_raw", qos_profile_sensor_data)
+            self.odom_pub = self.create_publisher(Odometry, "odom", 20)
+            self.create_timer(slot_s, self._tick)
+
+        def _tick(self) -> None:
+            now = self.get_clock().now()
+            self.img_pub.publish(image_to_msg(self.frame, now.nanoseconds, "camera_optical_frame"))
+            t = time.monotonic() - self.t0
+            msg = Odometry()
+            msg.header.stamp = now.to_msg()
+            msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
+            msg.pose.pose.position.x, msg.pose.pose.position.y = math.cos(0.2 * t), math.sin(0.2 * t)
+            yaw = 0.2 * t + math.pi / 2
+            msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+            self.odom_pub.publish(msg)
+
+    return Feeder
+
+
+def run_robots(n: int, width: int, height: int, slot_s: float) -> int:
+    """Role ``robots``: N RobotNodes + feeders until SIGINT/SIGTERM."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+
+    from gsrmr_robot.robot_node import RobotNode
+
+    rclpy.init()
+    feeder = _feeder_class()
+    ex = MultiThreadedExecutor(num_threads=2)
+    nodes = []
+    for i in range(n):
+        nodes.append(RobotNode(namespace=f"/r{i}"))
+        nodes.append(feeder(width, height, slot_s, i, namespace=f"/r{i}"))
+    for node in nodes:
+        ex.add_node(node)
+    try:
+        ex.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+def run_servers(args: argparse.Namespace, model_path: Path) -> dict:
+    """One load run: start the robot process, spin N ServerNodes for ``duration_s``, collect stats."""
+    import rclpy
+    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from gsrmr_server.server_node import ServerNode
+
+    robots = subprocess.Popen([sys.executable, __file__, "--role", "robots", "--robots", str(args.robots),
+                               "--width", str(args.width), "--height", str(args.height)],
+                              env=os.environ.copy(), start_new_session=True,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    rclpy.init()
+    params = [Parameter("model_path", value=str(model_path)), Parameter("width", value=args.width),
+              Parameter("height", value=args.height), Parameter("measure_loss", value=True)]
+    servers = [ServerNode(namespace=f"/r{i}", parameter_overrides=params) for i in range(args.robots)]
+    ex = MultiThreadedExecutor(num_threads=args.threads)
+    for s in servers:
+        ex.add_node(s)
+    import psutil
+
+    proc = psutil.Process()
+    spinner = threading.Thread(target=ex.spin, daemon=True)
+    spinner.start()
+    try:
+        time.sleep(args.warmup_s)
+        for s in servers:  # measure from here on (the counters are only read and reset here)
+            s.latencies_ms = type(s.latencies_ms)(maxlen=100_000)
+            s.uplink.faults.clear()
+            s.slots_done = s.slots_on_time = 0
+            s.sources = {}
+        cpu0 = proc.cpu_times()
+        t0 = time.monotonic()
+        time.sleep(args.duration_s)
+        wall = time.monotonic() - t0
+        cpu1 = proc.cpu_times()
+        snapshot = [(list(s.latencies_ms), dict(s.uplink.faults), s.slots_done, s.slots_on_time, dict(s.sources))
+                    for s in servers]
+    finally:
+        ex.shutdown(timeout_sec=5)
+        robots.send_signal(signal.SIGINT)
+        try:
+            robots.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            os.killpg(robots.pid, signal.SIGKILL)
+    lat = np.concatenate([np.asarray(snap[0]) for snap in snapshot])
+    faults: dict[str, int] = {}
+    for snap in snapshot:
+        for k, v in snap[1].items():
+            faults[k] = faults.get(k, 0) + v
+    slots = sum(snap[2] for snap in snapshot)
+    sources = {k: sum(snap[4].get(k, 0) for snap in snapshot) for k in ("image", "render", "fallback")}
+    expected = int(args.robots * wall / args.slot_s)
+    dropped_keys = faults.get("missing_key", 0)
+    result = {"robots": args.robots, "wall_s": round(wall, 1), "slots": slots, "slots_expected": expected,
+              "on_time": sum(snap[3] for snap in snapshot),
+              "p50_ms": float(np.percentile(lat, 50)), "p95_ms": float(np.percentile(lat, 95)),
+              "p99_ms": float(np.percentile(lat, 99)), "max_ms": float(lat.max()),
+              "missing_key": dropped_keys, "no_image": slots - sources["image"],
+              "late": faults.get("late", 0),
+              "skipped": faults.get("skipped_slots", 0),
+              "sources": sources,
+              "server_cpu_s_per_s": round((cpu1.user + cpu1.system - cpu0.user - cpu0.system) / wall, 2)}
+    for s in servers:
+        s.destroy_node()
+    rclpy.try_shutdown()
+    return result
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--role", choices=("bench", "robots"), default="bench")
+    p.add_argument("--robots", type=int, default=10)
+    p.add_argument("--duration-s", type=float, default=60.0)
+    p.add_argument("--warmup-s", type=float, default=8.0)
+    p.add_argument("--repeats", type=int, default=1)
+    p.add_argument("--threads", type=int, default=4, help="server MultiThreadedExecutor threads")
+    p.add_argument("--width", type=int, default=160)
+    p.add_argument("--height", type=int, default=120)
+    p.add_argument("--slot-s", type=float, default=0.1, help="τ (must match the nodes' slot_s default)")
+    p.add_argument("--gaussians", type=int, default=2000, help="size of the (untrained) GS model")
+    args = p.parse_args()
+    if args.role == "robots":
+        return run_robots(args.robots, args.width, args.height, args.slot_s)
+    os.environ["ROS_DOMAIN_ID"] = str(random.Random(os.getpid()).randrange(1, 101))
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    sys.path.insert(0, str(REPO / "test"))
+    from stack_harness import make_point_model
+
+    model = make_point_model(Path(tempfile.mkdtemp(prefix="gsrmr-load-")), n=args.gaussians)
+    print(f"# load: {args.robots} robots × {1 / args.slot_s:g} Hz (image + key every slot) → 1 server process "
+          f"({args.robots} ServerNodes, {args.threads} threads), {args.width}×{args.height}, "
+          f"{args.gaussians} Gaussians, {args.duration_s:g} s after {args.warmup_s:g} s warm-up, "
+          f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}, {os.cpu_count()} CPUs")
+    cols = ("robots", "slots", "slots_expected", "on_time", "p50_ms", "p95_ms", "p99_ms", "max_ms", "missing_key",
+            "no_image", "late", "skipped", "server_cpu_s_per_s")
+    print("| run | " + " | ".join(cols) + " |")
+    print("|" + "---|" * (len(cols) + 1))
+    results = []
+    for r in range(args.repeats):
+        res = run_servers(args, model)
+        results.append(res)
+        print(f"| {r + 1} | " + " | ".join(f"{res[c]:.1f}" if isinstance(res[c], float) else str(res[c])
+                                          for c in cols) + " |", flush=True)
+        print("#   sources: " + json.dumps(res["sources"]), flush=True)
+    if args.repeats > 1:
+        med = {c: float(np.median([r[c] for r in results])) for c in cols}
+        print("| median | " + " | ".join(f"{med[c]:.1f}" for c in cols) + " |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
