@@ -12,8 +12,9 @@ from scipy.spatial.transform import Rotation
 import torch
 
 from gsrmr_common.camera import Camera, CameraMount, Intrinsics, camera_from_pose
+from gsrmr_server.splatting.diffrender import render_torch
 from gsrmr_server.splatting.model import GaussianModel, PlyFormatError, garden_model, load_garden
-from gsrmr_server.splatting.render import render, render_torch
+from gsrmr_server.splatting.render import render
 from gsrmr_server.splatting.sh import C0, eval_sh_numpy, num_coeffs
 
 NEAR = 0.2

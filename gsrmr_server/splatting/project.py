@@ -23,7 +23,6 @@ import math
 
 import numba as nb
 import numpy as np
-import torch
 
 NEAR_M = 0.2
 EPS2D_PX2 = 0.3
@@ -155,44 +154,3 @@ def project_numpy(means, quats, log_scales, opacity_logits, world_to_camera, int
         project_kernel(means, quats, log_scales, opacity_logits, np.asarray(world_to_camera, np.float64),
                        np.asarray(intr, np.float64), lims, int(width), int(height), float(near_m), geom, box)
     return geom, box
-
-
-def quat_to_rotmat_torch(quats: torch.Tensor) -> torch.Tensor:
-    """N×4 (w, x, y, z), normalised here → N×3×3 rotation matrices."""
-    q = quats / quats.norm(dim=1, keepdim=True).clamp_min(1e-12)
-    w, x, y, z = q.unbind(1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], dim=1).reshape(-1, 3, 3)
-
-
-def project_torch(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor,
-                  world_to_camera: torch.Tensor, intr: tuple[float, float, float, float], width: int,
-                  height: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Differentiable projection (same maths as :func:`project_kernel`, no culling).
-
-    Returns (means2d N×2 px, conic N×3 (a, b, c), cov2d N×3 (xx, xy, yy) px², depth z N m).
-    Callers cull with the non-differentiable numba pass (which also gives the radii and boxes).
-    """
-    fx, fy, cx, cy = intr
-    lims = fov_limits(fx, fy, cx, cy, width, height)
-    rot_w = world_to_camera[:3, :3]
-    p = means @ rot_w.T + world_to_camera[:3, 3]
-    x, y, z = p.unbind(1)
-    z_safe = z.clamp_min(1e-6)
-    tx = torch.clamp(x / z_safe, -lims[0], lims[1]) * z_safe
-    ty = torch.clamp(y / z_safe, -lims[2], lims[3]) * z_safe
-    zeros = torch.zeros_like(z)
-    jac = torch.stack([fx / z_safe, zeros, -fx * tx / z_safe**2,
-                       zeros, fy / z_safe, -fy * ty / z_safe**2], dim=1).reshape(-1, 2, 3)
-    m = quat_to_rotmat_torch(quats) * torch.exp(log_scales)[:, None, :]
-    pm = jac @ (rot_w[None] @ m)
-    cov = pm @ pm.transpose(1, 2)
-    ca = cov[:, 0, 0] + EPS2D_PX2
-    cb = cov[:, 0, 1]
-    cc = cov[:, 1, 1] + EPS2D_PX2
-    det = (ca * cc - cb * cb).clamp_min(1e-12)
-    conic = torch.stack([cc / det, -cb / det, ca / det], dim=1)
-    means2d = torch.stack([fx * x / z_safe + cx, fy * y / z_safe + cy], dim=1)
-    return means2d, conic, torch.stack([ca, cb, cc], dim=1), z

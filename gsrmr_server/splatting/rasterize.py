@@ -22,7 +22,6 @@ import math
 
 import numba as nb
 import numpy as np
-import torch
 
 TILE = 16
 ALPHA_MAX = 0.99
@@ -320,35 +319,3 @@ def rasterize_packed(packed: np.ndarray, box: np.ndarray, width: int, height: in
     forward_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, bg,
                    rgb, alpha, depth, final_t, last)
     return rgb, alpha, depth, final_t, last, (box, offsets, lst, tiles_x, tile)
-
-
-class RasterizeFunction(torch.autograd.Function):
-    """Differentiable rasterization of depth-ordered Gaussians (inputs already culled and sorted).
-
-    Differentiable inputs: means2d M×2 px, conic M×3, colors M×3, opacity M. Non-differentiable:
-    depth M, radius M, box M×4 (pixel ranges), background 3, width, height. Outputs rgb H×W×3 and
-    alpha H×W in the dtype of ``means2d``."""
-
-    @staticmethod
-    def forward(ctx, means2d, conic, colors, opacity, depth, radius, box, background, width, height):
-        packed = pack(means2d.detach().numpy(), conic.detach().numpy(), opacity.detach().numpy(),
-                      colors.detach().numpy(), depth.detach().numpy(), radius.detach().numpy())
-        bg = np.asarray(background, np.float64)
-        rgb, alpha, _, final_t, last, bins = rasterize_packed(packed, box, width, height, bg, TILE, np.float64)
-        ctx.saved = (packed, bins, bg, final_t, last, width, height)
-        ctx.dtype = means2d.dtype
-        return torch.from_numpy(rgb).to(means2d.dtype), torch.from_numpy(alpha).to(means2d.dtype)
-
-    @staticmethod
-    def backward(ctx, g_rgb, g_alpha):
-        packed, (box, offsets, lst, tiles_x, tile), bg, final_t, last, width, height = ctx.saved
-        n_chunks = max(1, nb.get_num_threads())
-        grads = np.zeros((n_chunks, packed.shape[0], 9), np.float64)
-        g_rgb_np = np.ascontiguousarray(g_rgb.detach().numpy(), np.float64) if g_rgb is not None \
-            else np.zeros((height, width, 3))
-        g_a_np = np.ascontiguousarray(g_alpha.detach().numpy(), np.float64) if g_alpha is not None \
-            else np.zeros((height, width))
-        backward_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, bg, final_t, last, g_rgb_np,
-                        g_a_np, n_chunks, grads)
-        g = torch.from_numpy(grads.sum(axis=0)).to(ctx.dtype)
-        return g[:, 0:2], g[:, 2:5], g[:, 6:9], g[:, 5], None, None, None, None, None, None

@@ -12,20 +12,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from gsrmr_common.camera import Camera
 from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.project import NEAR_M, project_numpy, project_torch
+from gsrmr_server.splatting.project import NEAR_M, project_numpy
 from gsrmr_server.splatting.rasterize import (
     PACK_WIDTH,
     TILE,
-    RasterizeFunction,
     depth_order,
     gather_pack_kernel,
     rasterize_packed,
 )
-from gsrmr_server.splatting.sh import C0, eval_sh_numpy, eval_sh_torch
+from gsrmr_server.splatting.sh import C0, eval_sh_numpy
 
 MAX_PIXELS = 4096 * 4096
 
@@ -97,55 +95,3 @@ def render(model: GaussianModel, camera: Camera, background=(0.0, 0.0, 0.0), *, 
     rgb, alpha, depth, _, _, _ = rasterize_packed(packed, pbox, width, height, bg, tile)
     np.clip(rgb, 0.0, 1.0, out=rgb)
     return RenderOutput(rgb, alpha, depth, int(packed.shape[0]))
-
-
-@dataclass
-class TorchRenderOutput:
-    """Differentiable render: ``rgb`` H×W×3 and ``alpha`` H×W tensors (not clipped), ``means2d`` M×2
-    pixel centres of the visible Gaussians (gradient retained, for densification), ``index`` M model
-    indices of those Gaussians in depth order, ``radius_px`` M 3-sigma radii."""
-
-    rgb: torch.Tensor
-    alpha: torch.Tensor
-    means2d: torch.Tensor
-    index: np.ndarray
-    radius_px: np.ndarray
-
-
-def render_torch(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor,
-                 opacity_logits: torch.Tensor, sh: torch.Tensor, camera: Camera, background=(0.0, 0.0, 0.0),
-                 *, sh_degree: int = 0, near_m: float = NEAR_M) -> TorchRenderOutput:
-    """Differentiable render for training (parameters as torch tensors, same layout as the model).
-
-    Culling, depth sort and tile binning are non-differentiable (numba); projection, activations
-    and SH are torch autograd; compositing is :class:`RasterizeFunction` (numba forward and exact
-    numba backward). Same image as :func:`render` up to float rounding.
-    """
-    bg = _check_background(background)
-    width, height = camera.width, camera.height
-    k = camera.intrinsics
-    intr = (k.fx, k.fy, k.cx, k.cy)
-    with torch.no_grad():
-        arrays = [t.detach().float().numpy() for t in (means, quats, log_scales, opacity_logits)]
-        geom, box = project_numpy(*arrays, camera.world_to_camera, intr, width, height, near_m)
-    visible = np.nonzero((box[:, 0] <= box[:, 1]) & (box[:, 2] <= box[:, 3]))[0]
-    order = visible[depth_order(geom[visible, 6])]
-    idx = torch.from_numpy(order)
-    m = means[idx]
-    w2c = torch.as_tensor(camera.world_to_camera, dtype=means.dtype)
-    means2d, conic, _, z = project_torch(m, quats[idx], log_scales[idx], w2c, intr, width, height)
-    if means2d.requires_grad:
-        means2d.retain_grad()
-    opac = torch.sigmoid(opacity_logits[idx])
-    degree = min(sh_degree, round(sh.shape[1] ** 0.5) - 1)
-    if degree == 0:
-        colors = torch.clamp_min(sh[idx, 0, :] * C0 + 0.5, 0.0)
-    else:
-        center = torch.as_tensor(camera.center_world, dtype=means.dtype)
-        dirs = m - center
-        dirs = dirs / dirs.norm(dim=1, keepdim=True).clamp_min(1e-12)
-        colors = eval_sh_torch(sh[idx], dirs, degree)
-    radius = torch.from_numpy(geom[order, 7].astype(np.float64))
-    rgb, alpha = RasterizeFunction.apply(means2d, conic, colors, opac, z.detach(), radius, box[order], bg,
-                                         width, height)
-    return TorchRenderOutput(rgb, alpha, means2d, order, geom[order, 7])

@@ -7,8 +7,12 @@ with K = (degree + 1)² and ``sh[:, 0]`` the DC term (``f_dc`` in the .ply).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import torch
+
+if TYPE_CHECKING:
+    import torch
 
 C0 = 0.28209479177387814
 C1 = 0.4886025119029199
@@ -71,6 +75,7 @@ def eval_sh_numpy(sh: np.ndarray, dirs: np.ndarray, degree: int) -> np.ndarray:
 
 def eval_sh_torch(sh: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.Tensor:
     """Differentiable version of :func:`eval_sh_numpy` (gradient 0 where the clamp is active)."""
+    import torch
     k = num_coeffs(degree)
     basis = torch.stack(_basis(dirs[:, 0], dirs[:, 1], dirs[:, 2], degree, torch), dim=1)  # N×k
     col = (basis[:, :, None] * sh[:, :k, :]).sum(dim=1)

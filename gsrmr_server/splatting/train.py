@@ -35,10 +35,11 @@ from tqdm import tqdm
 from gsrmr_common.camera import Camera
 from gsrmr_common.metrics import SSIM_C1, SSIM_C2, gaussian_window_1d, psnr
 from gsrmr_common.nerfstudio import DatasetFrame, read_dataset
+from gsrmr_server.splatting.diffrender import render_torch
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.splatting.project import NEAR_M, project_numpy
 from gsrmr_server.splatting.rasterize import TILE, depth_order
-from gsrmr_server.splatting.render import render, render_torch
+from gsrmr_server.splatting.render import render
 
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 
@@ -428,7 +429,7 @@ class Trainer:
         if split.any():
             sidx = torch.nonzero(split).flatten()
             std = p["log_scales"][sidx].exp()
-            from gsrmr_server.splatting.project import quat_to_rotmat_torch
+            from gsrmr_server.splatting.diffrender import quat_to_rotmat_torch
 
             rot = quat_to_rotmat_torch(p["quats"][sidx])
             for _ in range(2):
