@@ -108,6 +108,14 @@ def main() -> None:
         t1, _ = time_renders(m, scaled(cams, 320, 240), args.repeats)
         t2, _ = time_renders(m, cams, args.repeats)
         print(f"| {degree} | {t1 * 1000:.1f} | {1 / t1:.1f} | {t2 * 1000:.1f} | {1 / t2:.1f} |", flush=True)
+    print("\n## numba threads (all Gaussians; render(..., threads=N))\n")
+    print("| threads | 320×240 wall ms | CPU ms | 648×420 wall ms | CPU ms |\n|---|---|---|---|---|")
+    for threads in (1, 2):
+        numba.set_num_threads(threads)
+        t1, _ = time_renders(model, scaled(cams, 320, 240), args.repeats)
+        c1 = float(np.median(CPU_MS))
+        t2, _ = time_renders(model, cams, args.repeats)
+        print(f"| {threads} | {t1 * 1000:.1f} | {c1:.1f} | {t2 * 1000:.1f} | {np.median(CPU_MS):.1f} |", flush=True)
     print(f"\n# load average after the run: {os.getloadavg()[0]:.1f}")
     if not args.skip_compile:
         print("\n## first call in a fresh process (648×420)\n")

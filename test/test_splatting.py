@@ -100,6 +100,8 @@ def test_tile_size_does_not_change_the_image():
     cam = front_camera(70, 45)
     a, b = render(model, cam, tile=16), render(model, cam, tile=8)
     np.testing.assert_allclose(a.rgb, b.rgb, atol=1e-6)
+    c = render(model, cam, threads=1)
+    np.testing.assert_array_equal(a.rgb, c.rgb)
 
 
 def test_duplicated_gaussians_tie_break_by_index():

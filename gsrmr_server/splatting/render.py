@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from gsrmr_common.camera import Camera
@@ -62,12 +63,21 @@ def _check_background(background) -> np.ndarray:
 
 
 def render(model: GaussianModel, camera: Camera, background=(0.0, 0.0, 0.0), *, near_m: float = NEAR_M,
-           sh_degree: int | None = None, tile: int = TILE) -> RenderOutput:
+           sh_degree: int | None = None, tile: int = TILE, threads: int | None = None) -> RenderOutput:
     """Render ``model`` seen by ``camera`` over a flat ``background`` colour (RGB in [0, 1]).
 
-    ``sh_degree`` caps the SH degree used (None = the model's). Raises ValueError for an image larger
-    than :data:`MAX_PIXELS` or a non-finite background; NaN parameters are culled (never NaN output).
+    ``sh_degree`` caps the SH degree used (None = the model's). ``threads`` sets the numba thread
+    count for this call (None = numba's current setting, all cores by default; 1 is faster when the
+    cores are already busy with other processes). Raises ValueError for an image larger than
+    :data:`MAX_PIXELS` or a non-finite background; NaN parameters are culled (never NaN output).
     """
+    if threads is not None:
+        previous = numba.get_num_threads()
+        numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+        try:
+            return render(model, camera, background, near_m=near_m, sh_degree=sh_degree, tile=tile)
+        finally:
+            numba.set_num_threads(previous)
     bg = _check_background(background)
     width, height = camera.width, camera.height
     if width * height > MAX_PIXELS:
