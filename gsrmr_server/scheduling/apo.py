@@ -65,8 +65,12 @@ class _DcProblem:
             cons.append((L / ls) @ (1 - self.x) <= cap / ls)
         self.prob = cp.Problem(cp.Minimize(self.c_u @ self.u + self.c_x @ self.x), cons)
 
-    def solve(self, lin_x_j: np.ndarray, solvers: tuple[str, ...]) -> tuple[np.ndarray | None, str, list[str]]:
-        """Minimise ``Σ E_img u + lin_x·x`` (both in J); returns (x or None, solver/status, notes)."""
+    def solve(self, lin_x_j: np.ndarray, solvers: tuple[str, ...], deadline: float | None = None
+              ) -> tuple[np.ndarray | None, str, list[str]]:
+        """Minimise ``Σ E_img u + lin_x·x`` (both in J); returns (x or None, solver/status, notes).
+
+        ``deadline`` (``time.perf_counter()`` value) is passed to the solvers as their own time limit.
+        """
         import cvxpy as cp
         scale = max(float(np.max(self.e_img)), float(np.max(np.abs(lin_x_j))) if lin_x_j.size else 0.0, 1e-300)
         attempts: list[tuple[str, float]] = []
@@ -75,12 +79,22 @@ class _DcProblem:
         notes: list[str] = []
         fallback: tuple[np.ndarray, str] | None = None
         for solver, factor in attempts:
+            kwargs: dict[str, Any] = {}
+            if deadline is not None:
+                remaining = deadline - time.perf_counter()
+                if remaining <= 0:
+                    notes.append(f"time limit reached before trying {solver} (scale x{factor:g})")
+                    break
+                if solver == "CLARABEL":
+                    kwargs["time_limit"] = remaining
+                elif solver == "SCS":
+                    kwargs["time_limit_secs"] = remaining
             self.c_u.value = self.e_img / scale * factor
             self.c_x.value = lin_x_j / scale * factor
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")  # "inaccurate" is recorded in the notes instead
-                    self.prob.solve(solver=solver, ignore_dpp=not self.dpp)
+                    self.prob.solve(solver=solver, ignore_dpp=not self.dpp, **kwargs)
                 status = self.prob.status
             except (cp.error.SolverError, ValueError, ArithmeticError) as exc:
                 notes.append(f"{solver} (scale x{factor:g}) failed: {type(exc).__name__}: {str(exc)[:80]}")
@@ -107,7 +121,8 @@ def solve_apo(problem: Problem, *, beta: float | None = None, iterations: int = 
         tol: stop when ‖x^[n] − x^[n−1]‖₂ < tol.
         init: ``"ranking"`` (paper) or ``"ones"`` (all images, the naive start).
         solvers: CVXPY solver names tried in order (each also once rescaled).
-        time_limit_s: stop iterating when exceeded (the current iterate is rounded).
+        time_limit_s: stop iterating when exceeded (the current iterate is rounded); the remaining time is
+            also passed to CLARABEL (``time_limit``) and SCS (``time_limit_secs``).
 
     History entries: ``iteration``, ``dx_norm``, ``phi`` ((1/T)Σx(1−x)), ``objective_j`` (τΣp + φ(x) at the
     iterate with tight p), ``energy_relaxed_j``, ``solver``.
@@ -153,10 +168,15 @@ def solve_apo(problem: Problem, *, beta: float | None = None, iterations: int = 
                 break
             xs = x_full[free]
             lin = (1.0 - 2.0 * xs) / beta
-            xv, status, snotes = dc.solve(lin, solvers)
+            deadline = None if time_limit_s is None else t0 + time_limit_s
+            xv, status, snotes = dc.solve(lin, solvers, deadline)
             notes += [f"iteration {it}: {m}" for m in snotes]
             if xv is None:
-                notes.append(f"apo: every solver failed at iteration {it}; keeping the previous iterate")
+                if deadline is not None and time.perf_counter() >= deadline:
+                    notes.append(f"apo: time limit {time_limit_s:g} s reached during iteration {it}; keeping the "
+                                 "previous iterate")
+                else:
+                    notes.append(f"apo: every solver failed at iteration {it}; keeping the previous iterate")
                 break
             x_new = x_full.copy()
             x_new[free] = xv
