@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import math
 from pathlib import Path
@@ -37,7 +38,8 @@ def test_every_expected_file_exists(report: Path) -> None:
                 "tradeoff_renderer.csv", "tradeoff_jpeg.png", "tradeoff_jpeg.csv", "tradeoff_training.png",
                 "tradeoff_training.csv", "summary.md", "summary.json"]
     for sc in SCENES:
-        expected += [f"fig4b_energy_{sc}.png", f"fig4b_energy_{sc}.csv", f"table1_{sc}.csv"]
+        expected += [f"fig4b_energy_{sc}.png", f"fig4b_energy_{sc}.csv", f"table1_{sc}.csv",
+                     f"sensitivity_loss_scale_{sc}.png", f"sensitivity_loss_scale_{sc}.csv"]
     for name in expected:
         p = report / name
         assert p.is_file() and p.stat().st_size > 0, name
@@ -106,3 +108,14 @@ def test_apo_convergence_and_profile(report: Path) -> None:
     assert len(prof) == s["scenes"][s["main_scene"]]["data"]["slots"]
     assert sum(int(r["x"]) for r in prof) == s["fig5"]["apo_images"]
     assert all(float(r["power_w"]) > 0 for r in prof)
+
+
+def test_better_gs_never_costs_more(report: Path) -> None:
+    # Scaling every L_t down only enlarges the feasible set, so the optimum energy cannot rise.
+    for sc in SCENES:
+        rows = _rows(report / f"sensitivity_loss_scale_{sc}.csv")
+        for lth in LTH:
+            rr = sorted((r for r in rows if r["loss_threshold"] == lth), key=lambda r: -float(r["loss_scale"]))
+            assert len(rr) >= 2
+            f = [float(r["saving_factor_exact"]) for r in rr]
+            assert all(b >= a * (1 - 1e-9) for a, b in itertools.pairwise(f)), (sc, lth, f)

@@ -32,10 +32,10 @@ from gsrmr_server.experiments.report import claims, write_summary
 
 REPO = Path(__file__).resolve().parents[2]
 
-QUICK_DATA = dict(width=40, height=30, frames=12, slots=40, train_iterations=20, train_seconds=15.0,
-                  init_points=800, eval_every=10, holdout_every=4)
+QUICK_DATA = dict(width=32, height=24, frames=10, slots=32, train_iterations=15, train_seconds=10.0,
+                  init_points=500, eval_every=5, holdout_every=4)
 QUICK_PAPER = paper.PaperConfig(convergence_iterations=10, exact_time_limit_s=10.0, strip_slots=4)
-QUICK_TRADEOFF = tradeoffs.TradeoffConfig(apo_ns=(1, 3, 10), horizons=(20, 40, 80), render_slots=2, render_repeats=1,
+QUICK_TRADEOFF = tradeoffs.TradeoffConfig(apo_ns=(1, 3, 10), horizons=(16, 32, 64), render_slots=2, render_repeats=1,
                                           scales=(0.5, 1.0), fractions=(0.25, 1.0), jpeg_qualities=(10, 50, 90),
                                           jpeg_slots=4, exact_time_limit_s=10.0)
 
@@ -126,6 +126,7 @@ def run(out: Path, *, quick: bool, cache: Path, scenes: Sequence[str], channel_s
         if sc == main:
             res["fig4a"] = paper.fig4a(d, pcfg, out)
         res["claims"] = claims(res)
+        res["sensitivity_saving_factor"] = paper.sensitivity(d, pcfg, out)
         summary["scenes"][sc] = res
         _log(f"{sc}: Fig. 4b + Table 1 done ({time.perf_counter() - t0:.1f} s)")
     summary["fig5"] = paper.fig5(datas[main], sols[main], pcfg, comps[main], out)

@@ -242,3 +242,40 @@ def fig5(data: SceneData, sols: dict[float, dict[str, Schedule]], cfg: PaperConf
               [{"slot": int(t), "x": int(apo.x[t]), "power_w": float(apo.power_w[t]),
                 "gs_loss": float(data.gs_loss[t]), "channel_gain": float(data.channel_gain[t])} for t in tt])
     return {"slots": slots, "apo_images": int(img.sum())}
+
+
+def sensitivity(data: SceneData, cfg: PaperConfig, out: Path, scales: tuple[float, ...] = (1.0, 0.5, 0.25, 0.1)
+                ) -> dict[str, Any]:
+    """What-if: the GS energy-saving factor if every L_t were ``scale``× ours (a better GS model).
+
+    Same channel, same schedulers (APO with N = ``apo_iterations``, and exact); only ``gs_loss`` is
+    scaled. Answers "how good must the GS model be for the paper's 10×/100× savings" on our route.
+    """
+    from gsrmr_server.scheduling import Problem
+
+    rows = []
+    for sc in scales:
+        for lth in cfg.thresholds:
+            p = Problem(channel_gain=data.channel_gain, gs_loss=data.gs_loss * sc, loss_threshold=lth,
+                        slot_s=data.record.slot_s)
+            e_mr = solve(p, "robomr").energy_j
+            apo = solve(p, "apo", iterations=cfg.apo_iterations)
+            ex = solve(p, "exact", time_limit_s=cfg.exact_time_limit_s)
+            rows.append({"scene": data.settings.scene, "loss_scale": sc, "loss_threshold": lth,
+                         "mean_gs_loss": float(np.mean(data.gs_loss * sc)), "saving_factor_apo": e_mr / apo.energy_j,
+                         "saving_factor_exact": e_mr / ex.energy_j, "apo_images": int(apo.x.sum())})
+    write_csv(out / f"sensitivity_loss_scale_{data.settings.scene}.csv", rows)
+    fig, ax = plt.subplots(figsize=(6, 3.8))
+    for sc in scales:
+        rr = [r for r in rows if r["loss_scale"] == sc]
+        ax.semilogy([r["loss_threshold"] for r in rr], [r["saving_factor_apo"] for r in rr], "o-",
+                    label=f"L_t x {sc:g} (mean {rr[0]['mean_gs_loss']:.3f})")
+    ax.axhline(10, color="grey", ls="--", lw=0.8)
+    ax.axhline(100, color="grey", ls=":", lw=0.8)
+    ax.set_xlabel(r"$L_{th}$")
+    ax.set_ylabel("GS energy-saving factor (RoboMR / APO)")
+    ax.set_title(f"What-if: a better GS model, {data.settings.scene}")
+    ax.legend(fontsize=7)
+    save_fig(fig, out / f"sensitivity_loss_scale_{data.settings.scene}.png")
+    return {f"{sc:g}": {f"{r['loss_threshold']:g}": r["saving_factor_apo"] for r in rows if r["loss_scale"] == sc}
+            for sc in scales}

@@ -117,6 +117,14 @@ def write_summary(out: Path, summary: dict[str, Any]) -> None:
     L += ["", "Why ours differ:", ""]
     for sc, r in summary["scenes"].items():
         L += _why(sc, r)
+    L += ["", "What-if (`sensitivity_loss_scale_<scene>.png/.csv`): the saving factor RoboMR/APO if every L_t "
+          "were scaled (a better GS model; same channel and schedulers):", "",
+          "| scene | L_t scale | " + " | ".join(f"L_th {k}" for k in next(iter(summary["scenes"].values()))
+                                                ["sensitivity_saving_factor"]["1"]) + " |",
+          "|---|---|" + "---|" * len(next(iter(summary["scenes"].values()))["sensitivity_saving_factor"]["1"])]
+    for sc, r in summary["scenes"].items():
+        for scale, per in r["sensitivity_saving_factor"].items():
+            L.append(f"| {sc} | {scale} | " + " | ".join(f"{v:.3g}x" for v in per.values()) + " |")
     main = summary["main_scene"]
     fa = summary["scenes"][main].get("fig4a")
     if fa:
