@@ -41,6 +41,8 @@ def main() -> int:
     p.add_argument("--width", type=int, default=160)
     p.add_argument("--height", type=int, default=120)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--gaussians", type=int, default=300, help="size of the (untrained) GS model; the soak "
+                   "measures memory, so a small model keeps 10,000 slots short")
     args = p.parse_args()
     os.environ["ROS_DOMAIN_ID"] = str(random.Random(os.getpid()).randrange(1, 101))
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -56,7 +58,7 @@ def main() -> int:
     from gsrmr_server.server_node import ServerNode
 
     tmp = Path(tempfile.mkdtemp(prefix="gsrmr-soak-"))
-    model = make_point_model(tmp)
+    model = make_point_model(tmp, n=args.gaussians)
     rclpy.init()
     node = ServerNode(parameter_overrides=[Parameter("model_path", value=str(model)),
                                            Parameter("width", value=args.width),
@@ -83,8 +85,8 @@ def main() -> int:
             else:
                 node.uplink.on_image(slot, up.data, now_slot, now_ns)
 
-    print(f"# soak: {args.slots} slots, image every {args.image_every}, {args.width}×{args.height}, recording to "
-          f"{tmp / 'rec'}, fault rates {FaultRates()}")
+    print(f"# soak: {args.slots} slots, image every {args.image_every}, {args.width}×{args.height}, "
+          f"{args.gaussians} Gaussians, recording to {tmp / 'rec'}, fault rates {FaultRates()}")
     t0 = time.perf_counter()
     for i in range(args.slots):
         k = k0 + i
