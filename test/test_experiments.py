@@ -22,7 +22,13 @@ METHODS = {"robomr", "ranking", "rounding", "search", "maxrate", "fairness", "ro
 def report(tmp_path_factory) -> Path:
     base = tmp_path_factory.mktemp("experiments")
     out = base / "report"
-    assert cli.main(["--out", str(out), "--quick", "--cache", str(base / "cache")]) == 0
+    demo = base / "demo-fake"
+    demo.mkdir()
+    (demo / "summary.json").write_text(json.dumps({"slots": 10, "images_sent": 3, "energy_j": 0.5,
+                                                   "energy_upload_all_j": 2.0, "energy_ratio_vs_upload_all": 4.0,
+                                                   "mean_loss": 0.01, "psnr_db": 30.0}))
+    assert cli.main(["--out", str(out), "--quick", "--cache", str(base / "cache"),
+                     "--demo-reports", str(base / "demo-*")]) == 0
     return out
 
 
@@ -53,7 +59,8 @@ def test_every_expected_file_exists(report: Path) -> None:
 def test_summary_json_has_stable_keys(report: Path) -> None:
     s = json.loads((report / "summary.json").read_text())
     for key in ("command", "argv", "quick", "started_utc", "git", "cache", "channel_seed", "seed", "main_scene",
-                "settings", "scenes", "fig5", "tradeoffs", "checks", "elapsed_s", "files", "load_average"):
+                "settings", "scenes", "fig5", "tradeoffs", "checks", "elapsed_s", "files", "load_average",
+                "node_suite"):
         assert key in s, key
     assert s["quick"] is True and s["command"].startswith("gsrmr-experiments ") and "--quick" in s["command"]
     assert set(s["scenes"]) == set(SCENES)
@@ -70,6 +77,7 @@ def test_summary_json_has_stable_keys(report: Path) -> None:
     assert "fig4a" in s["scenes"][s["main_scene"]]
     assert set(s["tradeoffs"]) == {"scheduler", "renderer", "jpeg", "training"}
     assert all(s["checks"].values()), s["checks"]
+    assert s["node_suite"]["demo-fake"]["energy_ratio_vs_upload_all"] == 4.0
     md = (report / "summary.md").read_text()
     assert s["command"] in md and "Claims: paper vs ours" in md and "Table 1" in md
 

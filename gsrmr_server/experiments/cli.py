@@ -93,8 +93,27 @@ def consistency_checks(scenes: dict[str, Any], sols: dict[str, dict]) -> dict[st
             "table1_apo_composited_loss_le_lth": ok_t1}
 
 
+def node_suite_runs(pattern: str) -> dict[str, Any]:
+    """Headline numbers of the node suite's recorded runs (``gsrmr-demo`` report folders), if any."""
+    import glob
+    import json
+
+    keys = ("slots", "images_sent", "energy_j", "energy_upload_all_j", "energy_ratio_vs_upload_all", "mean_loss",
+            "psnr_db", "ssim", "slots_on_time", "faults")
+    runs = {}
+    for folder in sorted(glob.glob(pattern)):
+        path = Path(folder) / "summary.json"
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        runs[Path(folder).name] = {k: data.get(k) for k in keys}
+    return runs
+
+
 def run(out: Path, *, quick: bool, cache: Path, scenes: Sequence[str], channel_seed: int, seed: int,
-        train_seconds: float | None, skip_tradeoffs: bool, argv: Sequence[str]) -> dict[str, Any]:
+        train_seconds: float | None, skip_tradeoffs: bool, argv: Sequence[str],
+        demo_glob: str = "") -> dict[str, Any]:
     """Run every experiment and write the report into ``out``; returns the summary dict."""
     t_start = time.perf_counter()
     started = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
@@ -141,6 +160,7 @@ def run(out: Path, *, quick: bool, cache: Path, scenes: Sequence[str], channel_s
             "training": tradeoffs.training_tradeoff(list(datas.values()), out),
         }
         _log(f"trade-offs done ({time.perf_counter() - t0:.1f} s)")
+    summary["node_suite"] = node_suite_runs(demo_glob) if demo_glob else {}
     summary["checks"] = consistency_checks(summary["scenes"], sols)
     summary["load_average"] = [round(v, 2) for v in os.getloadavg()]
     summary["elapsed_s"] = time.perf_counter() - t_start
@@ -163,12 +183,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="round-2 start jitter and trainer seed")
     ap.add_argument("--train-seconds", type=float, default=None, help="override the GS training wall-time cap")
     ap.add_argument("--skip-tradeoffs", action="store_true", help="only the paper's figures and table")
+    ap.add_argument("--demo-reports", default=str(REPO / "reports" / "demo-*"),
+                    help="glob of gsrmr-demo report folders whose summary.json is quoted (empty: none)")
     a = ap.parse_args(args_list)
     scenes = [s.strip() for s in a.scenes.split(",") if s.strip()]
     if not scenes:
         ap.error("--scenes is empty")
     run(Path(a.out), quick=a.quick, cache=Path(a.cache), scenes=scenes, channel_seed=a.channel_seed, seed=a.seed,
-        train_seconds=a.train_seconds, skip_tradeoffs=a.skip_tradeoffs, argv=args_list)
+        train_seconds=a.train_seconds, skip_tradeoffs=a.skip_tradeoffs, argv=args_list, demo_glob=a.demo_reports)
     return 0
 
 

@@ -175,6 +175,17 @@ def write_summary(out: Path, summary: dict[str, Any]) -> None:
             f"{sc}: {_f(v['final_heldout_psnr_db'], '.2f')} dB after {v['iterations']} iterations / "
             f"{_f(v['train_wall_s'], '.0f')} s (from {_f(v['initial_heldout_psnr_db'], '.2f')} dB)"
             for sc, v in tr["training"].items())]
+    ns = summary.get("node_suite") or {}
+    L += ["", "## Node suite runs (online, `gsrmr-demo` recordings)", ""]
+    if ns:
+        L += ["| run | slots | images | energy J | upload-all J | ratio | mean loss | PSNR dB |",
+              "|---|---|---|---|---|---|---|---|"]
+        for name, v in ns.items():
+            L.append(f"| {name} | {_f(v['slots'])} | {_f(v['images_sent'])} | {_f(v['energy_j'])} | "
+                     f"{_f(v['energy_upload_all_j'])} | {_f(v['energy_ratio_vs_upload_all'], '.3g')} | "
+                     f"{_f(v['mean_loss'])} | {_f(v['psnr_db'], '.2f')} |")
+    else:
+        L.append("No `gsrmr-demo` report folder found (`--demo-reports`); the numbers above are offline only.")
     L += ["", "## Consistency checks", ""] + [f"* {k}: {_f(v)}" for k, v in summary["checks"].items()]
     L += ["", "## Files", ""] + [f"* `{f}`" for f in summary["files"]]
     (out / "summary.md").write_text("\n".join(L) + "\n")
