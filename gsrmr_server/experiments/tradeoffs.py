@@ -35,7 +35,7 @@ class TradeoffConfig:
     horizons: tuple[int, ...] = (72, 144, 288, 576)
     horizon_methods: tuple[str, ...] = ("ranking", "rounding", "search", "apo", "exact")
     render_slots: int = 6
-    render_repeats: int = 3
+    render_repeats: int = 5
     scales: tuple[float, ...] = (0.5, 0.75, 1.0, 1.5)
     fractions: tuple[float, ...] = (0.1, 0.25, 0.5, 1.0)
     jpeg_qualities: tuple[int, ...] = (5, 10, 20, 35, 50, 70, 85, 95)
