@@ -220,10 +220,11 @@ def test_survives_garbage_drops_flips_and_silence_without_corrupt_frames(link):
         drive_for(drv, 4.0, 0.2, 0.2)
         sent = [raw for _, raw, _ in mock.sent_frames]
         snap = drv.snapshot()
-    assert corrupt_accepted(accepted, sent) == []
-    assert len(accepted) > 0.5 * len(sent)
-    assert snap.parser["skipped_bytes"] > 0 and snap.parser["bad_checksum"] > 0
-    assert snap.link.connected and snap.link.disconnects == 0
+    bad = corrupt_accepted(accepted, sent)
+    assert bad == [], [b.hex(" ") for b in bad]
+    assert len(accepted) > 0.5 * len(sent), (len(accepted), len(sent), snap.parser)
+    assert snap.parser["skipped_bytes"] > 0 and snap.parser["bad_checksum"] > 0, snap.parser
+    assert snap.link.connected and snap.link.disconnects == 0, snap.link
 
 
 def test_a_raising_callback_is_reported_and_does_not_kill_the_driver(link):
