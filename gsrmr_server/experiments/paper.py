@@ -111,8 +111,12 @@ def fig4b(data: SceneData, sols: dict[float, dict[str, Schedule]], cfg: PaperCon
         bad = [(x, e) for x, e, f in zip(xs, es, feas, strict=True) if not f]
         if bad:
             ax.plot(*zip(*bad, strict=True), "x", color="red", ms=10, mew=2)
+    for lth in cfg.thresholds:  # GS energy-saving factor RoboMR / APO above each APO point
+        e_apo = sols[lth]["apo"].energy_j
+        ax.annotate(f"{sols[lth]['robomr'].energy_j / e_apo:.3g}x", (lth, e_apo), textcoords="offset points",
+                    xytext=(0, 8), ha="center", fontsize=7, color="k")
     ax.set_xlabel(r"$L_{th}$")
-    ax.set_ylabel("uplink energy over the round (J)")
+    ax.set_ylabel("uplink energy over the round (J); labels: RoboMR/APO")
     ax.set_title(f"Energy vs loss threshold, {data.settings.scene} (red x: infeasible)")
     ax.legend(ncol=3, fontsize=7)
     save_fig(fig, out / f"fig4b_energy_{data.settings.scene}.png")
