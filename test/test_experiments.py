@@ -127,3 +127,8 @@ def test_better_gs_never_costs_more(report: Path) -> None:
             assert len(rr) >= 2
             f = [float(r["saving_factor_exact"]) for r in rr]
             assert all(b >= a * (1 - 1e-9) for a, b in itertools.pairwise(f)), (sc, lth, f)
+
+
+def test_unknown_scene_is_a_one_line_error(tmp_path: Path, capsys) -> None:
+    assert cli.main(["--out", str(tmp_path / "r"), "--scenes", "no_such_scene", "--cache", str(tmp_path / "c")]) == 2
+    assert "no_such_scene" in capsys.readouterr().err

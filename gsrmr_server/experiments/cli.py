@@ -189,8 +189,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     scenes = [s.strip() for s in a.scenes.split(",") if s.strip()]
     if not scenes:
         ap.error("--scenes is empty")
-    run(Path(a.out), quick=a.quick, cache=Path(a.cache), scenes=scenes, channel_seed=a.channel_seed, seed=a.seed,
-        train_seconds=a.train_seconds, skip_tradeoffs=a.skip_tradeoffs, argv=args_list, demo_glob=a.demo_reports)
+    from gsrmr_server.world.scene import SceneError
+
+    try:
+        run(Path(a.out), quick=a.quick, cache=Path(a.cache), scenes=scenes, channel_seed=a.channel_seed,
+            seed=a.seed, train_seconds=a.train_seconds, skip_tradeoffs=a.skip_tradeoffs, argv=args_list,
+            demo_glob=a.demo_reports)
+    except (SceneError, FileNotFoundError) as exc:
+        print(f"gsrmr-experiments: {exc}", file=sys.stderr)
+        return 2
     return 0
 
 
