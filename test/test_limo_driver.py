@@ -279,3 +279,26 @@ def test_second_driver_on_the_same_device_is_locked_out(link):
         assert not snap.link.connected and snap.link.failed_opens >= 2
         assert "lock" in snap.link.last_error.lower()
         assert first.snapshot().link.connected
+
+
+def test_isolated_write_timeouts_keep_the_link_a_run_of_them_drops_it():
+    with LimoDriver("loop://", reconnect_min_s=0.05) as drv:
+        assert wait_until(lambda: drv.snapshot().link.connected, 3.0)
+        port = drv._port
+        real_write = port.write
+        failures = {"left": 3}
+
+        def flaky_write(data: bytes) -> int:
+            if failures["left"] > 0:
+                failures["left"] -= 1
+                raise serial.SerialTimeoutException("Write timeout")
+            return real_write(data)
+
+        port.write = flaky_write
+        assert wait_until(lambda: failures["left"] == 0, 2.0)
+        time.sleep(0.1)
+        snap = drv.snapshot()
+        assert snap.write_timeouts == 3 and snap.link.disconnects == 0 and snap.link.connected
+        failures["left"] = 10**6  # the device is stuck: 5 in a row → link dropped and reopened
+        assert wait_until(lambda: drv.snapshot().link.disconnects == 1, 2.0)
+        assert wait_until(lambda: drv.snapshot().link.connects == 2, 2.0)  # a fresh port object

@@ -91,6 +91,7 @@ class DriverSnapshot:
     last_command: proto.MotionCommand
     enables_sent: int
     events: list[tuple[float, str, str]] = field(default_factory=list)
+    write_timeouts: int = 0
 
 
 class LimoDriver:
@@ -152,6 +153,8 @@ class LimoDriver:
         self._frames_by_id: dict[int, int] = {}
         self._threads: list[threading.Thread] = []
         self.callback_errors = 0
+        self.write_timeouts = 0
+        self._write_timeouts_in_row = 0
         self._feedback_ready = False  # a 0x221 has been accepted on the current connection
 
     # ------------------------------------------------------------------ lifecycle
@@ -247,7 +250,8 @@ class LimoDriver:
                 unknown_ids=dict(self._parser.stats.unknown_ids), implausible_frames=self._implausible,
                 frames_by_id=dict(self._frames_by_id), commands_sent=self._commands_sent,
                 command_active=active,
-                last_command=self._last_wire, enables_sent=self._enables_sent, events=list(self._events))
+                last_command=self._last_wire, enables_sent=self._enables_sent, events=list(self._events),
+                write_timeouts=self.write_timeouts)
 
     def reset_odometry(self, pose: Pose2D | None = None) -> None:
         """Restart odometry at ``pose``."""
@@ -265,7 +269,7 @@ class LimoDriver:
         port = serial.serial_for_url(self.port_url, do_not_open=True, baudrate=self.baudrate,
                                      bytesize=serial.EIGHTBITS, parity=serial.PARITY_NONE,
                                      stopbits=serial.STOPBITS_ONE, rtscts=False, xonxoff=False, dsrdtr=False,
-                                     timeout=self.read_timeout_s, write_timeout=0.2)
+                                     timeout=self.read_timeout_s, write_timeout=0.5)
         if "://" not in self.port_url:
             port.exclusive = True  # flock: a second driver on the same device fails to open (and retries)
         port.open()
@@ -296,7 +300,20 @@ class LimoDriver:
                 return False
             try:
                 port.write(data)
+                self._write_timeouts_in_row = 0
                 return True
+            except serial.SerialTimeoutException as exc:
+                # pyserial also raises this when the thread was merely descheduled past the timeout after
+                # the bytes went out (loaded CPU): only a run of them means a stuck link
+                with self._lock:
+                    self.write_timeouts += 1
+                    self._write_timeouts_in_row += 1
+                    stuck = self._write_timeouts_in_row >= 5
+                    if stuck:
+                        self._link.last_error = f"write: {exc} ×5"
+                if stuck:
+                    self._write_failed.set()
+                return False
             except (serial.SerialException, OSError) as exc:
                 with self._lock:
                     self._link.last_error = f"write: {exc}"

@@ -278,7 +278,8 @@ def diagnostic_values(snap: DriverSnapshot) -> list[tuple[str, str]]:
             ("motion_mode_param", snap.motion_mode_param),
             ("heading_source", "imu" if snap.heading_from_imu else "gyro_integration"),
             ("command_active", str(snap.command_active)), ("commands_sent", str(snap.commands_sent)),
-            ("enables_sent", str(snap.enables_sent)), ("implausible_frames", str(snap.implausible_frames))]
+            ("enables_sent", str(snap.enables_sent)), ("implausible_frames", str(snap.implausible_frames)),
+            ("write_timeouts", str(snap.write_timeouts))]
     if s is not None:
         vals += [("battery_voltage_v", f"{s.battery_voltage_v:.1f}"),
                  ("vehicle_state", _enum_name(proto.VehicleState, s.vehicle_state)),
