@@ -476,7 +476,7 @@ def test_hostile_messages_and_parameters_at_the_server(relay_stack, relay_client
     h.spin_until(ex, lambda: False, 1.0)  # discovery
     now_ns = node.get_clock().now().nanoseconds
     slot_ns = 100_000_000
-    future = (now_ns // slot_ns + 3) * slot_ns  # a slot not yet composed: the forged image is decoded there
+    future = (now_ns // slot_ns + 10) * slot_ns  # 1 s ahead: the forged image is first for that slot
     real = encode_jpeg(np.zeros((120, 160, 3), np.uint8), 80)
     img_pub.publish(compressed_to_msg(forge_jpeg_header(real), future, "camera_optical_frame"))
     img_pub.publish(compressed_to_msg(b"\xff\xd8" + bytes(9 * 1024 * 1024), future, "camera_optical_frame"))
