@@ -431,6 +431,30 @@ def test_kill9_robot_and_scheduler_others_carry_on_scheduler_resumes(relay_stack
     assert _consecutive(h.slot_rows(rec))
 
 
+@pytest.mark.ros
+@pytest.mark.slow
+def test_kill9_relay_camera_and_base_others_carry_on(relay_stack, relay_client):
+    h = _harness()
+    _node, ex, _latest = relay_client
+    rec = relay_stack.tmp / "rec"
+    victims = ("gsrmr_uplink_relay", "gsrmr_mock_camera", "gsrmr_limo_base")
+    rows_before = h.slot_rows(rec)
+    for name in victims:
+        relay_stack.kill9(name)
+    h.spin_until(ex, lambda: False, 1.5)
+    for name, proc in relay_stack.procs.items():
+        if name not in victims:
+            assert proc.poll() is None, (name, relay_stack.log(name)[-2000:])
+    rows = h.slot_rows(rec)
+    assert rows[:len(rows_before)] == rows_before and len(rows) > len(rows_before) and _consecutive(rows)
+    restart_slot = int(rows[-1]["slot"])
+    for name in victims:
+        relay_stack.start(name)
+    assert h.spin_until(ex, lambda: any(int(r["slot"]) > restart_slot and r["source"] == "image"
+                                        for r in h.slot_rows(rec)), 60), relay_stack.log("gsrmr_uplink_relay")[-2000:]
+    assert _consecutive(h.slot_rows(rec))
+
+
 def _set_params(node, ex, target: str, params: dict) -> list:
     from rcl_interfaces.srv import SetParameters
     from rclpy.parameter import Parameter
