@@ -370,7 +370,7 @@ hyp = pytest.importorskip("hypothesis")
 st = hyp.strategies
 
 
-@hyp.settings(max_examples=40, deadline=None)
+@hyp.settings(max_examples=40, deadline=None, database=None)
 @hyp.given(
     T=st.integers(1, 24),
     log_gain_lo=st.floats(-16, 2),
