@@ -177,6 +177,10 @@ class ServerNode(Node):
         if len(msg.data) != len(LEDGER_FIELDS):
             return
         row = dict(zip(LEDGER_FIELDS, msg.data, strict=True))
+        if not all(math.isfinite(row[k]) for k in ("slot", "x", "bits_sent")):  # int() of NaN/inf would raise
+            with self._lock:
+                self.uplink.count("malformed_ledger")
+            return
         with self._lock:
             self._ledger[int(row["slot"])] = row
             if len(self._ledger) > 200:
@@ -188,10 +192,11 @@ class ServerNode(Node):
     def _on_camera(self, msg: Image) -> None:
         try:
             frame = image_from_msg(msg)
+            stamp_ns = stamp_to_ns(msg.header.stamp)
         except ValueError:
             return
         with self._lock:
-            self._frames.append((stamp_to_ns(msg.header.stamp), frame))
+            self._frames.append((stamp_ns, frame))
 
     # ---------------------------------------------------------------- slots
     def _tick(self) -> None:
