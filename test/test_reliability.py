@@ -473,8 +473,10 @@ def _set_params(node, ex, target: str, params: dict) -> list:
 def test_hostile_messages_and_parameters_at_the_server(relay_stack, relay_client):
     from geometry_msgs.msg import Vector3Stamped
     from sensor_msgs.msg import CompressedImage
+    from std_msgs.msg import Float64MultiArray
 
     from gsrmr_common.ros_wire import compressed_to_msg, ns_to_stamp
+    from gsrmr_robot.ledger import LEDGER_FIELDS
 
     h = _harness()
     node, ex, latest = relay_client
@@ -510,10 +512,14 @@ def test_hostile_messages_and_parameters_at_the_server(relay_stack, relay_client
     key = Vector3Stamped()
     key.header.stamp, key.header.frame_id = ns_to_stamp(future), "odom"
     key_pub.publish(key)
+    ledger_pub = node.create_publisher(Float64MultiArray, "gsrmr/ledger", 10)
+    h.spin_until(ex, lambda: ledger_pub.get_subscription_count() > 0, 5)
+    ledger_pub.publish(Float64MultiArray(data=[math.nan] * len(LEDGER_FIELDS)))  # int(NaN) raised before
 
     def counted() -> bool:
         d = _server_faults(latest) - before
-        return all(d[f] >= 1 for f in ("oversized_header", "oversized_image", "malformed_image", "malformed_key"))
+        return all(d[f] >= 1 for f in ("oversized_header", "oversized_image", "malformed_image", "malformed_key",
+                                       "malformed_ledger"))
 
     assert h.spin_until(ex, counted, 20), (_server_faults(latest) - before)
     for name in ("gsrmr_server", "gsrmr_scheduler", "gsrmr_uplink_relay"):
