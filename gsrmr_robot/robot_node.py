@@ -114,12 +114,13 @@ class RobotNode(Node):
     def _on_image(self, msg: Image) -> None:
         try:
             rgb = image_from_msg(msg)
+            stamp_ns = stamp_to_ns(msg.header.stamp)
         except ValueError as err:
             self.get_logger().warning(f"camera frame refused: {err}", throttle_duration_sec=5.0)
             return
         with self._lock:
             self._frame, self._frame_ns = rgb, self.get_clock().now().nanoseconds
-            self._frame_stamp_ns = stamp_to_ns(msg.header.stamp)
+            self._frame_stamp_ns = stamp_ns
 
     def _on_odom(self, msg: Odometry) -> None:
         p = msg.pose.pose
@@ -127,10 +128,15 @@ class RobotNode(Node):
         c, s = math.cos(t0), math.sin(t0)
         x, y, yaw = p.position.x, p.position.y, yaw_of(p.orientation)
         pose = (a0 + c * x - s * y, b0 + s * x + c * y, math.atan2(math.sin(t0 + yaw), math.cos(t0 + yaw)))
+        try:
+            stamp_ns = stamp_to_ns(msg.header.stamp)
+        except ValueError as err:
+            self.get_logger().warning(f"odometry refused: {err}", throttle_duration_sec=5.0)
+            return
         if all(math.isfinite(v) for v in pose):
             with self._lock:
                 self._pose = pose
-                self._poses.append((stamp_to_ns(msg.header.stamp), pose))
+                self._poses.append((stamp_ns, pose))
 
     def _on_schedule(self, msg: Float64MultiArray) -> None:
         try:
