@@ -472,10 +472,12 @@ def _set_params(node, ex, target: str, params: dict) -> list:
 @pytest.mark.slow
 def test_hostile_messages_and_parameters_at_the_server(relay_stack, relay_client):
     from geometry_msgs.msg import Vector3Stamped
-    from sensor_msgs.msg import CompressedImage
+    from nav_msgs.msg import Odometry
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import CompressedImage, Image
     from std_msgs.msg import Float64MultiArray
 
-    from gsrmr_common.ros_wire import compressed_to_msg, ns_to_stamp
+    from gsrmr_common.ros_wire import compressed_to_msg, image_to_msg, ns_to_stamp
     from gsrmr_robot.ledger import LEDGER_FIELDS
 
     h = _harness()
@@ -515,6 +517,18 @@ def test_hostile_messages_and_parameters_at_the_server(relay_stack, relay_client
     ledger_pub = node.create_publisher(Float64MultiArray, "gsrmr/ledger", 10)
     h.spin_until(ex, lambda: ledger_pub.get_subscription_count() > 0, 5)
     ledger_pub.publish(Float64MultiArray(data=[math.nan] * len(LEDGER_FIELDS)))  # int(NaN) raised before
+    # A camera frame and an odometry message with an invalid stamp, at the robot (and the server's evaluator).
+    cam_pub = node.create_publisher(Image, "camera/image_raw", qos_profile_sensor_data)
+    odom_pub = node.create_publisher(Odometry, "odom", 10)
+    h.spin_until(ex, lambda: cam_pub.get_subscription_count() > 0 and odom_pub.get_subscription_count() > 0, 5)
+    frame = image_to_msg(np.zeros((120, 160, 3), np.uint8), now_ns, "camera_optical_frame")
+    frame.header.stamp.nanosec = 2_000_000_000
+    odom = Odometry()
+    odom.header.stamp.nanosec = 2_000_000_000
+    odom.pose.pose.orientation.w = 1.0
+    for _ in range(3):
+        cam_pub.publish(frame)
+        odom_pub.publish(odom)
 
     def counted() -> bool:
         d = _server_faults(latest) - before
@@ -522,7 +536,8 @@ def test_hostile_messages_and_parameters_at_the_server(relay_stack, relay_client
                                        "malformed_ledger"))
 
     assert h.spin_until(ex, counted, 20), (_server_faults(latest) - before)
-    for name in ("gsrmr_server", "gsrmr_scheduler", "gsrmr_uplink_relay"):
+    h.spin_until(ex, lambda: False, 1.0)
+    for name in ("gsrmr_server", "gsrmr_scheduler", "gsrmr_uplink_relay", "gsrmr_robot"):
         assert relay_stack.procs[name].poll() is None, (name, relay_stack.log(name)[-3000:])
     assert _consecutive(h.slot_rows(relay_stack.tmp / "rec"))
 
