@@ -13,7 +13,7 @@ of the slot clock: a wrong clock or a forged stamp), ``missing_key`` / ``missing
 (reported by the decoder through :meth:`count`); counted by the server node: ``wrong_size``,
 ``oversized_header`` (refused JPEGs, see :func:`gsrmr_server.compose.refusal_fault`),
 ``oversized_image`` (payload over the byte limit), ``malformed_key`` / ``malformed_image`` (wrong frame
-or an invalid stamp).
+or an invalid stamp), ``malformed_ledger`` (a ledger row with a NaN/inf slot, x or bits_sent).
 """
 
 from __future__ import annotations

@@ -624,6 +624,10 @@ def test_serial_faults_garbage_bitflips_silence_port_loss_during_motion(ros_proc
         assert min(moving) < 0.02, "port loss during motion: the base must stop (watchdog)"
         assert moving[-1] > 0.2 or max(v for t, v in truth if t > time.monotonic() - 2.5) > 0.2, \
             "driving did not resume after the reconnect"
+        hostile = Twist()
+        hostile.linear.x, hostile.angular.z = math.nan, math.inf
+        drive(0.5, hostile)  # a NaN/inf command must not reach the odometry
+        drive(0.5, cmd)
         drive(2.0, None)  # cmd_vel stops: the driver's watchdog (0.5 s) stops the base
         assert abs(truth[-1][1]) < 0.02 and abs(odom[-1].twist.twist.linear.x) < 0.05
         assert all(_finite_odom(m) for m in odom), "NaN/inf in odometry"
