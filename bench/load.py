@@ -179,7 +179,7 @@ def main() -> int:
     p.add_argument("--robots", type=int, default=10)
     p.add_argument("--duration-s", type=float, default=60.0)
     p.add_argument("--warmup-s", type=float, default=8.0)
-    p.add_argument("--repeats", type=int, default=1)
+    p.add_argument("--repeats", type=int, default=3, help="runs; the table ends with their median")
     p.add_argument("--threads", type=int, default=4, help="server MultiThreadedExecutor threads")
     p.add_argument("--width", type=int, default=160)
     p.add_argument("--height", type=int, default=120)
