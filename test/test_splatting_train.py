@@ -97,14 +97,14 @@ def test_train_cli_writes_a_model_that_render_cli_reproduces(tmp_path, capsys):
     write_dataset(tmp_path / "ds", frames)
     out = tmp_path / "model.ply"
     assert train_main([str(tmp_path / "ds"), "--out", str(out), "--iterations", "30", "--init-points", "1500",
-                       "--holdout-every", "6", "--no-progress", "--sh-degree", "0"]) == 0
+                       "--holdout-every", "6", "--no-progress", "--sh-degree", "0", "--resolution", "32"]) == 0
     text = capsys.readouterr().out
     assert "Gaussians" in text and "held-out PSNR" in text
     model = GaussianModel.load_ply(out)
     assert 0 < model.num_gaussians <= 200_000
     # resume continues the saved run
     assert train_main([str(tmp_path / "ds"), "--out", str(out), "--iterations", "40", "--init-points", "1500",
-                       "--no-progress", "--resume"]) == 0
+                       "--no-progress", "--resume", "--resolution", "32"]) == 0
     assert " 40 iterations" in capsys.readouterr().out
     cams = [f.camera for f in frames[:2]]
     spec = [{"width": c.width, "height": c.height, "K": c.intrinsics.k().tolist(),

@@ -77,7 +77,7 @@ class GaussianModel:
     @property
     def opacities(self) -> np.ndarray:
         """Activated opacities in (0, 1)."""
-        return 1.0 / (1.0 + np.exp(-self.opacity_logits.astype(np.float64))).astype(np.float32)
+        return (1.0 / (1.0 + np.exp(-self.opacity_logits.astype(np.float64)))).astype(np.float32)
 
     @property
     def scales(self) -> np.ndarray:

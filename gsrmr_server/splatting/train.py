@@ -26,6 +26,7 @@ from pathlib import Path
 import time
 from typing import NamedTuple
 
+import cv2
 import numba as nb
 import numpy as np
 from scipy.spatial import cKDTree
@@ -142,8 +143,6 @@ def scene_extent(cameras: list[Camera]) -> float:
 
 
 def _resize_frames(frames: list[DatasetFrame], width: int | None) -> list[DatasetFrame]:
-    import cv2
-
     if width is None:
         return frames
     out = []
