@@ -24,7 +24,7 @@ from gsrmr_server.splatting.rasterize import (
     gather_pack_kernel,
     rasterize_packed,
 )
-from gsrmr_server.splatting.sh import C0, eval_sh_numpy
+from gsrmr_server.splatting.sh import eval_sh_kernel
 
 MAX_PIXELS = 4096 * 4096
 
@@ -45,12 +45,10 @@ def gaussian_colors(model: GaussianModel, index: np.ndarray, camera_center_w: np
                     degree: int | None = None) -> np.ndarray:
     """Colours max(0, SH(dir) + 0.5) of the Gaussians ``index``, dir = normalise(mean − centre)."""
     degree = model.sh_degree if degree is None else min(degree, model.sh_degree)
-    sh = model.sh[index]
-    if degree == 0:
-        return np.maximum(sh[:, 0, :].astype(np.float64) * C0 + 0.5, 0.0)
-    dirs = model.means[index].astype(np.float64) - camera_center_w
-    dirs /= np.maximum(np.linalg.norm(dirs, axis=1, keepdims=True), 1e-12)
-    return eval_sh_numpy(sh.astype(np.float64), dirs, degree)
+    out = np.empty((index.shape[0], 3), np.float64)
+    eval_sh_kernel(model.sh, model.means, np.ascontiguousarray(index, np.int64),
+                   np.asarray(camera_center_w, np.float64), int(degree), out)
+    return out
 
 
 def _check_background(background) -> np.ndarray:

@@ -7,8 +7,10 @@ with K = (degree + 1)² and ``sh[:, 0]`` the DC term (``f_dc`` in the .ply).
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
+import numba as nb
 import numpy as np
 
 if TYPE_CHECKING:
@@ -80,3 +82,46 @@ def eval_sh_torch(sh: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.Te
     basis = torch.stack(_basis(dirs[:, 0], dirs[:, 1], dirs[:, 2], degree, torch), dim=1)  # N×k
     col = (basis[:, :, None] * sh[:, :k, :]).sum(dim=1)
     return torch.clamp_min(col + 0.5, 0.0)
+
+
+@nb.njit(parallel=True, cache=True)
+def eval_sh_kernel(sh, means, index, center, degree, out):
+    """Numba :func:`eval_sh_numpy` for the Gaussians ``index``: out[j] = colour of Gaussian index[j]
+    seen from ``center`` (dir = normalise(mean − center); a zero direction gives the DC colour)."""
+    for j in nb.prange(index.shape[0]):
+        i = index[j]
+        x = float(means[i, 0]) - center[0]
+        y = float(means[i, 1]) - center[1]
+        z = float(means[i, 2]) - center[2]
+        n = math.sqrt(x * x + y * y + z * z)
+        if n > 0.0:
+            x /= n
+            y /= n
+            z /= n
+        b = np.empty(16)
+        b[0] = C0
+        if degree >= 1:
+            b[1] = -C1 * y
+            b[2] = C1 * z
+            b[3] = -C1 * x
+        if degree >= 2:
+            xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
+            b[4] = C2[0] * xy
+            b[5] = C2[1] * yz
+            b[6] = C2[2] * (2.0 * zz - xx - yy)
+            b[7] = C2[3] * xz
+            b[8] = C2[4] * (xx - yy)
+            if degree >= 3:
+                b[9] = C3[0] * y * (3.0 * xx - yy)
+                b[10] = C3[1] * xy * z
+                b[11] = C3[2] * y * (4.0 * zz - xx - yy)
+                b[12] = C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy)
+                b[13] = C3[4] * x * (4.0 * zz - xx - yy)
+                b[14] = C3[5] * z * (xx - yy)
+                b[15] = C3[6] * x * (xx - 3.0 * yy)
+        k = (degree + 1) * (degree + 1)
+        for c in range(3):
+            acc = 0.0
+            for m in range(k):
+                acc += b[m] * sh[i, m, c]
+            out[j, c] = max(acc + 0.5, 0.0)
