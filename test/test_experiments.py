@@ -132,3 +132,15 @@ def test_better_gs_never_costs_more(report: Path) -> None:
 def test_unknown_scene_is_a_one_line_error(tmp_path: Path, capsys) -> None:
     assert cli.main(["--out", str(tmp_path / "r"), "--scenes", "no_such_scene", "--cache", str(tmp_path / "c")]) == 2
     assert "no_such_scene" in capsys.readouterr().err
+
+
+def test_training_history_is_read_correctly(report: Path) -> None:
+    # Guards the Trainer history format: PSNRs are plausible dB values, the last count is the model's.
+    s = json.loads((report / "summary.json").read_text())
+    rows = _rows(report / "tradeoff_training.csv")
+    for sc in SCENES:
+        rr = [r for r in rows if r["scene"] == sc]
+        assert rr, sc
+        assert all(3.0 < float(r["heldout_psnr_db"]) < 100.0 for r in rr), rr
+        assert int(rr[-1]["gaussians"]) == s["scenes"][sc]["data"]["gaussians"]
+        assert int(rr[-1]["iteration"]) == s["scenes"][sc]["data"]["train_iterations"]

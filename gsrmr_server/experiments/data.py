@@ -98,6 +98,24 @@ def distances_m(record: Round2Record) -> np.ndarray:
     return np.maximum(np.linalg.norm(robot - srv, axis=1), 1e-3)
 
 
+def history_rows(history: list) -> list[dict]:
+    """Trainer history as dicts: iteration, elapsed_s (wall), cpu_s (None if not recorded), train_loss,
+    heldout_psnr_db, gaussians. Accepts ``HistoryRow`` named tuples (iteration, wall_s, cpu_s, loss,
+    test_psnr_db, num_gaussians) and the older 5-tuples (iteration, wall s, loss, PSNR, count)."""
+    rows = []
+    for h in history:
+        if hasattr(h, "_fields"):
+            rows.append({"iteration": int(h.iteration), "elapsed_s": float(h.wall_s), "cpu_s": float(h.cpu_s),
+                         "train_loss": float(h.loss), "heldout_psnr_db": float(h.test_psnr_db),
+                         "gaussians": int(h.num_gaussians)})
+        elif len(h) == 5:
+            rows.append({"iteration": int(h[0]), "elapsed_s": float(h[1]), "cpu_s": None, "train_loss": float(h[2]),
+                         "heldout_psnr_db": float(h[3]), "gaussians": int(h[4])})
+        else:
+            raise ValueError(f"unknown Trainer history row {h!r}")
+    return rows
+
+
 def _train(settings: DataSettings, dataset: Path, background: tuple[float, float, float],
            log: Callable[[str], None]) -> tuple[GaussianModel, dict]:
     from gsrmr_server.splatting.train import TrainConfig, Trainer
@@ -113,8 +131,7 @@ def _train(settings: DataSettings, dataset: Path, background: tuple[float, float
     initial_psnr = trainer.evaluate()
     model = trainer.train(eval_every=settings.eval_every, progress=False, time_budget_s=settings.train_seconds)
     wall = time.perf_counter() - t0
-    hist = [{"iteration": int(h[0]), "elapsed_s": float(h[1]), "train_loss": float(h[2]),
-             "heldout_psnr_db": float(h[3]), "gaussians": int(h[4])} for h in trainer.state.history]
+    hist = history_rows(trainer.state.history)
     info = {"settings": asdict(settings), "config": cfg.to_dict(), "initial_heldout_psnr_db": initial_psnr,
             "history": hist, "wall_s": wall, "train_frames": len(trainer.frames),
             "heldout_frames": len(trainer.test_frames), "gaussians": model.num_gaussians}
