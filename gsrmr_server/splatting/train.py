@@ -109,6 +109,11 @@ class TrainConfig:
         return asdict(self)
 
 
+def _plain(value):
+    """A numpy scalar as the Python number it holds (checkpoints hold no numpy objects)."""
+    return value.item() if isinstance(value, np.generic) else value
+
+
 class HistoryRow(NamedTuple):
     """One progress record of :meth:`Trainer.train`."""
 
@@ -478,21 +483,23 @@ class Trainer:
         return float(np.mean(vals))
 
     def save_checkpoint(self, path: str | Path) -> Path:
-        """torch.save everything needed to resume."""
+        """torch.save everything needed to resume: tensors and plain Python types only, so that
+        :meth:`load_checkpoint` reads it with ``torch.load(weights_only=True)`` (no arbitrary unpickling)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         st = self.state
         torch.save({"config": self.config.to_dict(), "params": st.params, "exp_avg": st.exp_avg,
                     "exp_avg_sq": st.exp_avg_sq, "step": st.step, "grad_accum": st.grad_accum,
                     "grad_count": st.grad_count, "max_radius": st.max_radius, "last_seen": st.last_seen,
-                    "sh_active": st.sh_active, "history": [tuple(h) for h in st.history],
+                    "sh_active": int(st.sh_active), "history": [tuple(_plain(v) for v in h) for h in st.history],
                     "rng": self.rng.bit_generator.state,
-                    "torch_rng": self.torch_gen.get_state(), "extent": self.extent, "perm": list(self._perm)}, path)
+                    "torch_rng": self.torch_gen.get_state(), "extent": float(self.extent),
+                    "perm": [int(i) for i in self._perm]}, path)
         return path
 
     def load_checkpoint(self, path: str | Path) -> None:
         """Resume from :meth:`save_checkpoint` output (the frames must be the same dataset)."""
-        ck = torch.load(Path(path), weights_only=False)
+        ck = torch.load(Path(path), weights_only=True)  # tensors and plain types only: no arbitrary unpickling
         st = self.state
         st.params, st.exp_avg, st.exp_avg_sq = ck["params"], ck["exp_avg"], ck["exp_avg_sq"]
         st.step, st.grad_accum, st.grad_count = ck["step"], ck["grad_accum"], ck["grad_count"]
