@@ -66,14 +66,15 @@ def ensure_model(scene_name: str, cache: Path, *, frames: int, train_seconds: fl
     trainer = Trainer.from_dataset(dataset, TrainConfig(resolution=width, sh_degree=0), holdout_every=8)
     model = trainer.train(iterations=100_000, time_budget_s=train_seconds, progress=False)
     history = trainer.state.history[-1]
-    _log(f"GS model trained: {model.num_gaussians} Gaussians, {history[0]} iterations, held-out PSNR "
-         f"{history[3]:.2f} dB in {time.perf_counter() - t0:.1f} s")
+    _log(f"GS model trained: {model.num_gaussians} Gaussians, {history.iteration} iterations, held-out PSNR "
+         f"{history.test_psnr_db:.2f} dB in {time.perf_counter() - t0:.1f} s")
     folder.mkdir(parents=True, exist_ok=True)
     tmp = folder / "model.tmp.ply"
     model.save_ply(tmp)
     tmp.replace(model_path)
-    (folder / "train.json").write_text(json.dumps({"iterations": history[0], "seconds": history[1],
-                                                   "heldout_psnr_db": history[3], "gaussians": history[4]}))
+    (folder / "train.json").write_text(json.dumps({"iterations": history.iteration, "seconds": history.wall_s,
+                                                   "cpu_s": history.cpu_s, "heldout_psnr_db": history.test_psnr_db,
+                                                   "gaussians": history.num_gaussians}))
     return model_path
 
 

@@ -4,7 +4,10 @@ For every slot k (processed ``process_delay_s`` after the slot starts, see :mod:
 the node takes what arrived for k (:class:`~gsrmr_server.uplink.UplinkAssembler`) and composes
 m̂_k (:class:`~gsrmr_server.compose.MRComposer`): the decoded image, or the Gaussian-splatting render at
 the pose key, or — for a missing, late, duplicated or corrupt upload — the render at the best pose
-estimate. It never skips a slot.
+estimate. It never skips a slot while it keeps up: after a stall (CPU starvation, a DDS peer killed
+with -9 can block a publish for ~1 s) it composes the slots it missed, late and counted as such; only
+when it is more than ``max_backlog_slots`` behind (suspended, clock jump) does it skip ahead to the
+current slot and count ``skipped_slots``.
 
 Subscribes: ``uplink/pose_key`` (geometry_msgs/Vector3Stamped), ``uplink/image_raw/compressed``
 (sensor_msgs/CompressedImage), ``gsrmr/schedule`` (std_msgs/Float64MultiArray, transient local),
@@ -86,6 +89,10 @@ class ServerNode(Node):
         record_dir = declare(self, "record_dir", "", "Write slots.csv and MCAP here ('' = off)", read_only=True)
         self.jpeg_quality = declare(self, "jpeg_quality", 85, "JPEG quality of mr/image/compressed",
                                     min_value=1, max_value=100)
+        self.max_backlog_slots = declare(self, "max_backlog_slots", 30, "Slots the node may fall behind and "
+                                         "still compose every missed one (late); further behind it skips "
+                                         "ahead and counts skipped_slots", min_value=1, max_value=100_000)
+        self.add_post_set_parameters_callback(self._apply_parameters)
 
         scene = with_resolution(load_scene(scene_name), width or None, height or None)
         self.intrinsics = scene.camera.intrinsics
@@ -133,6 +140,12 @@ class ServerNode(Node):
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(f"server: model {model_path} ({model.num_gaussians} Gaussians), scene "
                                f"{scene.name}, {self.intrinsics.width}×{self.intrinsics.height}")
+
+    def _apply_parameters(self, params) -> None:
+        """Live parameters (ranges were checked by their descriptors; read-only ones cannot change)."""
+        for p in params:
+            if p.name in ("process_delay_s", "measure_loss", "jpeg_quality", "max_backlog_slots"):
+                setattr(self, p.name, p.value)
 
     # ---------------------------------------------------------------- inputs
     def _now_slot(self) -> tuple[int, int]:
@@ -208,7 +221,7 @@ class ServerNode(Node):
             return
         if due < self._next_slot:
             return
-        if due > self._next_slot + 10:  # far behind (suspended, clock jump): skip ahead, count it
+        if due > self._next_slot + self.max_backlog_slots:  # far behind (suspended, clock jump): skip ahead
             self.uplink.count("skipped_slots")
             self._next_slot = due
         slot = self._next_slot

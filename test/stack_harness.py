@@ -55,9 +55,9 @@ class Stack:
 
     def __init__(self, tmp: Path, model: Path, env: dict[str, str], *, overrides: dict[str, dict] | None = None,
                  remappings: dict[str, list[tuple[str, str]]] | None = None, extra: tuple = ()) -> None:
-        from gsrmr_server.sim_stack import sim_stack
+        from gsrmr_server.sim_stack import environment, sim_stack
 
-        self.tmp, self.env = tmp, env
+        self.tmp, self.env = tmp, environment(base=env)  # the demo's environment: kill-safe DDS transport
         self.link = str(tmp / "limo_pty")
         size = {"width": WIDTH, "height": HEIGHT}
         over: dict[str, dict] = {"gsrmr_server": dict(size), "gsrmr_mock_camera": dict(size),
@@ -124,8 +124,9 @@ def ros_client(env: dict[str, str], name: str = "test_client") -> Iterator[tuple
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
 
-    old = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
-    os.environ.update({k: env[k] for k in old})
+    old = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE",
+                                          "FASTDDS_BUILTIN_TRANSPORTS")}
+    os.environ.update({k: env[k] for k in old if k in env})
     ctx = Context()
     rclpy.init(context=ctx)
     node = rclpy.create_node(name, context=ctx)
@@ -151,6 +152,25 @@ def spin_until(ex, predicate, timeout_s: float) -> bool:
         if predicate():
             return True
     return False
+
+
+def call_service(ex, client, request, timeout_s: float = 30.0, attempt_s: float = 5.0):
+    """Call ``client`` with ``request``, resending every ``attempt_s`` until answered; the response.
+
+    Only for idempotent requests (e.g. set_parameters). After a server process is killed with -9 and
+    restarted, DDS discovery keeps the dead server's endpoints until their lease expires, so
+    ``wait_for_service`` can succeed while the first request reaches only the dead endpoint and is
+    never answered; a resend reaches the restarted server once it is matched.
+    """
+    deadline = time.monotonic() + timeout_s
+    attempts = 0
+    while time.monotonic() < deadline:
+        attempts += 1
+        future = client.call_async(request)
+        if spin_until(ex, future.done, min(attempt_s, max(0.0, deadline - time.monotonic()))):
+            return future.result()
+        client.remove_pending_request(future)
+    raise AssertionError(f"{client.srv_name}: no answer in {timeout_s} s ({attempts} attempts)")
 
 
 def slot_rows(record_dir: Path) -> list[dict]:

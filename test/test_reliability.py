@@ -457,10 +457,8 @@ def _set_params(node, ex, target: str, params: dict) -> list:
     h = _harness()
     cli = node.create_client(SetParameters, f"{target}/set_parameters")
     assert cli.wait_for_service(timeout_sec=15)
-    fut = cli.call_async(SetParameters.Request(
-        parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in params.items()]))
-    assert h.spin_until(ex, fut.done, 20)
-    return fut.result().results
+    request = SetParameters.Request(parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in params.items()])
+    return h.call_service(ex, cli, request, timeout_s=30).results
 
 
 @pytest.mark.ros

@@ -1,4 +1,4 @@
-"""Pure tests of the server's uplink bookkeeping, the loss map and the wire formats."""
+"""Tests of the server's uplink bookkeeping, the loss map, the wire formats and the server node's slot clock."""
 
 import math
 
@@ -77,3 +77,58 @@ def test_loss_map_learns_neighbours_prior_and_forgets():
     lm.add(0.1, 0.1, 0.0, float("nan"))
     back = LossMap.from_json(lm.to_json())
     assert back.predict_many(np.array([[0.1, 0.1, 0.0], [9, 9, 0]])) == pytest.approx([lm.predict(0.1, 0.1, 0), 0.07])
+
+
+@pytest.mark.ros
+def test_server_catches_up_a_short_stall_and_skips_ahead_only_past_the_backlog_bound(tmp_path):
+    """ServerNode's slot clock: a stall shorter than max_backlog_slots composes every missed slot in
+    order (late); a longer one skips ahead to the current slot and counts skipped_slots once."""
+    from types import SimpleNamespace
+
+    from conftest import ros_env
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+    from stack_harness import make_point_model
+
+    from gsrmr_server.server_node import ServerNode
+
+    env = ros_env()
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=int(env["ROS_DOMAIN_ID"]))
+    try:
+        node = ServerNode(context=ctx, parameter_overrides=[
+            Parameter("model_path", value=str(make_point_model(tmp_path, n=50))),
+            Parameter("width", value=32), Parameter("height", value=24), Parameter("process_delay_s", value=0.0)])
+        slot_ns = node._slot_len_ns
+        now = {"ns": 1_000_000 * slot_ns}
+        node.get_clock = lambda: SimpleNamespace(now=lambda: SimpleNamespace(nanoseconds=now["ns"]))
+        composed: list[int] = []
+        node.process_slot = composed.append
+
+        def tick_until_idle() -> None:
+            for _ in range(1000):
+                before = len(composed)
+                node._tick()
+                if len(composed) == before:
+                    return
+
+        node._tick()  # the clock starts at the next slot
+        first = node._next_slot
+        now["ns"] += 20 * slot_ns  # a 2 s stall: 20 slots due, within the default bound of 30
+        tick_until_idle()
+        assert composed == list(range(first, first + 20))
+        assert node.uplink.faults["skipped_slots"] == 0
+        now["ns"] += 45 * slot_ns  # 4.5 s: past the bound → one skip ahead to the current slot
+        tick_until_idle()
+        assert node.uplink.faults["skipped_slots"] == 1
+        assert composed[-1] == now["ns"] // slot_ns and composed[20] == composed[-1]
+        # The bound is a live parameter; out of range is refused.
+        assert node.set_parameters([Parameter("max_backlog_slots", value=100)])[0].successful
+        assert node.max_backlog_slots == 100
+        assert not node.set_parameters([Parameter("max_backlog_slots", value=0)])[0].successful
+        assert node.set_parameters([Parameter("process_delay_s", value=0.05)])[0].successful
+        assert node.process_delay_s == 0.05
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
