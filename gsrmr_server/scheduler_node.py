@@ -40,7 +40,7 @@ UPLINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 SCHEDULE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
 PLANNING_PARAMS = {"loss_threshold", "horizon", "method", "solver_options", "image_bits", "pose_bits",
-                   "drift_threshold", "drift_window"}
+                   "drift_threshold", "drift_window", "loss_margin"}
 
 
 class SchedulerNode(Node):
@@ -67,6 +67,9 @@ class SchedulerNode(Node):
                                        max_value=1.0)
         self.drift_window = declare(self, "drift_window", 3, "Samples in the drift test", min_value=1,
                                     max_value=1000)
+        self.loss_margin = declare(self, "loss_margin", 0.3, "Plan for loss_threshold·(1 − loss_margin): "
+                                   "room for the MR loss image slots keep (JPEG) and for prediction error",
+                                   min_value=0.0, max_value=0.99)
         scene = load_scene(declare(self, "scene", "sandbox", "Scene whose route predicts future poses",
                                    read_only=True))
         loss_map_file = declare(self, "loss_map_file", "", "Seed loss map (JSON from a previous run)",
@@ -91,7 +94,8 @@ class SchedulerNode(Node):
                                      pose_bits=self.pose_bits, loss_threshold=self.loss_threshold,
                                      horizon=self.horizon, method=self.method,
                                      options=json.loads(self.solver_options),
-                                     drift_threshold=self.drift_threshold, drift_window=self.drift_window)
+                                     drift_threshold=self.drift_threshold, drift_window=self.drift_window,
+                                     loss_margin=self.loss_margin)
         self._lock = threading.RLock()
         self._pose: tuple[float, float, float] | None = None
         self._replan_reason: str | None = "start"
@@ -151,6 +155,8 @@ class SchedulerNode(Node):
             return
         if key.is_valid():
             self._pose = (key.a_m, key.b_m, key.theta_rad)
+            with self._lock:
+                self.planner.record_pose(key.slot, *self._pose)
 
     def _on_loss(self, msg: Float64MultiArray) -> None:
         if len(msg.data) != 5 or not all(math.isfinite(v) for v in msg.data):

@@ -1,7 +1,8 @@
 """The server node (``gsrmr-server``): one MR image per slot, whatever the uplink did.
 
-For every slot k (processed ``process_delay_s`` after the slot starts, see :mod:`gsrmr_common.wire`)
-the node takes what arrived for k (:class:`~gsrmr_server.uplink.UplinkAssembler`) and composes
+For every slot k (processed as soon as its uploads are complete — its key, and its image when the
+schedule expects one — and at the latest ``process_delay_s`` after the slot starts, see
+:mod:`gsrmr_common.wire`) the node takes what arrived for k (:class:`~gsrmr_server.uplink.UplinkAssembler`) and composes
 m̂_k (:class:`~gsrmr_server.compose.MRComposer`): the decoded image, or the Gaussian-splatting render at
 the pose key, or — for a missing, late, duplicated or corrupt upload — the render at the best pose
 estimate. It never skips a slot while it keeps up: after a stall (CPU starvation, a DDS peer killed
@@ -71,8 +72,9 @@ class ServerNode(Node):
         super().__init__("gsrmr_server", **node_kwargs)
         self.slot_s = declare(self, "slot_s", 0.1, "Slot length τ [s]; must equal the robot's", min_value=0.01,
                               max_value=10.0, read_only=True)
-        self.process_delay_s = declare(self, "process_delay_s", 0.03, "Compose slot k this long after its "
-                                       "start [s] (uploads arriving later are counted late)", min_value=0.0,
+        self.process_delay_s = declare(self, "process_delay_s", 0.03, "Compose slot k at the latest this "
+                                       "long after its start [s], earlier once its uploads are complete "
+                                       "(uploads arriving after composition are counted late)", min_value=0.0,
                                        max_value=5.0)
         model_path = declare(self, "model_path", "", "Gaussian-splatting model (.ply, 3DGS layout)",
                              read_only=True)
@@ -92,6 +94,9 @@ class ServerNode(Node):
         self.max_backlog_slots = declare(self, "max_backlog_slots", 30, "Slots the node may fall behind and "
                                          "still compose every missed one (late); further behind it skips "
                                          "ahead and counts skipped_slots", min_value=1, max_value=100_000)
+        render_threads = declare(self, "render_threads", 1, "CPU threads of the GS render (0 = every core); one "
+                                 "thread is steadier when other processes share the cores", min_value=0,
+                                 max_value=256, read_only=True)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
         scene = with_resolution(load_scene(scene_name), width or None, height or None)
@@ -100,7 +105,7 @@ class ServerNode(Node):
             raise ValueError("parameter model_path is required (a 3DGS .ply)")
         model = GaussianModel.load_ply(model_path)
         self.composer = MRComposer(model, VirtualViewSource(scene), self.intrinsics, scene.camera.mount,
-                                   scene.background)
+                                   scene.background, render_threads=render_threads or None)
         # Warm-up: the first render compiles/loads the rasterizer (~1.5 s); doing it before the slot clock
         # starts keeps the first slots on time instead of skipping the ones that elapsed meanwhile.
         self.composer.compose(SlotUploads(0), PoseKey(0, 0.0, 0.0, 0.0), 0.0, measure_loss=False)
@@ -120,7 +125,9 @@ class ServerNode(Node):
         self.recorder = RunRecorder(record_dir) if record_dir else None
         self.eval_rows: list[dict] = []
 
-        # Uploads are received in their own callback group while a slot is being composed.
+        # One thread: uploads that arrive while a slot is composed are taken right after it (DDS queues
+        # them). A second executor thread made composition several times slower: the GIL passes between
+        # the compose thread's numpy/numba calls and the executor's Python loop (convoy effect).
         io = MutuallyExclusiveCallbackGroup()
         self._pub_mr = self.create_publisher(Image, "mr/image", 5)
         self._pub_mr_c = self.create_publisher(CompressedImage, "mr/image/compressed", 5)
@@ -136,7 +143,7 @@ class ServerNode(Node):
         if self.evaluate:
             self.create_subscription(Image, "camera/image_raw", self._on_camera, qos_profile_sensor_data,
                                      callback_group=io)
-        self.create_timer(0.005, self._tick)
+        self.create_timer(0.01, self._tick)  # 10 ms: a slot is composed ≤ 10 ms after it is complete or due
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(f"server: model {model_path} ({model.num_gaussians} Gaussians), scene "
                                f"{scene.name}, {self.intrinsics.width}×{self.intrinsics.height}")
@@ -219,7 +226,8 @@ class ServerNode(Node):
             self._next_slot = due + 1
             self._t0_slot = due + 1
             return
-        if due < self._next_slot:
+        if due < self._next_slot and not (self._next_slot <= now_ns // self._slot_len_ns
+                                          and self._uploads_complete(self._next_slot)):
             return
         if due > self._next_slot + self.max_backlog_slots:  # far behind (suspended, clock jump): skip ahead
             self.uplink.count("skipped_slots")
@@ -227,6 +235,11 @@ class ServerNode(Node):
         slot = self._next_slot
         self._next_slot += 1
         self.process_slot(slot)
+
+    def _uploads_complete(self, slot: int) -> bool:
+        with self._lock:
+            entry = self._schedule.lookup(slot) if self._schedule is not None else None
+            return self.uplink.complete(slot, None if entry is None else bool(entry[0]))
 
     def process_slot(self, slot: int) -> None:
         """Compose, publish and record slot ``slot``."""
@@ -332,6 +345,6 @@ class ServerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-server``."""
-    return run_node(ServerNode, args, threads=2)
+    return run_node(ServerNode, args)
 
 

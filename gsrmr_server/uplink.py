@@ -101,6 +101,14 @@ class UplinkAssembler:
         if last is None or key.slot > last.slot:
             self._last_pose = key
 
+    def complete(self, slot: int, image_expected: bool | None) -> bool:
+        """Whether everything expected for ``slot`` has arrived: its key, and its image unless the
+        schedule says a key-only slot (``image_expected`` False; None = no schedule: wait for both)."""
+        entry = self._pending.get(slot)
+        if entry is None or entry.key is None:
+            return False
+        return entry.jpeg is not None or image_expected is False
+
     def take(self, slot: int, image_expected: bool | None = None) -> SlotUploads:
         """Everything known for ``slot``; the slot is closed afterwards (later uploads are ``late``)."""
         entry = self._pending.pop(slot, SlotUploads(slot))

@@ -9,7 +9,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from gsrmr_server.sim_stack import sim_stack
+from gsrmr_server.sim_stack import nice_prefix, sim_stack
 
 
 def _nodes(context):
@@ -18,7 +18,7 @@ def _nodes(context):
                       loss_threshold=float(arg("loss_threshold")), laps=int(arg("laps")))
     return [Node(package="gsrmr", executable=s.executable, name=s.name, output="screen",
                  arguments=s.arguments, parameters=[*s.param_files, s.params] if s.params else s.param_files,
-                 remappings=s.remappings)
+                 remappings=s.remappings, prefix=" ".join(nice_prefix(s)) or None)
             for s in specs]
 
 

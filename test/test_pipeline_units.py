@@ -97,3 +97,24 @@ def test_planner_meets_budget_carries_it_over_and_detects_drift():
     assert second.budget == pytest.approx((0.03 * 80 - 40 * 0.02) / 40)
     assert second.schedule.first_slot == 1041 and len(second.schedule.x) == 40
     assert np.all(np.isfinite(second.schedule.power_w)) and np.all(second.schedule.power_w >= 0)
+
+
+def test_planner_charges_key_slots_at_the_reported_pose_and_backs_off_by_the_margin():
+    scene = load_scene("sandbox")
+    lm = LossMap(prior=0.02)
+    lm.add(0.0, 0.0, 0.0, 0.09)  # one costly place the plan's predicted poses do not visit
+    planner = OnlinePlanner(RoutePredictor(scene.route.waypoints, scene.route.speed_mps), lm, LinkBudget(),
+                            slot_s=0.1, image_bits=67200, pose_bits=192, loss_threshold=0.03, horizon=40,
+                            loss_margin=0.2)
+    first = planner.plan(1000, None)
+    assert first.budget == pytest.approx(0.024)  # L_th·(1 − margin)
+    x = first.schedule.x
+    reported = [k for k in range(1001, 1041) if x[k - 1001] == 0][:10]
+    for k in reported:  # the robot was elsewhere than planned in 10 key slots: charged at its real pose
+        planner.record_pose(k, 0.0, 0.0, 0.0)
+    keys = int((x == 0).sum())
+    planned = [planner._predicted[k] for k in range(1001, 1041) if x[k - 1001] == 0 and k not in reported]
+    second = planner.plan(1040, None)
+    spent = 10 * lm.predict(0.0, 0.0, 0.0) + sum(planned)
+    assert keys == 40 and lm.predict(0.0, 0.0, 0.0) > 0.05
+    assert second.budget == pytest.approx((0.024 * 80 - spent) / 40)

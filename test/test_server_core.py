@@ -129,6 +129,19 @@ def test_server_catches_up_a_short_stall_and_skips_ahead_only_past_the_backlog_b
         assert not node.set_parameters([Parameter("max_backlog_slots", value=0)])[0].successful
         assert node.set_parameters([Parameter("process_delay_s", value=0.05)])[0].successful
         assert node.process_delay_s == 0.05
+        # A slot is composed before its deadline once its uploads are complete (no schedule: key + image).
+        slot = node._next_slot
+        now["ns"] = slot * slot_ns + 1_000_000  # 1 ms into the slot, 49 ms before its deadline
+        n = len(composed)
+        node._tick()
+        node.uplink.on_key(PoseKey(slot, 0.0, 0.0, 0.0), slot, now["ns"])
+        node._tick()
+        assert len(composed) == n  # the image may still come
+        node.uplink.on_image(slot, b"jpeg", slot, now["ns"])
+        node._tick()
+        assert composed[n:] == [slot]
+        node._tick()
+        assert composed[n:] == [slot]  # the next slot has not started
         node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)

@@ -95,6 +95,10 @@ class MockCamera(Node):
         odom_topic = declare(self, "odom_topic", "/sim/ground_truth/odom", "true pose (nav_msgs/Odometry)")
         self.odom_timeout_s = declare(self, "odom_timeout_s", 1.0, "use the scripted pose when odom is older",
                                       min_value=0.0)
+        self.clock_from_motion = declare(self, "clock_from_motion", False,
+                                         "start the round clock when the true pose first moves (> 1 cm "
+                                         "or 0.01 rad) instead of at node start: change events and agents "
+                                         "then follow the route progress however long the stack takes to start")
         self.publish_virtual = declare(self, "publish_virtual", True,
                                        "publish sim/virtual/image_raw and mask")
         self.publish_depth = declare(self, "publish_depth", True,
@@ -114,7 +118,8 @@ class MockCamera(Node):
             self.create_subscription(Int32, "sim/route/lap", self._on_lap, 10)
         self.odom_pose: tuple[float, float, float] | None = None
         self.odom_time: Time | None = None
-        self.start = self.get_clock().now()
+        self.rest_pose: tuple[float, float, float] | None = None  # first true pose, while waiting for motion
+        self.start: Time | None = None if self.clock_from_motion else self.get_clock().now()
         self.frames = 0
         period = 1.0 / (rate or self.scene.camera.rate_hz)
         self.timer = self.create_timer(period, self._tick)
@@ -137,6 +142,13 @@ class MockCamera(Node):
         self.odom_pose = (msg.pose.pose.position.x, msg.pose.pose.position.y,
                           yaw_from_quaternion(q.x, q.y, q.z, q.w))
         self.odom_time = self.get_clock().now()
+        if self.start is None:
+            rest = self.rest_pose = self.rest_pose or self.odom_pose
+            moved = math.hypot(self.odom_pose[0] - rest[0], self.odom_pose[1] - rest[1])
+            turned = abs(math.remainder(self.odom_pose[2] - rest[2], math.tau))
+            if moved > 0.01 or turned > 0.01:
+                self.start = self.odom_time
+                self.get_logger().info("robot moving: round clock started")
 
     def scripted_pose(self, t_s: float) -> tuple[float, float, float]:
         """Open-loop route pose at round time ``t_s``: arc length speed·t along the loop."""
@@ -160,7 +172,7 @@ class MockCamera(Node):
 
     def _tick(self) -> None:
         now = self.get_clock().now()
-        t_s = max(0.0, (now - self.start).nanoseconds * 1e-9)
+        t_s = 0.0 if self.start is None else max(0.0, (now - self.start).nanoseconds * 1e-9)
         fresh = (self.odom_pose is not None and self.odom_time is not None
                  and (now - self.odom_time).nanoseconds * 1e-9 <= self.odom_timeout_s)
         pose = self.odom_pose if fresh and self.odom_pose is not None else self.scripted_pose(t_s)
