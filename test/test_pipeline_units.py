@@ -118,3 +118,19 @@ def test_planner_charges_key_slots_at_the_reported_pose_and_backs_off_by_the_mar
     spent = 10 * lm.predict(0.0, 0.0, 0.0) + sum(planned)
     assert keys == 40 and lm.predict(0.0, 0.0, 0.0) > 0.05
     assert second.budget == pytest.approx((0.024 * 80 - spent) / 40)
+
+
+def test_demo_round_starts_at_the_first_slot_whose_pose_key_moved():
+    from gsrmr_server.demo import first_moving_slot
+
+    def row(source, pose):
+        a, b, t = pose if pose else (None, None, None)
+        return {"source": source, "pose_a_m": a, "pose_b_m": b, "pose_theta_rad": t}
+
+    rest = (-1.0, -1.1, 0.0)
+    rows = [row("fallback", None), row("image", None), row("render", rest), row("image", rest),
+            row("fallback", (5.0, 5.0, 0.0)),  # an extrapolated fallback pose is not motion
+            row("render", (-1.0, -1.1, 0.005)), row("render", (-0.98, -1.1, 0.0))]
+    assert first_moving_slot(rows) == 6
+    assert first_moving_slot(rows[:6]) is None
+    assert first_moving_slot([row("render", rest), row("render", (-1.0, -1.1, 0.02))]) == 1  # a turn in place
