@@ -114,20 +114,24 @@ def command_line(spec: ProcessSpec, bin_dir: str | Path, param_dir: str | Path |
 
 # Fast DDS's default shared-memory transport does not survive a peer killed with -9: the dead
 # process's ports can block other participants' writes for about a second and leave a restarted
-# node's endpoints unmatched (eProsima/Fast-DDS #5469, #6535; docs/reliability.md). The simulated
-# stack uses UDP on the loopback instead (robot and server talk UDP on a real deployment anyway);
-# an explicit FASTDDS_BUILTIN_TRANSPORTS in the caller's environment wins.
+# node's endpoints unmatched (eProsima/Fast-DDS #5469, #6535; docs/reliability.md). Stacks whose
+# nodes may be killed use UDP on the loopback instead (robot and server talk UDP on a real deployment
+# anyway). The demo keeps the default: on one machine shared memory costs less CPU per camera frame
+# (3 of 3 demo runs had every slot on time with it, 4 of 6 with UDP). An explicit
+# FASTDDS_BUILTIN_TRANSPORTS in the caller's environment wins.
 KILL_SAFE_TRANSPORT = {"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
 
 
-def environment(domain_id: int | None = None, base: dict[str, str] | None = None) -> dict[str, str]:
+def environment(domain_id: int | None = None, base: dict[str, str] | None = None, *,
+                kill_safe: bool = False) -> dict[str, str]:
     """Process environment (a copy of ``base``, default ``os.environ``): localhost-only discovery,
-    the kill-safe Fast DDS transport, unbuffered output, the given ROS domain."""
+    unbuffered output, the given ROS domain and, with ``kill_safe``, the kill-safe Fast DDS transport."""
     env = dict(os.environ if base is None else base)
     if domain_id is not None:
         env["ROS_DOMAIN_ID"] = str(domain_id)
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    for key, value in KILL_SAFE_TRANSPORT.items():
-        env.setdefault(key, value)
+    if kill_safe:
+        for key, value in KILL_SAFE_TRANSPORT.items():
+            env.setdefault(key, value)
     env["PYTHONUNBUFFERED"] = "1"
     return env

@@ -57,7 +57,7 @@ class Stack:
                  remappings: dict[str, list[tuple[str, str]]] | None = None, extra: tuple = ()) -> None:
         from gsrmr_server.sim_stack import environment, sim_stack
 
-        self.tmp, self.env = tmp, environment(base=env)  # the demo's environment: kill-safe DDS transport
+        self.tmp, self.env = tmp, environment(base=env, kill_safe=True)  # tests kill nodes with -9
         self.link = str(tmp / "limo_pty")
         size = {"width": WIDTH, "height": HEIGHT}
         over: dict[str, dict] = {"gsrmr_server": dict(size), "gsrmr_mock_camera": dict(size),

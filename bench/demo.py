@@ -1,0 +1,57 @@
+"""Repeated ``gsrmr-demo`` runs: the node suite's acceptance figures as a table with medians.
+
+Usage: ``.venv/bin/python bench/demo.py [--runs 6] [-- DEMO_ARGS...]``. Each run is a full round 2 over
+DDS (~40 s with the model cached; the first run trains it). Prints, per run and as the median: slots
+on time (MR image ≤ τ after the slot start), images sent, uplink energy ratio upload-all / ours, mean
+MR loss, PSNR and SSIM measured on the MR images the server produced.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+import statistics
+import subprocess
+import sys
+import time
+
+COLUMNS = ("slots", "slots_on_time", "images_sent", "energy_ratio_vs_upload_all", "mean_loss", "psnr_db", "ssim")
+
+
+def run_once(demo_args: list[str]) -> dict:
+    """One ``gsrmr-demo`` run; its summary (the last stdout line) plus the wall time."""
+    exe = Path(sys.executable).parent / "gsrmr-demo"
+    t0 = time.perf_counter()
+    out = subprocess.run([str(exe), *demo_args], capture_output=True, text=True, check=True).stdout
+    summary = json.loads(out.strip().splitlines()[-1])
+    summary["wall_s"] = time.perf_counter() - t0
+    return summary
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=6)
+    ap.add_argument("demo_args", nargs="*", help="passed to gsrmr-demo (after --)")
+    args = ap.parse_args()
+    print(f"# bench/demo.py: {args.runs} × gsrmr-demo {' '.join(args.demo_args)} ({os.cpu_count()} CPUs, "
+          f"load average before {os.getloadavg()[0]:.1f})")
+    print("| run | " + " | ".join(COLUMNS) + " | wall s |")
+    print("|" + "---|" * (len(COLUMNS) + 2))
+    rows = []
+    for k in range(args.runs):
+        s = run_once(args.demo_args)
+        rows.append(s)
+        print(f"| {k + 1} | " + " | ".join(f"{s[c]:.4g}" if isinstance(s[c], float) else str(s[c])
+                                         for c in COLUMNS) + f" | {s['wall_s']:.0f} |", flush=True)
+    print("| **median** | " + " | ".join(f"{statistics.median(r[c] for r in rows):.4g}" for c in COLUMNS)
+          + f" | {statistics.median(r['wall_s'] for r in rows):.0f} |")
+    lower_is_better = ("images_sent", "mean_loss")
+    print("| **worst** | " + " | ".join(
+        f"{(max if c in lower_is_better else min)(r[c] for r in rows):.4g}" for c in COLUMNS) + " | |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
