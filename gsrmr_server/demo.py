@@ -181,17 +181,18 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
     return rows[first_moving:first_moving + slots], first_moving
 
 
-def first_moving_slot(rows: list[dict], min_move_m: float = 0.01, min_turn_rad: float = 0.01) -> int | None:
+def first_moving_slot(rows: list[dict]) -> int | None:
     """Index of the first row whose pose key has moved from the first keyed pose: round 2 starts when
     the robot sets off (the mock camera starts its round clock then too). None before that."""
+    from gsrmr_server.world.kinematics import has_moved
+
     rest = None
     for i, r in enumerate(rows):
         if r["pose_a_m"] is None or r["source"] not in ("image", "render"):
             continue
         pose = (r["pose_a_m"], r["pose_b_m"], r["pose_theta_rad"])
         rest = rest or pose
-        if (math.hypot(pose[0] - rest[0], pose[1] - rest[1]) > min_move_m
-                or abs(math.remainder(pose[2] - rest[2], math.tau)) > min_turn_rad):
+        if has_moved(pose, rest):
             return i
     return None
 

@@ -35,6 +35,7 @@ from std_msgs.msg import Int32
 
 from gsrmr_common.camera import camera_from_pose
 from gsrmr_common.ros_node import declare, run_node
+from gsrmr_server.world.kinematics import has_moved
 from gsrmr_server.world.points import make_world
 from gsrmr_server.world.recorder import with_resolution
 from gsrmr_server.world.route import LoopPath
@@ -143,10 +144,8 @@ class MockCamera(Node):
                           yaw_from_quaternion(q.x, q.y, q.z, q.w))
         self.odom_time = self.get_clock().now()
         if self.start is None:
-            rest = self.rest_pose = self.rest_pose or self.odom_pose
-            moved = math.hypot(self.odom_pose[0] - rest[0], self.odom_pose[1] - rest[1])
-            turned = abs(math.remainder(self.odom_pose[2] - rest[2], math.tau))
-            if moved > 0.01 or turned > 0.01:
+            self.rest_pose = self.rest_pose or self.odom_pose
+            if has_moved(self.odom_pose, self.rest_pose):
                 self.start = self.odom_time
                 self.get_logger().info("robot moving: round clock started")
 

@@ -41,6 +41,14 @@ class Drive:
     loop_length_m: float
 
 
+def has_moved(pose: tuple[float, float, float], rest: tuple[float, float, float], *, min_move_m: float = 0.01,
+              min_turn_rad: float = 0.01) -> bool:
+    """Whether ``pose`` (a_m, b_m, theta_rad) left ``rest`` by more than ``min_move_m`` or turned by more
+    than ``min_turn_rad`` (the round of the simulated world starts then)."""
+    return (math.hypot(pose[0] - rest[0], pose[1] - rest[1]) > min_move_m
+            or abs(math.remainder(pose[2] - rest[2], math.tau)) > min_turn_rad)
+
+
 def start_pose(route: Route, jitter_m: float = 0.0, seed: int = 0) -> tuple[float, float, float]:
     """The route's start (first waypoint, facing the second), displaced by up to ``jitter_m`` (seeded)."""
     path = LoopPath(route.waypoints)
