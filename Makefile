@@ -1,6 +1,7 @@
 # gsrmr: two commands on a fresh machine (Python 3.11, pip, gcc):
 #   make demo   set up .venv, then run the main job
-#   make test   set up .venv, then lint (ruff) and run every test (pytest)
+#   make test   set up .venv, then lint (ruff), colcon build and run every test once (colcon test, or
+#               plain pytest where no ROS 2 launch tooling is available: tools/run_tests.sh)
 # .venv is created or refreshed by tools/bootstrap.sh; a second run reuses it in about a second.
 
 VENV ?= .venv
@@ -25,7 +26,7 @@ pytest: venv
 test: venv
 	@echo "make test: ROS_DOMAIN_ID=$(ROS_DOMAIN_ID) ROS_AUTOMATIC_DISCOVERY_RANGE=$(ROS_AUTOMATIC_DISCOVERY_RANGE)"
 	$(VENV)/bin/ruff check .
-	$(PY) -m pytest $(PYTEST_ARGS)
+	@VENV=$(VENV) PYTEST_ARGS="$(PYTEST_ARGS)" bash tools/run_tests.sh
 
 demo: venv
 	$(VENV)/bin/gsrmr-demo $(DEMO_ARGS)

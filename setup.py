@@ -16,30 +16,31 @@ def config_files() -> list[tuple[str, list[str]]]:
     return [(os.path.join("share", PACKAGE, folder), files) for folder, files in groups.items()]
 
 
-# Every node and CLI, `ros2 run gsrmr <name>` on a ROS install, `.venv/bin/<name>` here.
+# Every node and CLI: `ros2 run gsrmr <name>` (colcon build / a ROS install), `.venv/bin/<name>` here.
+# Node entries go through gsrmr_common.interrupts: exit code 0 on Ctrl-C in any phase.
 CONSOLE_SCRIPTS = [
     # foundation: DDS link check between the robot and the workstation
-    "gsrmr-link-echo = gsrmr_common.link_check:echo_main",
-    "gsrmr-link-probe = gsrmr_common.link_check:probe_main",
+    "gsrmr-link-echo = gsrmr_common.interrupts:link_echo",
+    "gsrmr-link-probe = gsrmr_common.interrupts:link_probe",
     # scheduler (GSCLO): library CLI
     "gsrmr-schedule = gsrmr_server.scheduling.cli:main",
     # Gaussian-splatting engine
     "gsrmr-train = gsrmr_server.splatting.cli:train_main",
     "gsrmr-render = gsrmr_server.splatting.cli:render_main",
     # LIMO base: driver node and byte-exact mock base
-    "gsrmr-limo-base = gsrmr_robot.limo.node:main",
-    "gsrmr-mock-limo = gsrmr_robot.limo.mock:main",
+    "gsrmr-limo-base = gsrmr_common.interrupts:limo_base",
+    "gsrmr-mock-limo = gsrmr_common.interrupts:mock_limo",
     # simulated world: headless recorder, mock camera node, route follower node
     "gsrmr-sim = gsrmr_server.world.cli:main",
-    "gsrmr-mock-camera = gsrmr_server.world.camera_node:main",
-    "gsrmr-route-follower = gsrmr_server.world.route_follower:main",
+    "gsrmr-mock-camera = gsrmr_common.interrupts:mock_camera",
+    "gsrmr-route-follower = gsrmr_common.interrupts:route_follower",
     # node suite, experiments and the main job
-    "gsrmr-robot = gsrmr_robot.robot_node:main",
-    "gsrmr-server = gsrmr_server.server_node:main",
-    "gsrmr-scheduler = gsrmr_server.scheduler_node:main",
+    "gsrmr-robot = gsrmr_common.interrupts:robot",
+    "gsrmr-server = gsrmr_common.interrupts:server",
+    "gsrmr-scheduler = gsrmr_common.interrupts:scheduler",
     "gsrmr-experiments = gsrmr_server.experiments.cli:main",
     "gsrmr-demo = gsrmr_server.demo:main",
-    "gsrmr-uplink-relay = gsrmr_server.fault_relay:main",
+    "gsrmr-uplink-relay = gsrmr_common.interrupts:uplink_relay",
 ]
 
 
@@ -62,11 +63,11 @@ if __name__ == "__main__":
         package_data={"": ["*.yaml", "*.json"]},
         data_files=data_files(),
         install_requires=["setuptools"],
+        extras_require={"test": ["pytest"]},  # colcon test runs pytest when "test" names it
         zip_safe=True,
         maintainer="gsrmr developers",
         maintainer_email="gsrmr@example.com",
         description="Green robotic mixed reality with Gaussian splatting (ROS 2)",
         license="Apache-2.0",
-        tests_require=["pytest"],
         entry_points={"console_scripts": CONSOLE_SCRIPTS},
     )

@@ -14,30 +14,39 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
+from gsrmr_common.interrupts import CLEANUP, POLICY, RUNNING, START
+
 
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, *, threads: int = 1) -> int:
     """Init rclpy, build the node, spin until SIGINT/SIGTERM or shutdown, clean up; return an exit code.
 
-    The pattern of ``ros2/examples``: Ctrl-C ends the spin with KeyboardInterrupt or
-    ExternalShutdownException, both a normal exit (code 0). ``threads`` > 1 spins a
-    MultiThreadedExecutor, so callbacks in different callback groups run concurrently (a node whose
-    slot work takes tens of milliseconds still receives messages meanwhile).
+    The pattern of ``ros2/examples``, hardened for a terminal's Ctrl-C under ``ros2 launch`` (see
+    :mod:`gsrmr_common.interrupts`): an interrupt while the node is being built ends start-up at once,
+    one while spinning ends the spin through rclpy's handler, and the signals that follow (``launch``
+    forwards its own SIGINT) do not cut the clean-up short. Every such stop exits with code 0.
+    ``threads`` > 1 spins a MultiThreadedExecutor, so callbacks in different callback groups run
+    concurrently (a node whose slot work takes tens of milliseconds still receives messages meanwhile).
     """
     argv = list(sys.argv if args is None else args)
     node: Node | None = None
+    POLICY.install()
+    POLICY.enter(START)
     try:
         rclpy.init(args=argv)
         node = factory()
         executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else None
+        POLICY.enter(RUNNING)
         rclpy.spin(node, executor=executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:
-        # SIGINT shuts the context down while the executor may be taking a message; rclpy then raises a
-        # RuntimeError from take_message instead of ExternalShutdownException. Only a real error re-raises.
-        if node is None or node.context.ok():
+        # SIGINT shuts the context down while the executor may be taking a message, or while the factory
+        # still creates entities; rclpy then raises a RuntimeError instead of ExternalShutdownException.
+        # Only a real error (the context still up) re-raises.
+        if rclpy.ok():
             raise
     finally:
+        POLICY.enter(CLEANUP)
         if node is not None:
             on_shutdown = getattr(node, "on_shutdown", None)
             if callable(on_shutdown):

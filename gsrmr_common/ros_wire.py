@@ -7,10 +7,11 @@ module only maps fields:
 * pose key ↔ ``geometry_msgs/Vector3Stamped``: ``vector = (a_m, b_m, theta_rad)`` in ``map``,
   ``header.stamp`` = start of the key's slot.
 * schedule ↔ ``std_msgs/Float64MultiArray``: ``layout.dim = [meta(4), x(n), power_w(n)]``.
-* raw image ↔ ``sensor_msgs/Image``: our in-process images are H×W×3 ``uint8`` RGB; this is the
-  project's replacement for ``cv_bridge`` (not installable here: the PyPI build is broken on numpy 2).
-  ``image_from_msg`` accepts ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8`` and ``mono8`` with any row
-  ``step`` padding and refuses inconsistent sizes.
+* raw image ↔ ``sensor_msgs/Image``: our in-process images are H×W×3 ``uint8`` RGB; the pixel work
+  is :mod:`gsrmr_common.image_bridge` (``cv_bridge`` where a ROS install has it, else the project's
+  own conversion with the same semantics). ``image_from_msg`` accepts ``rgb8``, ``bgr8``, ``rgba8``,
+  ``bgra8``, ``mono8`` and ``mono16`` (scaled to 8 bit as ``cv_bridge`` does) with any row ``step``
+  padding and either ``is_bigendian``, and refuses inconsistent sizes.
 * JPEG ↔ ``sensor_msgs/CompressedImage`` with ``format = wire.JPEG_FORMAT``.
 * :class:`~gsrmr_common.camera.Intrinsics` ↔ ``sensor_msgs/CameraInfo`` (ROS K convention: pixel
   centres at integer coordinates, ``plumb_bob`` with zero distortion, R = I, P = [K | 0]).
@@ -30,16 +31,15 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from gsrmr_common import wire
 from gsrmr_common.camera import Intrinsics
+from gsrmr_common.image_bridge import imgmsg_to_numpy, numpy_to_imgmsg
 from gsrmr_common.jpeg import ImageRejected, decode_jpeg
 
 NS_PER_S = 1_000_000_000
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
 SCHEDULE_LABELS = ("meta", "x", "power_w")
-# encoding -> (channels, channel order to pick for RGB output; None = grey replicated)
-_RAW_ENCODINGS: dict[str, tuple[int, tuple[int, int, int] | None]] = {
-    "rgb8": (3, (0, 1, 2)), "bgr8": (3, (2, 1, 0)), "rgba8": (4, (0, 1, 2)), "bgra8": (4, (2, 1, 0)),
-    "mono8": (1, None),
-}
+# the encodings image_bridge converts to rgb8; image_from_msg has always matched their names
+# case-insensitively (image_bridge, like ROS, is case-sensitive)
+_RGB_SOURCE_ENCODINGS = frozenset({"rgb8", "bgr8", "rgba8", "bgra8", "mono8", "mono16"})
 
 
 def stamp_to_ns(stamp: Time) -> int:
@@ -116,42 +116,27 @@ def image_to_msg(rgb: np.ndarray, stamp_ns: int, frame_id: str) -> Image:
     img = np.asarray(rgb)
     if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3 or 0 in img.shape:
         raise ValueError(f"image_to_msg: expected H×W×3 uint8 RGB, got {img.dtype} {img.shape}")
-    msg = Image()
-    msg.header.stamp = ns_to_stamp(stamp_ns)
-    msg.header.frame_id = frame_id
-    msg.height, msg.width = int(img.shape[0]), int(img.shape[1])
-    msg.encoding = "rgb8"
-    msg.is_bigendian = 0
-    msg.step = 3 * msg.width
-    msg.data = np.ascontiguousarray(img).tobytes()
-    return msg
+    return numpy_to_imgmsg(img, "rgb8", stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
 
 
 def image_from_msg(msg: Image, *, max_pixels: int = wire.MAX_IMAGE_PIXELS) -> np.ndarray:
-    """``sensor_msgs/Image`` → H×W×3 ``uint8`` RGB (a copy; mono8 is replicated to three channels).
+    """``sensor_msgs/Image`` → H×W×3 ``uint8`` RGB (a new array), as ``cv_bridge`` converts to ``rgb8``.
 
-    Supports ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8`` (alpha dropped) and ``mono8``; ``step`` may
-    include row padding. Raises :class:`ImageRejected` on an unsupported encoding, an empty or
-    oversized image, ``step`` < width·channels, or ``len(data) != step·height``.
+    Supports ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8`` (alpha dropped), ``mono8`` (replicated to three
+    channels) and ``mono16`` (replicated and scaled to 8 bit, ``(v + 128) // 257``); the encoding name is
+    matched case-insensitively, ``step`` may include row padding, ``is_bigendian`` is honoured. Raises
+    :class:`ImageRejected` on any other encoding (``16UC1``/``32FC1`` hold plain numbers, which
+    ``cv_bridge`` refuses to turn into colour), an empty or oversized image, ``step`` <
+    width·channels·bytes, or ``len(data) != step·height``.
     """
     enc = msg.encoding.lower()
-    if enc not in _RAW_ENCODINGS:
-        raise ImageRejected(f"unsupported image encoding {msg.encoding!r} (want {sorted(_RAW_ENCODINGS)})")
-    channels, order = _RAW_ENCODINGS[enc]
-    height, width, step = int(msg.height), int(msg.width), int(msg.step)
-    if height < 1 or width < 1:
-        raise ImageRejected(f"empty image {width}×{height}")
-    if height * width > max_pixels:
-        raise ImageRejected(f"image {width}×{height} exceeds {max_pixels} px")
-    if step < width * channels:
-        raise ImageRejected(f"image step {step} < width·channels = {width * channels}")
-    buf = np.frombuffer(msg.data, dtype=np.uint8)
-    if buf.size != step * height:
-        raise ImageRejected(f"image data has {buf.size} bytes, step·height = {step * height}")
-    rows = buf.reshape(height, step)[:, : width * channels].reshape(height, width, channels)
-    if order is None:
-        return np.repeat(rows, 3, axis=2)
-    return np.ascontiguousarray(rows[:, :, list(order)])
+    if enc in _RGB_SOURCE_ENCODINGS and enc != msg.encoding:
+        msg = Image(header=msg.header, height=msg.height, width=msg.width, encoding=enc,
+                    is_bigendian=msg.is_bigendian, step=msg.step, data=msg.data)
+    try:
+        return imgmsg_to_numpy(msg, "rgb8", max_pixels=max_pixels)
+    except ValueError as exc:
+        raise ImageRejected(str(exc)) from exc
 
 
 def compressed_to_msg(jpeg_data: bytes, stamp_ns: int, frame_id: str) -> CompressedImage:

@@ -14,6 +14,17 @@ odom → base_link; composed with the ``map_from_odom`` parameter to get the pos
 ``gsrmr/schedule`` (``std_msgs/Float64MultiArray``, layout in :mod:`gsrmr_common.wire`, transient
 local). Without a schedule for the slot the node uploads the image (``default_upload_image``).
 
+Camera calibration: ``camera/camera_info`` (``sensor_msgs/CameraInfo``, sensor-data QoS; remap it to
+the driver's topic) is republished on ``uplink/camera_info`` (reliable, transient local, depth 1:
+latched, a server started later still gets it) whenever it changes (K, D, width, height, distortion
+model or frame_id; the stamp alone is no change), so the server knows the intrinsics of the images.
+
+TF (REP-105, frames of :mod:`gsrmr_common.tf_tree`): where ``tf2_ros`` imports (a ROS install) the node
+publishes on ``/tf_static`` ``map → odom`` from ``map_from_odom`` (re-sent when the parameter changes)
+and ``base_link → camera_frame_id`` from the ``camera_mount.*`` parameters; ``odom → base_link`` comes
+from the base driver (``gsrmr-limo-base`` with ``publish_tf``). Without ``tf2_ros`` it logs once, at
+INFO, that no TF is published.
+
 It keeps an energy ledger (:mod:`gsrmr_robot.ledger`) under the link model of
 :mod:`gsrmr_server.scheduling` and publishes each slot's row on ``gsrmr/ledger``
 (``std_msgs/Float64MultiArray``, fields :data:`gsrmr_robot.ledger.LEDGER_FIELDS`) and totals on
@@ -25,20 +36,32 @@ from __future__ import annotations
 from collections import deque
 import math
 import threading
+from types import ModuleType
 
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Vector3Stamped
+from geometry_msgs.msg import TransformStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from sensor_msgs.msg import CompressedImage, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray
 
+from gsrmr_common.camera import CameraMount
 from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.ros_node import declare, run_node
 from gsrmr_common.ros_wire import compressed_to_msg, image_from_msg, pose_key_to_msg, schedule_from_msg, stamp_to_ns
+from gsrmr_common.tf_tree import (
+    BASE_FRAME,
+    CAMERA_OPTICAL_FRAME,
+    MAP_FRAME,
+    ODOM_FRAME,
+    Transform,
+    base_from_camera_optical_transform,
+    map_from_odom_transform,
+)
 from gsrmr_common.wire import PoseKey, ScheduleMsg, slot_ns, slot_start_ns
 from gsrmr_robot.ledger import LEDGER_FIELDS, EnergyLedger
 from gsrmr_server.link_params import LinkBudget
@@ -46,6 +69,39 @@ from gsrmr_server.link_params import LinkBudget
 UPLINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 SCHEDULE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# Latched: the server (started before or after the robot) always holds the newest calibration.
+CAMERA_INFO_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def load_tf2_ros() -> tuple[ModuleType | None, str]:
+    """``(tf2_ros, "")`` where tf2_ros imports (a ROS 2 install), else ``(None, why)``.
+
+    The one guarded import of tf2_ros (the PyPI wheels this project also runs on do not ship it).
+    """
+    try:
+        import tf2_ros
+    except ImportError as err:
+        return None, f"tf2_ros does not import ({err})"
+    return tf2_ros, ""
+
+
+def transform_to_msg(parent_frame: str, child_frame: str, transform: Transform, stamp: Time) -> TransformStamped:
+    """``geometry_msgs/TransformStamped``: the pose of ``child_frame`` in ``parent_frame`` (metres, unit quaternion)."""
+    msg = TransformStamped()
+    msg.header.stamp = stamp
+    msg.header.frame_id = parent_frame
+    msg.child_frame_id = child_frame
+    t, q = msg.transform.translation, msg.transform.rotation
+    t.x, t.y, t.z = transform.translation
+    q.x, q.y, q.z, q.w = transform.rotation
+    return msg
+
+
+def camera_info_key(msg: CameraInfo) -> tuple:
+    """What makes two CameraInfo messages the same calibration: K, D, size, distortion model, frame_id."""
+    return (tuple(float(v) for v in msg.k), tuple(float(v) for v in msg.d), int(msg.width), int(msg.height),
+            msg.distortion_model, msg.header.frame_id)
 
 
 def yaw_of(q) -> float:
@@ -68,9 +124,25 @@ class RobotNode(Node):
                                        min_value=0.0, max_value=10.0)
         self.map_from_odom = list(declare(self, "map_from_odom", [0.0, 0.0, 0.0],
                                           "Pose of the odom frame in map: [a_m, b_m, theta_rad]"))
-        self.camera_frame = declare(self, "camera_frame_id", "camera_optical_frame", "Frame of uploaded images")
+        self.camera_frame = declare(self, "camera_frame_id", CAMERA_OPTICAL_FRAME,
+                                    "Frame of uploaded images: the camera's optical frame (x right, y down, z forward)")
+        self.odom_frame = declare(self, "odom_frame_id", ODOM_FRAME, "Odometry frame (child of map in TF)",
+                                  read_only=True)
+        self.base_frame = declare(self, "base_frame_id", BASE_FRAME, "Robot body frame (parent of the camera in TF)",
+                                  read_only=True)
+        d = CameraMount()
+        self.mount = CameraMount(
+            height_m=declare(self, "camera_mount.height_m", d.height_m, "Optical centre above base_link [m]",
+                             min_value=-10.0, max_value=10.0, read_only=True),
+            pitch_rad=declare(self, "camera_mount.pitch_rad", d.pitch_rad, "Camera pitch, positive = looking "
+                              "down [rad]", min_value=-1.5, max_value=1.5, read_only=True),
+            forward_m=declare(self, "camera_mount.forward_m", d.forward_m, "Optical centre ahead of base_link [m]",
+                              min_value=-10.0, max_value=10.0, read_only=True),
+            left_m=declare(self, "camera_mount.left_m", d.left_m, "Optical centre left of base_link [m]",
+                           min_value=-10.0, max_value=10.0, read_only=True))
         self.link = LinkBudget.from_node_parameters(self)
         self.add_on_set_parameters_callback(self._validate)
+        self.add_post_set_parameters_callback(self._after_set)
         self._slot_len_ns = slot_ns(self.slot_s)
         self._lock = threading.Lock()
         self._frame: np.ndarray | None = None
@@ -90,14 +162,40 @@ class RobotNode(Node):
                                               QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         self._pub_ledger = self.create_publisher(Float64MultiArray, "gsrmr/ledger", UPLINK_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._pub_info = self.create_publisher(CameraInfo, "uplink/camera_info", CAMERA_INFO_QOS)
+        self._info_key: tuple | None = None
+        self.camera_info_changes = 0
         self.create_subscription(Image, "camera/image_raw", self._on_image, qos_profile_sensor_data)
+        self.create_subscription(CameraInfo, "camera/camera_info", self._on_camera_info, qos_profile_sensor_data)
         self.create_subscription(Odometry, "odom", self._on_odom, 20)
         self.create_subscription(Float64MultiArray, "gsrmr/schedule", self._on_schedule, SCHEDULE_QOS)
         # 5 ms tick: slot starts are detected with ≤ 5 ms jitter without a drifting periodic timer.
         self.create_timer(0.005, self._tick)
         self.create_timer(1.0, self._publish_diagnostics)
+        self._tf_static = None
+        tf2_ros, why = load_tf2_ros()
+        if tf2_ros is None:
+            self.get_logger().info(f"TF not published: {why}; map → {self.odom_frame} and {self.base_frame} → "
+                                   f"{self.camera_frame} need a ROS 2 install with tf2_ros")
+        else:
+            self._tf_static = tf2_ros.StaticTransformBroadcaster(self)
+            self._send_static_tf()
         self.get_logger().info(f"robot uplink: τ={self.slot_s}s, JPEG q={self.jpeg_quality}, "
                                f"server at {self.link.server_position_m}")
+
+    def _send_static_tf(self) -> None:
+        """(Re)send map → odom and base_link → camera on /tf_static, both in one message.
+
+        rclpy's StaticTransformBroadcaster latches only the last message it sent (depth 1), so every
+        send must carry all of this node's static transforms.
+        """
+        if self._tf_static is None:
+            return
+        stamp = self.get_clock().now().to_msg()
+        self._tf_static.sendTransform([
+            transform_to_msg(MAP_FRAME, self.odom_frame, map_from_odom_transform(*self.map_from_odom), stamp),
+            transform_to_msg(self.base_frame, self.camera_frame, base_from_camera_optical_transform(self.mount),
+                             stamp)])
 
     def _validate(self, params) -> SetParametersResult:
         for p in params:
@@ -110,7 +208,24 @@ class RobotNode(Node):
                 self.jpeg_quality = int(p.value)
         return SetParametersResult(successful=True)
 
+    def _after_set(self, params) -> None:
+        """Re-send the static TF once a new map_from_odom is in effect."""
+        if any(p.name == "map_from_odom" for p in params):
+            self._send_static_tf()
+
     # ---------------------------------------------------------------- inputs
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        """Relay the calibration to ``uplink/camera_info`` (latched) when it differs from the last one sent."""
+        key = camera_info_key(msg)
+        if key == self._info_key:
+            return
+        self._info_key = key
+        self.camera_info_changes += 1
+        self._pub_info.publish(msg)
+        self.get_logger().info(f"camera_info → uplink/camera_info: {msg.width}×{msg.height}, frame "
+                               f"{msg.header.frame_id!r}, K={[round(float(v), 3) for v in msg.k]}, "
+                               f"{msg.distortion_model} D={[float(v) for v in msg.d]}")
+
     def _on_image(self, msg: Image) -> None:
         try:
             rgb = image_from_msg(msg)
@@ -207,7 +322,8 @@ class RobotNode(Node):
     def _publish_diagnostics(self) -> None:
         totals = self.ledger.totals()
         extra = {"schedule_misses": self.schedule_misses, "no_frame": self.no_frame, "no_pose": self.no_pose,
-                 "schedule_seq": self._schedule.seq if self._schedule else -1}
+                 "schedule_seq": self._schedule.seq if self._schedule else -1,
+                 "camera_info_changes": self.camera_info_changes, "tf_published": self._tf_static is not None}
         level = DiagnosticStatus.OK if not (self.no_frame or self.no_pose) else DiagnosticStatus.WARN
         status = DiagnosticStatus(level=level, name=f"{self.get_name()}: uplink energy ledger",
                                   hardware_id="gsrmr_robot",

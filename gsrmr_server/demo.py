@@ -113,7 +113,6 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
                       loss_threshold=loss_threshold, link_path=link, laps=1, method=method,
                       loss_map_file=str(loss_map), state_dir=str(run_dir / "scheduler_state"))
     env = environment(domain)
-    bin_dir = Path(sys.executable).parent
     logs = run_dir / "logs"
     logs.mkdir(parents=True, exist_ok=True)
     procs: list[tuple[str, subprocess.Popen]] = []
@@ -121,7 +120,7 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
     csv_path = run_dir / "recording" / "slots.csv"
 
     def start(spec) -> None:
-        argv = command_line(spec, bin_dir, run_dir / "params")
+        argv = command_line(spec, None, run_dir / "params")
         out = (logs / f"{spec.name}.log").open("w")
         procs.append((spec.name, subprocess.Popen(argv, env=env, stdout=out, stderr=subprocess.STDOUT,
                                                   start_new_session=True)))

@@ -16,7 +16,9 @@ Output directory layout
     the topics :data:`TOPIC_MR_IMAGE` (``sensor_msgs/msg/CompressedImage``: the MR image m̂_t as JPEG,
     ``format = wire.JPEG_FORMAT``), :data:`TOPIC_CMD_VEL` (``geometry_msgs/msg/TwistStamped``: u_t in
     ``base_link``, m/s and rad/s) and :data:`TOPIC_SLOT_LOG` (``std_msgs/msg/String``: the CSV row as
-    JSON). Every message's ``log_time``/``publish_time`` and header stamp is the slot start. Opens in
+    JSON). Every message's ``log_time``/``publish_time`` and header stamp is the slot start. Other
+    topics come through :meth:`RunRecorder.write_message`, e.g. :data:`TOPIC_CAMERA_INFO`
+    (``sensor_msgs/msg/CameraInfo``, the robot's calibration, logged when it arrives). Opens in
     Foxglove and ``ros2 bag info/play`` (MCAP storage plugin); channels carry
     ``offered_qos_profiles = "[]"`` (the player then uses its default QoS).
 
@@ -77,6 +79,8 @@ SOURCES = ("image", "render", "fallback")
 TOPIC_MR_IMAGE = "/gsrmr/mr/image/compressed"
 TOPIC_CMD_VEL = "/gsrmr/cmd_vel"
 TOPIC_SLOT_LOG = "/gsrmr/slot_log"
+# Written by the server through write_message when the robot's calibration arrives (not per slot).
+TOPIC_CAMERA_INFO = "/gsrmr/camera_info"
 TOPIC_TYPES = {
     TOPIC_MR_IMAGE: "sensor_msgs/msg/CompressedImage",
     TOPIC_CMD_VEL: "geometry_msgs/msg/TwistStamped",
@@ -215,6 +219,22 @@ def read_slots_csv(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
     return [{c: _parse_cell(c, row[c]) for c in CSV_COLUMNS} for row in reader]
 
 
+def _encodable(value: Any) -> Any:
+    """A generated ROS message as nested dicts for mcap-ros2-support's encoder, which refuses numpy arrays.
+
+    rclpy holds fixed-size numeric arrays (``CameraInfo.k``, ``Odometry`` covariances) as numpy arrays;
+    they become lists. ``bytes`` and ``array.array`` (``uint8[]`` data, sequences) pass unchanged.
+    """
+    fields = getattr(value, "get_fields_and_field_types", None)
+    if callable(fields):
+        return {name: _encodable(getattr(value, name)) for name in fields()}
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, list):  # sequences of nested messages
+        return [_encodable(item) for item in value]
+    return value
+
+
 def _json_value(value: Any) -> Any:
     return None if isinstance(value, float) and not math.isfinite(value) else value
 
@@ -344,7 +364,7 @@ class RunRecorder:
     """
 
     def __init__(self, out_dir: str | os.PathLike[str], *, segment_slots: int = 50, jpeg_quality: int = 80,
-                 image_frame_id: str = "camera_optical", cmd_frame_id: str = "base_link",
+                 image_frame_id: str = "camera_optical_frame", cmd_frame_id: str = "base_link",
                  fsync: bool = False, chunk_bytes: int = 256 * 1024) -> None:
         if segment_slots < 1:
             raise ValueError(f"segment_slots must be >= 1, got {segment_slots}")
@@ -400,7 +420,8 @@ class RunRecorder:
         if schema is None:
             schema = self._writer.register_msgdef(type_name, self._definitions[type_name])
             self._schemas[type_name] = schema
-        self._writer.write_message(topic, schema, msg, log_time=stamp_ns, publish_time=stamp_ns, sequence=seq)
+        self._writer.write_message(topic, schema, _encodable(msg), log_time=stamp_ns, publish_time=stamp_ns,
+                                   sequence=seq)
 
     def _finish_segment(self) -> None:
         if self._writer is None:
@@ -511,8 +532,8 @@ class RunRecorder:
         self.close()
 
 
-__all__ = ["CSV_COLUMNS", "SOURCES", "TOPIC_CMD_VEL", "TOPIC_MR_IMAGE", "TOPIC_SLOT_LOG", "TOPIC_TYPES",
-           "RunRecorder", "merge_segments", "message_definition", "read_mcap", "read_slots_csv",
+__all__ = ["CSV_COLUMNS", "SOURCES", "TOPIC_CAMERA_INFO", "TOPIC_CMD_VEL", "TOPIC_MR_IMAGE", "TOPIC_SLOT_LOG",
+           "TOPIC_TYPES", "RunRecorder", "merge_segments", "message_definition", "read_mcap", "read_slots_csv",
            "recover_run"]
 
 

@@ -15,6 +15,10 @@ Subscribes: ``uplink/pose_key`` (geometry_msgs/Vector3Stamped), ``uplink/image_r
 ``gsrmr/ledger`` (std_msgs/Float64MultiArray, the robot's per-slot energy row), ``cmd_vel``
 (geometry_msgs/Twist, u_t for the recording), and — only with ``evaluate_ground_truth`` in
 simulation — ``camera/image_raw`` (the true r_t, to measure loss/PSNR/SSIM of m̂_t against m_t).
+``uplink/camera_info`` (sensor_msgs/CameraInfo, reliable, transient local, depth 1: the robot's latched
+calibration) is compared with the intrinsics the node renders with (the scene's camera): a mismatch is
+logged once at WARN and shown in ``/diagnostics`` (key ``camera_info``); the last one is kept in
+``camera_info`` / ``camera_info_intrinsics`` and recorded on ``/gsrmr/camera_info``.
 
 Publishes: ``mr/image`` (sensor_msgs/Image rgb8, frame ``camera_optical_frame``, stamp = slot start),
 ``mr/image/compressed`` (JPEG), ``gsrmr/loss_sample`` (std_msgs/Float64MultiArray
@@ -36,9 +40,10 @@ import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from sensor_msgs.msg import CompressedImage, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray
 
+from gsrmr_common.camera import Intrinsics
 from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.metrics import image_quality
 from gsrmr_common.ros_node import declare, run_node
@@ -46,6 +51,7 @@ from gsrmr_common.ros_wire import (
     compressed_to_msg,
     image_from_msg,
     image_to_msg,
+    intrinsics_from_camera_info,
     pose_key_from_msg,
     schedule_from_msg,
     stamp_to_ns,
@@ -53,7 +59,7 @@ from gsrmr_common.ros_wire import (
 from gsrmr_common.wire import MAX_COMPRESSED_BYTES, PoseKey, ScheduleMsg, slot_index, slot_ns, slot_start_ns
 from gsrmr_robot.ledger import LEDGER_FIELDS
 from gsrmr_server.compose import MRComposer, to_u8
-from gsrmr_server.recording import RunRecorder
+from gsrmr_server.recording import TOPIC_CAMERA_INFO, RunRecorder
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.uplink import SlotUploads, UplinkAssembler
 from gsrmr_server.world.recorder import with_resolution
@@ -63,6 +69,17 @@ from gsrmr_server.world.virtual import VirtualViewSource, mr_image
 UPLINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 SCHEDULE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
+CAMERA_INFO_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)  # the robot's latched relay
+
+
+def intrinsics_mismatch(got: Intrinsics, want: Intrinsics, tol_px: float = 1e-3) -> str | None:
+    """How ``got`` differs from ``want`` (image size exactly, fx, fy, cx, cy within ``tol_px`` pixels), or None."""
+    if (got.width, got.height) != (want.width, want.height):
+        return f"size {got.width}×{got.height} != {want.width}×{want.height}"
+    diffs = [f"{name} {getattr(got, name):.3f} != {getattr(want, name):.3f}" for name in ("fx", "fy", "cx", "cy")
+             if abs(getattr(got, name) - getattr(want, name)) > tol_px]
+    return ", ".join(diffs) or None
 
 
 class ServerNode(Node):
@@ -124,6 +141,10 @@ class ServerNode(Node):
         self.stage_ms: dict[str, deque[float]] = {}
         self.recorder = RunRecorder(record_dir) if record_dir else None
         self.eval_rows: list[dict] = []
+        self.camera_info: CameraInfo | None = None  # last one received (a later issue may render with it)
+        self.camera_info_intrinsics: Intrinsics | None = None  # its intrinsics, None if unusable
+        self.camera_info_status = "none received"
+        self._camera_info_warned: str | None = None
 
         # One thread: uploads that arrive while a slot is composed are taken right after it (DDS queues
         # them). A second executor thread made composition several times slower: the GIL passes between
@@ -140,6 +161,8 @@ class ServerNode(Node):
                                  callback_group=io)
         self.create_subscription(Float64MultiArray, "gsrmr/ledger", self._on_ledger, UPLINK_QOS, callback_group=io)
         self.create_subscription(Twist, "cmd_vel", self._on_cmd, 10, callback_group=io)
+        self.create_subscription(CameraInfo, "uplink/camera_info", self._on_camera_info, CAMERA_INFO_QOS,
+                                 callback_group=io)
         if self.evaluate:
             self.create_subscription(Image, "camera/image_raw", self._on_camera, qos_profile_sensor_data,
                                      callback_group=io)
@@ -208,6 +231,25 @@ class ServerNode(Node):
 
     def _on_cmd(self, msg: Twist) -> None:
         self._cmd = (float(msg.linear.x), float(msg.angular.z))
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        """Keep the robot's calibration; WARN once (per distinct problem) if it is not what we render with."""
+        try:
+            got: Intrinsics | None = intrinsics_from_camera_info(msg)
+            problem = intrinsics_mismatch(got, self.intrinsics)
+        except ValueError as err:  # distortion, skew, uncalibrated: our pinhole renderer cannot match it
+            got, problem = None, str(err)
+        with self._lock:
+            self.camera_info, self.camera_info_intrinsics = msg, got
+            self.camera_info_status = "match" if problem is None else f"mismatch: {problem}"
+        if problem is not None and problem != self._camera_info_warned:
+            self._camera_info_warned = problem
+            self.get_logger().warning(f"camera_info from the robot does not match the render intrinsics "
+                                      f"(scene camera {self.intrinsics.width}×{self.intrinsics.height}, "
+                                      f"fx={self.intrinsics.fx:.3f} fy={self.intrinsics.fy:.3f} "
+                                      f"cx={self.intrinsics.cx:.3f} cy={self.intrinsics.cy:.3f}): {problem}")
+        if self.recorder is not None:
+            self.recorder.write_message(TOPIC_CAMERA_INFO, msg, self.get_clock().now().nanoseconds)
 
     def _on_camera(self, msg: Image) -> None:
         try:
@@ -320,9 +362,15 @@ class ServerNode(Node):
                   "latency_ms_p99": round(float(np.percentile(lat, 99)), 2),
                   "sources": json.dumps(self.sources), "faults": json.dumps(dict(self.uplink.faults)),
                   "compose_ms_p50": json.dumps(self._stage_medians())}
-        level = DiagnosticStatus.OK if not self.uplink.faults else DiagnosticStatus.WARN
+        with self._lock:
+            info_status = self.camera_info_status
+        values["camera_info"] = info_status
+        problems = ["uplink faults counted"] if self.uplink.faults else []
+        if info_status.startswith("mismatch"):
+            problems.append("camera_info mismatch")
+        level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
         status = DiagnosticStatus(level=level, name=f"{self.get_name()}: MR composition", hardware_id="gsrmr_server",
-                                  message="ok" if level == DiagnosticStatus.OK else "uplink faults counted",
+                                  message="; ".join(problems) or "ok",
                                   values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = self.get_clock().now().to_msg()

@@ -12,6 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import os
 from pathlib import Path
+import shutil
+import sys
 import tempfile
 from typing import Any
 
@@ -63,23 +65,28 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
               config: Path | None = None) -> list[ProcessSpec]:
     """Every process of the simulated closed loop (mock base and camera, robot, server, scheduler)."""
     cfg = config or config_dir()
-    link, robot, server = (str(cfg / n) for n in ("link.yaml", "robot.yaml", "server.yaml"))
+    link, base, robot, server, scheduler = (
+        str(cfg / n) for n in ("link.yaml", "limo_base.yaml", "robot.yaml", "server.yaml", "scheduler.yaml"))
     sc = load_scene(scene)
     a0, b0, t0 = start_pose(sc.route)
+    mount = sc.camera.mount  # the simulated camera's mount: base_link → camera_optical_frame on /tf_static
     over = overrides or {}
     specs = [
         ProcessSpec("gsrmr-mock-limo", "gsrmr_mock_limo", ros=True,
                     arguments=["--link", link_path, f"--start-pose={a0},{b0},{t0}"], nice=WORLD_NICE),
-        ProcessSpec("gsrmr-limo-base", "gsrmr_limo_base", [robot], {"port": link_path}),
+        ProcessSpec("gsrmr-limo-base", "gsrmr_limo_base", [base], {"port": link_path}),
         ProcessSpec("gsrmr-mock-camera", "gsrmr_mock_camera", [],
                     {"scene": scene, "round": 2, "clock_from_motion": True}, nice=WORLD_NICE),
         ProcessSpec("gsrmr-route-follower", "gsrmr_route_follower", [],
                     {"scene": scene, "laps": laps, "odom_topic": "/sim/ground_truth/odom"}, nice=WORLD_NICE),
-        ProcessSpec("gsrmr-robot", "gsrmr_robot", [link, robot], {"map_from_odom": [a0, b0, t0]}),
+        ProcessSpec("gsrmr-robot", "gsrmr_robot", [link, robot],
+                    {"map_from_odom": [a0, b0, t0], "camera_mount.height_m": mount.height_m,
+                     "camera_mount.pitch_rad": mount.pitch_rad, "camera_mount.forward_m": mount.forward_m,
+                     "camera_mount.left_m": mount.left_m}),
         ProcessSpec("gsrmr-server", "gsrmr_server", [link, server],
                     {"scene": scene, "model_path": model_path, "record_dir": record_dir,
                      "evaluate_ground_truth": True}),
-        ProcessSpec("gsrmr-scheduler", "gsrmr_scheduler", [link, server],
+        ProcessSpec("gsrmr-scheduler", "gsrmr_scheduler", [link, scheduler],
                     {"scene": scene, "loss_threshold": loss_threshold, "method": method,
                      "loss_map_file": loss_map_file, "state_dir": state_dir}),
     ]
@@ -93,9 +100,47 @@ def nice_prefix(spec: ProcessSpec) -> list[str]:
     return ["nice", "-n", str(spec.nice)] if spec.nice else []
 
 
-def command_line(spec: ProcessSpec, bin_dir: str | Path, param_dir: str | Path | None = None) -> list[str]:
-    """argv that runs ``spec`` as a process (overrides go through a generated parameter file)."""
-    argv = [*nice_prefix(spec), str(Path(bin_dir) / spec.executable), *spec.arguments]
+def executable_path(name: str) -> Path:
+    """Where the installed package exposes console script ``name``, found as ``ros2 run`` finds it.
+
+    In order: ``<prefix>/lib/gsrmr/<name>`` of the ament-indexed package (``colcon build`` and a
+    sourced ``install/setup.bash``, or a ROS install), the folder of the running interpreter (a venv's
+    ``bin`` after ``pip install``), then ``PATH``. Raises ``FileNotFoundError`` naming every place
+    looked at.
+    """
+    tried: list[str] = []
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+
+        try:
+            candidate = Path(get_package_prefix("gsrmr")) / "lib" / "gsrmr" / name
+            if candidate.is_file() and os.access(candidate, os.X_OK):
+                return candidate
+            tried.append(str(candidate))
+        except (PackageNotFoundError, LookupError, OSError):  # OSError: AMENT_PREFIX_PATH not set at all
+            tried.append("ament index (gsrmr not indexed: AMENT_PREFIX_PATH)")
+    except ImportError:
+        tried.append("ament index (ament_index_python not installed)")
+    candidate = Path(sys.executable).parent / name
+    if candidate.is_file() and os.access(candidate, os.X_OK):
+        return candidate
+    tried.append(str(candidate))
+    found = shutil.which(name)
+    if found:
+        return Path(found)
+    tried.append("PATH")
+    raise FileNotFoundError(f"console script {name} not found; looked in: {', '.join(tried)}")
+
+
+def command_line(spec: ProcessSpec, bin_dir: str | Path | None = None,
+                 param_dir: str | Path | None = None) -> list[str]:
+    """argv that runs ``spec`` as a process (overrides go through a generated parameter file).
+
+    Every file is keyed ``/**``, as ``launch_ros`` writes a launch file's parameter dict, so the
+    overrides (the last file) win over the package's config files exactly as under ``ros2 launch``.
+    """
+    exe = executable_path(spec.executable) if bin_dir is None else Path(bin_dir) / spec.executable
+    argv = [*nice_prefix(spec), str(exe), *spec.arguments]
     if not spec.ros:
         return argv
     ros = ["--ros-args", "-r", f"__node:={spec.name}"]
@@ -105,7 +150,7 @@ def command_line(spec: ProcessSpec, bin_dir: str | Path, param_dir: str | Path |
         folder = Path(param_dir or tempfile.mkdtemp(prefix="gsrmr-params-"))
         folder.mkdir(parents=True, exist_ok=True)
         path = folder / f"{spec.name}.yaml"
-        path.write_text(yaml.safe_dump({spec.name: {"ros__parameters": spec.params}}))
+        path.write_text(yaml.safe_dump({"/**": {"ros__parameters": spec.params}}))
         ros += ["--params-file", str(path)]
     for src, dst in spec.remappings:
         ros += ["-r", f"{src}:={dst}"]

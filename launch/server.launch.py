@@ -1,6 +1,10 @@
 """On the workstation: MR composition server + online scheduler.
 
 ros2 launch gsrmr server.launch.py model_path:=/path/to/sandbox.ply loss_threshold:=0.03
+
+Parameters: config/link.yaml (shared uplink model), config/server.yaml, config/scheduler.yaml — every
+file keyed ``/**``, so the launch arguments below (passed after them) always win, also under
+``namespace:=…``.
 """
 
 import os
@@ -10,22 +14,29 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
+
+
+def _arg(name: str, value_type: type) -> ParameterValue:
+    return ParameterValue(LaunchConfiguration(name), value_type=value_type)
 
 
 def generate_launch_description() -> LaunchDescription:
-    share = get_package_share_directory("gsrmr")
-    link = os.path.join(share, "config", "link.yaml")
-    server = os.path.join(share, "config", "server.yaml")
+    config = os.path.join(get_package_share_directory("gsrmr"), "config")
+    link, server, scheduler = (os.path.join(config, n) for n in ("link.yaml", "server.yaml", "scheduler.yaml"))
+    namespace = LaunchConfiguration("namespace")
     return LaunchDescription([
-        DeclareLaunchArgument("model_path", description="Gaussian-splatting model (.ply)"),
-        DeclareLaunchArgument("scene", default_value="sandbox"),
-        DeclareLaunchArgument("loss_threshold", default_value="0.03"),
+        DeclareLaunchArgument("model_path", description="Gaussian-splatting model (.ply, 3DGS layout)"),
+        DeclareLaunchArgument("scene", default_value="sandbox", description="scene name or YAML path"),
+        DeclareLaunchArgument("loss_threshold", default_value="0.03", description="average MR-loss budget L_th"),
+        DeclareLaunchArgument("method", default_value="exact", description="scheduling method"),
         DeclareLaunchArgument("record_dir", default_value="", description="slots.csv + MCAP ('' = off)"),
-        Node(package="gsrmr", executable="gsrmr-server", name="gsrmr_server", output="screen",
-             parameters=[link, server, {"model_path": LaunchConfiguration("model_path"),
-                                        "scene": LaunchConfiguration("scene"),
-                                        "record_dir": LaunchConfiguration("record_dir")}]),
-        Node(package="gsrmr", executable="gsrmr-scheduler", name="gsrmr_scheduler", output="screen",
-             parameters=[link, server, {"scene": LaunchConfiguration("scene"),
-                                        "loss_threshold": LaunchConfiguration("loss_threshold")}]),
+        DeclareLaunchArgument("namespace", default_value="", description="ROS namespace of both nodes"),
+        Node(package="gsrmr", executable="gsrmr-server", name="gsrmr_server", namespace=namespace, output="screen",
+             parameters=[link, server, {"model_path": _arg("model_path", str), "scene": _arg("scene", str),
+                                        "record_dir": _arg("record_dir", str)}]),
+        Node(package="gsrmr", executable="gsrmr-scheduler", name="gsrmr_scheduler", namespace=namespace,
+             output="screen",
+             parameters=[link, scheduler, {"scene": _arg("scene", str), "method": _arg("method", str),
+                                           "loss_threshold": _arg("loss_threshold", float)}]),
     ])

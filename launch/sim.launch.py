@@ -1,7 +1,9 @@
 """Everything on one machine: mock LIMO and camera, route follower, robot, server and scheduler.
 
 ros2 launch gsrmr sim.launch.py model_path:=/path/to/sandbox.ply record_dir:=/tmp/gsrmr_run
-The process list comes from gsrmr_server.sim_stack, the same definition `make demo` runs.
+
+The process list comes from gsrmr_server.sim_stack, the same definition `make demo` runs. Every
+config file is keyed ``/**`` and the launch arguments come after them, so the arguments always win.
 """
 
 from launch import LaunchDescription
@@ -15,8 +17,10 @@ from gsrmr_server.sim_stack import nice_prefix, sim_stack
 def _nodes(context):
     arg = lambda name: LaunchConfiguration(name).perform(context)  # noqa: E731
     specs = sim_stack(scene=arg("scene"), model_path=arg("model_path"), record_dir=arg("record_dir"),
-                      loss_threshold=float(arg("loss_threshold")), laps=int(arg("laps")))
-    return [Node(package="gsrmr", executable=s.executable, name=s.name, output="screen",
+                      loss_threshold=float(arg("loss_threshold")), laps=int(arg("laps")), method=arg("method"),
+                      link_path=arg("serial_link"))
+    namespace = arg("namespace")
+    return [Node(package="gsrmr", executable=s.executable, name=s.name, namespace=namespace, output="screen",
                  arguments=s.arguments, parameters=[*s.param_files, s.params] if s.params else s.param_files,
                  remappings=s.remappings, prefix=" ".join(nice_prefix(s)) or None)
             for s in specs]
@@ -25,9 +29,13 @@ def _nodes(context):
 def generate_launch_description() -> LaunchDescription:
     return LaunchDescription([
         DeclareLaunchArgument("model_path", description="Gaussian-splatting model of the scene (.ply)"),
-        DeclareLaunchArgument("scene", default_value="sandbox"),
-        DeclareLaunchArgument("record_dir", default_value=""),
-        DeclareLaunchArgument("loss_threshold", default_value="0.03"),
-        DeclareLaunchArgument("laps", default_value="1"),
+        DeclareLaunchArgument("scene", default_value="sandbox", description="scene name or YAML path"),
+        DeclareLaunchArgument("record_dir", default_value="", description="slots.csv + MCAP ('' = off)"),
+        DeclareLaunchArgument("loss_threshold", default_value="0.03", description="average MR-loss budget L_th"),
+        DeclareLaunchArgument("method", default_value="exact", description="scheduling method"),
+        DeclareLaunchArgument("laps", default_value="1", description="route laps of round 2 (0 = forever)"),
+        DeclareLaunchArgument("serial_link", default_value="/tmp/gsrmr_limo",
+                              description="pty symlink of the mock LIMO's serial port"),
+        DeclareLaunchArgument("namespace", default_value="", description="ROS namespace of every node"),
         OpaqueFunction(function=_nodes),
     ])

@@ -13,13 +13,11 @@ from pathlib import Path
 import random
 import signal
 import subprocess
-import sys
 import time
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-BIN = Path(sys.executable).parent
 _domains = itertools.count(random.Random(os.getpid() ^ time.time_ns()).randrange(1, 101))
 
 
@@ -48,10 +46,11 @@ class ProcessHarness:
         self.procs: list[tuple[subprocess.Popen, Path, Path]] = []
 
     def start(self, script: str, *args: str) -> subprocess.Popen:
-        """Start ``.venv/bin/<script> args…``; stdout/stderr go to files under tmp_path."""
-        exe = BIN / script
-        if not exe.exists():
-            raise FileNotFoundError(f"console script {script} not installed in {BIN}")
+        """Start console script ``<script> args…`` where the installed package exposes it
+        (:func:`gsrmr_server.sim_stack.executable_path`); stdout/stderr go to files under tmp_path."""
+        from gsrmr_server.sim_stack import executable_path
+
+        exe = executable_path(script)
         n = len(self.procs)
         out, err = self.tmp_path / f"{n}-{script}.out", self.tmp_path / f"{n}-{script}.err"
         proc = subprocess.Popen([str(exe), *args], env=self.env, stdout=out.open("w"), stderr=err.open("w"),

@@ -14,7 +14,6 @@ import os
 from pathlib import Path
 import signal
 import subprocess
-import sys
 import time
 
 import numpy as np
@@ -76,7 +75,7 @@ class Stack:
     def start(self, name: str) -> subprocess.Popen:
         from gsrmr_server.sim_stack import command_line
 
-        argv = command_line(self.specs[name], Path(sys.executable).parent, self.tmp / "params")
+        argv = command_line(self.specs[name], None, self.tmp / "params")
         log = (self.tmp / f"{name}.log").open("a")
         proc = subprocess.Popen(argv, env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         self.procs[name] = proc

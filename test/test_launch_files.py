@@ -76,3 +76,27 @@ def test_param_files_are_valid_ros_parameter_yaml():
         data = yaml.safe_load(path.read_text())
         for node, body in data.items():
             assert set(body) == {"ros__parameters"}, (path.name, node)
+
+
+def test_param_files_are_keyed_wildcard_only():
+    """The root of the launch-argument bug: rcl applies a node-name key after every ``/**`` key, and
+    launch_ros writes a launch file's dict keyed ``/**``, so a node-keyed config value silently beat the
+    launch argument (and stopped matching under a namespace). Every config file is one node's, keyed ``/**``."""
+    import yaml
+
+    for path in (REPO / "config").glob("*.yaml"):
+        assert list(yaml.safe_load(path.read_text())) == ["/**"], path.name
+
+
+def test_generated_override_file_is_keyed_wildcard(tmp_path):
+    """The demo's and the test stacks' override files follow launch_ros: keyed ``/**``, passed last."""
+    import yaml
+
+    from gsrmr_server.sim_stack import command_line, sim_stack
+
+    spec = next(s for s in sim_stack(model_path="/m.ply", config=REPO / "config") if s.name == "gsrmr_server")
+    argv = command_line(spec, tmp_path, tmp_path / "params")
+    files = [argv[i + 1] for i, a in enumerate(argv) if a == "--params-file"]
+    assert files[:-1] == spec.param_files
+    data = yaml.safe_load(Path(files[-1]).read_text())
+    assert list(data) == ["/**"] and data["/**"]["ros__parameters"]["model_path"] == "/m.ply"

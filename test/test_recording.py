@@ -95,7 +95,7 @@ def test_round_trip_csv_and_mcap(tmp_path: Path) -> None:
     image_rows = [r for k, r in enumerate(rows) if k != 3]
     for (log_time, msg), row in zip(by_topic[rec.TOPIC_MR_IMAGE], image_rows, strict=True):
         k = row["slot"] - T0_SLOT
-        assert msg.format == wire.JPEG_FORMAT and msg.header.frame_id == "camera_optical"
+        assert msg.format == wire.JPEG_FORMAT and msg.header.frame_id == "camera_optical_frame"
         assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == log_time
         decoded = decode_jpeg(bytes(msg.data), expected_shape=(24, 32))
         assert np.abs(decoded.astype(int) - make_image(k)).mean() < 4

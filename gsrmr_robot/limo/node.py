@@ -6,8 +6,10 @@ Topics (relative names, so a namespace applies; QoS reliable, depth 10):
   angular.z [rad/s] CCW, in ``base_link``. Held for ``cmd_timeout_s``, then the base is stopped.
 * ``odom``  ``nav_msgs/Odometry`` out, one per 0x221 frame (≈50 Hz): ``odom_frame_id`` →
   ``base_frame_id`` (REP-105), pose/twist covariances filled, stamped with the host receive time
-  of the frame. With ``publish_tf`` (default false) the same transform goes to ``/tf`` (needs
-  ``tf2_msgs``; without it a warning is logged and no TF is sent).
+  of the frame. With ``publish_tf`` (default false) the same transform goes to ``/tf`` (REP-105
+  ``odom → base_link``, the middle edge of :mod:`gsrmr_common.tf_tree`): through
+  ``tf2_ros.TransformBroadcaster`` where tf2_ros imports, else as ``tf2_msgs/TFMessage`` where only
+  tf2_msgs does; with neither a warning is logged and no TF is sent.
 * ``imu``  ``sensor_msgs/Imu`` out, one per 0x323 frame, frame ``imu_frame_id``: orientation from
   the base's yaw/pitch/roll, angular velocity from 0x322 [rad/s], acceleration from 0x321 [m/s²];
   a reading never received has covariance[0] = -1 (REP-145).
@@ -17,10 +19,12 @@ Topics (relative names, so a namespace applies; QoS reliable, depth 10):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import math
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Quaternion, Twist
+from geometry_msgs.msg import Quaternion, TransformStamped, Twist
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -83,15 +87,9 @@ class LimoBaseNode(Node):
         self._odom_pub = self.create_publisher(Odometry, "odom", 10)
         self._imu_pub = self.create_publisher(Imu, "imu", 10)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self._tf_pub = None
+        self._send_tf: Callable[[TransformStamped], None] | None = None
         if self.publish_tf:
-            try:
-                from tf2_msgs.msg import TFMessage
-            except ImportError:
-                self.get_logger().warning("publish_tf is true but tf2_msgs is not installed: no TF published")
-            else:
-                self._tf_msg_type = TFMessage
-                self._tf_pub = self.create_publisher(TFMessage, "/tf", 100)
+            self._send_tf = self._tf_sender()
         self.create_subscription(Twist, "cmd_vel", self._on_cmd_vel, 10)
 
         limits = kin.Limits(max_linear_mps=max_v, max_lateral_mps=max_v, max_angular_radps=max_w)
@@ -104,6 +102,21 @@ class LimoBaseNode(Node):
         self.driver.start()
         self.get_logger().info(f"LIMO base on {port} @ {baud} Bd, mode {mode}, heading {heading}, "
                                f"commands {rate:g} Hz, timeout {timeout:g} s")
+
+    def _tf_sender(self) -> Callable[[TransformStamped], None] | None:
+        """Where odom → base_link goes: tf2_ros's broadcaster, else a raw /tf publisher, else nowhere."""
+        from gsrmr_robot.robot_node import load_tf2_ros
+
+        tf2_ros, why = load_tf2_ros()
+        if tf2_ros is not None:
+            return tf2_ros.TransformBroadcaster(self).sendTransform
+        try:
+            from tf2_msgs.msg import TFMessage
+        except ImportError:
+            self.get_logger().warning(f"publish_tf is true but {why} and tf2_msgs is not installed: no TF published")
+            return None
+        pub = self.create_publisher(TFMessage, "/tf", 100)  # what TransformBroadcaster does
+        return lambda tf: pub.publish(TFMessage(transforms=[tf]))
 
     # ---------------------------------------------------------------- parameters
     def _on_set_parameters(self, params: list) -> SetParametersResult:
@@ -156,22 +169,25 @@ class LimoBaseNode(Node):
         msg.twist.twist.angular.z = snap.velocity.wz_radps
         msg.twist.covariance = snap.twist_covariance
         self._publish(self._odom_pub, msg)
-        if self._tf_pub is not None:
-            from geometry_msgs.msg import TransformStamped
+        if self._send_tf is not None:
             tf = TransformStamped()
             tf.header = msg.header
             tf.child_frame_id = self.base_frame
             tf.transform.translation.x = snap.pose.x_m
             tf.transform.translation.y = snap.pose.y_m
             tf.transform.rotation = msg.pose.pose.orientation
-            self._publish(self._tf_pub, self._tf_msg_type(transforms=[tf]))
+            self._guarded(self._send_tf, tf)
 
     def _publish(self, pub, msg) -> None:
         """Publish from the driver's io thread; silent once the context is shutting down (SIGINT)."""
+        self._guarded(pub.publish, msg)
+
+    def _guarded(self, send: Callable[[Any], None], msg: Any) -> None:
+        """``send(msg)`` unless the node or its context is shutting down (a publish then may raise)."""
         if not self._alive or not self.context.ok():
             return
         try:
-            pub.publish(msg)
+            send(msg)
         except Exception:
             if self.context.ok():
                 raise

@@ -1,0 +1,110 @@
+"""How a gsrmr process ends on Ctrl-C: exit code 0 whenever the stop was asked for, in any phase.
+
+A shell's Ctrl-C sends SIGINT to the whole process group: ``ros2 launch`` and every node get it at
+once, and ``launch`` then sends each node a SIGINT of its own (SIGTERM 5 s later, SIGKILL after 10 s).
+A Python process that lets the resulting ``KeyboardInterrupt`` escape ends by signal (exit code −2)
+and ``launch`` reports "process has died". That happens in three places, each handled here:
+
+* **start-up** (importing numba/torch, loading a model, compiling kernels — seconds): the interrupt
+  must stop the process at once. :class:`InterruptPolicy` raises ``KeyboardInterrupt`` in this phase;
+  :func:`node_entry` catches it around the import and the node's ``main`` and returns 0.
+* **running**: rclpy's own signal handler shuts the context down and the spin ends with
+  ``ExternalShutdownException``; the policy does not raise (a raise could land anywhere in a callback).
+* **clean-up** (destroying the node, closing a recording, releasing the serial port): the second
+  SIGINT — the one ``launch`` forwards — must not interrupt it. The policy ignores it; only a third
+  signal (a user who insists) raises.
+
+* **interpreter exit**: :func:`node_entry` ignores both signals once ``main`` has returned.
+
+SIGTERM is treated as SIGINT. Pure Python, no rclpy: the robot, the server and the tests use it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+import importlib
+import signal
+import threading
+from types import FrameType
+
+START, RUNNING, CLEANUP = "start", "running", "cleanup"
+_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+# Signals received during clean-up before a KeyboardInterrupt is raised anyway (a user who insists).
+CLEANUP_PATIENCE = 2
+
+
+class InterruptPolicy:
+    """A process-wide SIGINT/SIGTERM handler whose reaction depends on the phase the process is in."""
+
+    def __init__(self) -> None:
+        self.phase = START
+        self.received = 0
+        self._cleanup_received = 0
+
+    def install(self) -> InterruptPolicy:
+        """Install the handler for SIGINT and SIGTERM (main thread only; elsewhere a no-op)."""
+        if threading.current_thread() is threading.main_thread():
+            for sig in _SIGNALS:
+                signal.signal(sig, self._handle)
+        return self
+
+    def enter(self, phase: str) -> None:
+        """Switch to ``START``, ``RUNNING`` or ``CLEANUP`` (does not touch the installed handlers, so
+        rclpy's handler, chained in front of this one at ``rclpy.init``, stays in place)."""
+        if phase not in (START, RUNNING, CLEANUP):
+            raise ValueError(f"unknown phase {phase!r}")
+        self.phase = phase
+        self._cleanup_received = 0
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        self.received += 1
+        if self.phase == START:
+            raise KeyboardInterrupt
+        if self.phase == CLEANUP:
+            self._cleanup_received += 1
+            if self._cleanup_received > CLEANUP_PATIENCE:
+                raise KeyboardInterrupt
+
+
+POLICY = InterruptPolicy()
+
+
+def node_entry(target: str) -> Callable[[], int]:
+    """A console-script entry for ``"package.module:function"`` that exits 0 when interrupted.
+
+    The module is imported inside the guard, so a Ctrl-C during the (slow) import ends the process
+    with code 0 instead of a traceback and −2.
+    """
+    module_name, function_name = target.split(":")
+
+    def main() -> int:
+        POLICY.install()
+        POLICY.enter(START)
+        try:
+            function = getattr(importlib.import_module(module_name), function_name)
+            return int(function() or 0)
+        except KeyboardInterrupt:
+            return 0
+        finally:
+            # The interpreter's own shutdown (atexit, joining threads, freeing numba/torch) can take a
+            # moment, and Python restores SIG_DFL for handled signals on the way: a signal arriving then
+            # (launch's SIGINT after the terminal's) would kill the process with −2. Ignored handlers
+            # are kept; the process is ending anyway.
+            for sig in _SIGNALS:
+                signal.signal(sig, signal.SIG_IGN)
+
+    main.__doc__ = f"Console entry of {target} (exit 0 on SIGINT/SIGTERM)."
+    return main
+
+
+# The ROS nodes' console scripts (setup.py): every one ends with code 0 on Ctrl-C.
+link_echo = node_entry("gsrmr_common.link_check:echo_main")
+link_probe = node_entry("gsrmr_common.link_check:probe_main")
+limo_base = node_entry("gsrmr_robot.limo.node:main")
+mock_limo = node_entry("gsrmr_robot.limo.mock:main")
+mock_camera = node_entry("gsrmr_server.world.camera_node:main")
+route_follower = node_entry("gsrmr_server.world.route_follower:main")
+robot = node_entry("gsrmr_robot.robot_node:main")
+server = node_entry("gsrmr_server.server_node:main")
+scheduler = node_entry("gsrmr_server.scheduler_node:main")
+uplink_relay = node_entry("gsrmr_server.fault_relay:main")

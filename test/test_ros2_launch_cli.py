@@ -1,0 +1,177 @@
+"""The ``ros2 launch`` command itself, run as a user runs it in a terminal, stopped by Ctrl-C.
+
+Each test starts ``ros2 launch gsrmr <file>`` in its own session and sends SIGINT to that session's
+process group, as a terminal's Ctrl-C does (every process gets it, then launch forwards its own). The
+exit code of every process is read from the launch log: all must be 0.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+import time
+
+from launch_support import (
+    exit_codes_from_launch_log,
+    isolate_this_process,
+    require_ros_tooling,
+    ros2,
+    ros2_until,
+    start_ros2_launch,
+)
+import pytest
+
+pytestmark = require_ros_tooling()
+
+from stack_harness import make_point_model  # noqa: E402
+
+from gsrmr_common.wire import JPEG_FORMAT  # noqa: E402
+
+SIM_PROCESSES = 7
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_ros2_launch_sim_ctrl_c_every_process_exits_zero(tmp_path):
+    isolate_this_process()
+    model = make_point_model(tmp_path, n=2000)
+    run = start_ros2_launch(tmp_path, "gsrmr", "sim.launch.py", f"model_path:={model}", "laps:=0",
+                            f"serial_link:={tmp_path / 'limo'}")
+    try:
+        assert run.wait_for("robot moving: round clock started", 90.0), run.output()[-4000:]
+        time.sleep(3.0)  # a few slots of the running loop
+        rc = run.ctrl_c()
+    finally:
+        if run.proc.poll() is None:
+            run.kill()
+    codes = exit_codes_from_launch_log(run.launch_log())
+    assert len(codes) == SIM_PROCESSES, codes
+    assert all(code == 0 for code in codes.values()), f"exit codes after Ctrl-C: {codes}\n{run.output()[-3000:]}"
+    assert rc == 0, f"ros2 launch exit code {rc}"
+    assert ros2("node", "list", "--no-daemon").stdout.strip() == "", "nodes left running after Ctrl-C"
+
+
+class UplinkProbe:
+    """Counts what the robot node uploads (pose keys, JPEG images) in the test's ROS domain."""
+
+    def __init__(self) -> None:
+        from geometry_msgs.msg import Vector3Stamped
+        import rclpy
+        from sensor_msgs.msg import CompressedImage
+
+        from gsrmr_robot.robot_node import UPLINK_QOS
+
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("robot_launch_probe", context=self.context)
+        self.keys = 0
+        self.images: list[str] = []
+        self.node.create_subscription(Vector3Stamped, "uplink/pose_key", self._on_key, UPLINK_QOS)
+        self.node.create_subscription(CompressedImage, "uplink/image_raw/compressed",
+                                      lambda m: self.images.append(m.format), UPLINK_QOS)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def _on_key(self, _msg) -> None:
+        self.keys += 1
+
+    def spin_for(self, seconds: float) -> None:
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def close(self) -> None:
+        self.executor.remove_node(self.node)
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+@pytest.mark.parametrize("stop_after_s", [1.0, 5.0, 20.0], ids=["start-up", "linking", "running"])
+def test_ros2_launch_robot_ctrl_c(ros_processes, tmp_path, stop_after_s):
+    """robot.launch.py against the mock LIMO on a pty and a camera remapped by launch arguments."""
+    link = tmp_path / "limo"
+    ros_processes.start("gsrmr-mock-limo", "--link", str(link), "--no-ros")
+    ros_processes.start("gsrmr-mock-camera", "--ros-args", "-r", "camera/image_raw:=/test_cam/image_raw",
+                        "-r", "camera/camera_info:=/test_cam/camera_info")
+    probe = None
+    if stop_after_s >= 20.0:
+
+        os.environ.update({k: ros_processes.env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
+        probe = UplinkProbe()
+    run = start_ros2_launch(tmp_path, "gsrmr", "robot.launch.py", f"port:={link}",
+                            "camera_image_topic:=/test_cam/image_raw", "camera_info_topic:=/test_cam/camera_info",
+                            env=ros_processes.env)
+    try:
+        if probe is not None:
+            probe.spin_for(stop_after_s)
+        else:
+            time.sleep(stop_after_s)
+        rc = run.ctrl_c()
+    finally:
+        if probe is not None:
+            probe.close()
+        if run.proc.poll() is None:
+            run.kill()
+    text = run.launch_log()
+    codes = exit_codes_from_launch_log(text)
+    assert all(code == 0 for code in codes.values()), f"exit codes after Ctrl-C at {stop_after_s} s: {codes}\n{text}"
+    assert rc == 0, f"ros2 launch exit code {rc}"
+    if stop_after_s >= 20.0:
+        assert len(codes) == 2, codes
+        assert "LIMO link up on" in run.output(), run.output()[-3000:]
+        assert probe.keys > 50, f"{probe.keys} pose keys uploaded in {stop_after_s} s"
+        assert probe.images and set(probe.images) == {JPEG_FORMAT}, probe.images[:5]
+
+
+@pytest.mark.ros
+def test_launch_test_command_runs_the_link_check(tmp_path):
+    """``launch_test test/test_link_check_launch.py``, the launch_testing runner a ROS user types."""
+    import subprocess
+
+    isolate_this_process()
+    test_file = Path(__file__).with_name("test_link_check_launch.py")
+    result = subprocess.run(["launch_test", str(test_file)], capture_output=True, text=True, timeout=120,
+                            cwd=tmp_path, env=dict(os.environ, ROS_LOG_DIR=str(tmp_path / "log")))
+    said = result.stdout + result.stderr
+    assert result.returncode == 0, said[-3000:]
+    assert "test_probe_reports_every_ping_answered" in said and "FAILED" not in said, said[-3000:]
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_ros2_launch_server_arguments_and_ctrl_c(tmp_path):
+    """``ros2 launch gsrmr server.launch.py`` with the README's arguments; Ctrl-C ends both nodes with 0."""
+    isolate_this_process()
+    model = make_point_model(tmp_path, n=1000)
+    shown = ros2("launch", "gsrmr", "server.launch.py", "--show-args")
+    for name in ("model_path", "scene", "loss_threshold", "method", "record_dir", "namespace"):
+        assert f"'{name}'" in shown.stdout, shown.stdout
+    run = start_ros2_launch(tmp_path, "gsrmr", "server.launch.py", f"model_path:={model}", "loss_threshold:=0.035",
+                            "scene:=sandbox", "method:=exact", f"record_dir:={tmp_path / 'record'}")
+    try:
+        got = ros2_until("param", "get", "--no-daemon", "/gsrmr_scheduler", "loss_threshold", ok="value is",
+                         attempts=20)
+        assert got.stdout.strip() == "Double value is: 0.035", got.stdout + got.stderr
+        got = ros2_until("param", "get", "--no-daemon", "/gsrmr_server", "model_path", ok="value is", attempts=20)
+        assert got.stdout.strip() == f"String value is: {model}", got.stdout + got.stderr
+        rc = run.ctrl_c()
+    finally:
+        if run.proc.poll() is None:
+            run.kill()
+    codes = exit_codes_from_launch_log(run.launch_log())
+    assert len(codes) == 2 and all(code == 0 for code in codes.values()), f"{codes}\n{run.output()[-3000:]}"
+    assert rc == 0
+
+
+def test_every_launch_file_shows_its_arguments():
+    """``ros2 launch gsrmr <file> --show-args`` (README) lists each file's arguments."""
+    expected = {"sim.launch.py": ("model_path", "scene", "record_dir", "loss_threshold", "method", "laps",
+                                  "serial_link", "namespace"),
+                "robot.launch.py": ("port", "camera_image_topic", "camera_info_topic", "jpeg_quality", "namespace")}
+    for name, args in expected.items():
+        shown = ros2("launch", "gsrmr", name, "--show-args")
+        assert shown.returncode == 0, shown.stderr
+        for arg in args:
+            assert f"'{arg}'" in shown.stdout, (name, arg, shown.stdout)

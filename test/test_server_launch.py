@@ -1,0 +1,79 @@
+"""launch_testing: the installed ``server.launch.py`` under a namespace; every launch argument reaches its node.
+
+The launch file is included from the ament index with every argument set to a non-default value and
+``namespace:=gsrmr_ws``; ``ros2 param get`` (the CLI, as a user types it) reads each value back from the
+node it was meant for. This is the regression test of the parameter precedence bug: a launch argument
+that a node-keyed YAML also set was silently ignored (rcl applies node-name keys after ``/**`` keys).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+import tempfile
+import unittest
+
+from launch_support import isolate_this_process, launch_file, require_ros_tooling, ros2_until
+import pytest
+
+needs_ros_tooling = require_ros_tooling()
+
+from ament_index_python.packages import get_package_share_directory  # noqa: E402
+import launch  # noqa: E402
+from launch.launch_description_sources import PythonLaunchDescriptionSource  # noqa: E402
+import launch_testing.actions  # noqa: E402
+import launch_testing.asserts  # noqa: E402
+from stack_harness import make_point_model  # noqa: E402
+
+NAMESPACE = "gsrmr_ws"
+
+
+@needs_ros_tooling
+@pytest.mark.launch_test
+def generate_test_description():
+    isolate_this_process()
+    folder = Path(tempfile.mkdtemp(prefix="gsrmr-server-launch-"))
+    args = {
+        "model_path": str(make_point_model(folder, n=1000)),
+        "loss_threshold": "0.035",
+        "scene": str(Path(get_package_share_directory("gsrmr")) / "config" / "scenes" / "sandbox.yaml"),
+        "record_dir": str(folder / "record"),
+        "method": "rounding",
+        "namespace": NAMESPACE,
+    }
+    server = launch.actions.IncludeLaunchDescription(PythonLaunchDescriptionSource(launch_file("server.launch.py")),
+                                                     launch_arguments=args.items())
+    return launch.LaunchDescription([server, launch_testing.actions.ReadyToTest()]), {"args": args}
+
+
+def param_get(node: str, name: str) -> str:
+    """``ros2 param get --no-daemon /<ns>/<node> <name>``'s answer (retried while discovery settles)."""
+    result = ros2_until("param", "get", "--no-daemon", f"/{NAMESPACE}/{node}", name, ok="value is:", attempts=15)
+    return (result.stdout + result.stderr).strip()
+
+
+class TestServerLaunchArguments(unittest.TestCase):
+    def test_every_argument_reaches_its_node(self, proc_info, args):
+        expected = {
+            ("gsrmr_server", "model_path"): f"String value is: {args['model_path']}",
+            ("gsrmr_server", "scene"): f"String value is: {args['scene']}",
+            ("gsrmr_server", "record_dir"): f"String value is: {args['record_dir']}",
+            ("gsrmr_scheduler", "scene"): f"String value is: {args['scene']}",
+            ("gsrmr_scheduler", "loss_threshold"): "Double value is: 0.035",
+            ("gsrmr_scheduler", "method"): "String value is: rounding",
+            # and the package's config files still apply where no argument overrides them
+            ("gsrmr_scheduler", "horizon"): "Integer value is: 100",
+            ("gsrmr_server", "jpeg_quality"): "Integer value is: 85",
+            ("gsrmr_scheduler", "bandwidth_hz"): "Double value is: 1000000.0",
+        }
+        for (node, name), answer in expected.items():
+            self.assertEqual(param_get(node, name), answer, f"{node}.{name}")
+        exited = [n for n in proc_info.process_names() if getattr(proc_info[n], "returncode", None) is not None]
+        self.assertEqual(exited, [], "a node died")
+        self.assertTrue(Path(args["record_dir"]).is_dir(), "the server did not open the record_dir it was given")
+
+
+@launch_testing.post_shutdown_test()
+class TestServerLaunchExit(unittest.TestCase):
+    def test_exit_codes(self, proc_info):
+        launch_testing.asserts.assertExitCodes(proc_info)
+        self.assertEqual(len(proc_info.process_names()), 2)

@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# The test suite as `make test` (and so CI) runs it, once.
+#
+# With the ROS 2 launch tooling (a sourced system ROS 2, or the wheels tools/bootstrap.sh installs
+# from ../shared/ros-tooling): `colcon build` indexes gsrmr in install/, and `colcon test` runs the
+# whole suite — launch_testing files included — with that install sourced, as on a ROS workspace.
+# Without it (a user's fresh clone with no ../shared): plain pytest; the launch tests skip with a reason.
+# PYTEST_ARGS (whitespace-separated) go to pytest either way.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+VENV=${VENV:-.venv}
+# shellcheck disable=SC1091
+source "$VENV/bin/activate"
+read -r -a pytest_args <<< "${PYTEST_ARGS:-}"
+
+if command -v colcon >/dev/null && python -c "import launch_testing, launch_ros, ros2cli" 2>/dev/null; then
+  echo "run_tests: colcon build + colcon test (ROS_DOMAIN_ID=${ROS_DOMAIN_ID:-0})"
+  colcon --log-base log build --base-paths . --packages-select gsrmr --symlink-install \
+    --event-handlers console_cohesion- status- summary- terminal_title- >/dev/null \
+    || { cat log/latest_build/gsrmr/stdout_stderr.log >&2; exit 1; }
+  set +u
+  # shellcheck disable=SC1091
+  source install/setup.bash
+  set -u
+  args=(--base-paths . --packages-select gsrmr --event-handlers console_direct+ status- summary- terminal_title-
+        --return-code-on-test-failure)
+  if [ ${#pytest_args[@]} -gt 0 ]; then
+    args+=(--pytest-args "${pytest_args[@]}")
+  fi
+  status=0
+  colcon --log-base log test "${args[@]}" || status=$?
+  colcon --log-base log test-result --verbose --test-result-base build/gsrmr || status=$?
+  exit $status
+fi
+echo "run_tests: no ROS 2 launch tooling (no system ROS 2, no ../shared/ros-tooling): plain pytest"
+exec python -m pytest "${pytest_args[@]}"
