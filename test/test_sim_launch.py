@@ -135,6 +135,8 @@ class TestSimLaunch(unittest.TestCase):
         last = int(probe.lap_done_at_s / SLOT_S) - 1
         round_slots = set(range(first, last + 1))
         got = len(round_slots & probe.mr_slots)
+        print(f"sim.launch.py round: MR images for {got} of {len(round_slots)} round slots "
+              f"({100.0 * got / max(1, len(round_slots)):.1f} %)", flush=True)
         self.assertGreater(len(round_slots), 200, "round implausibly short")
         self.assertGreaterEqual(got / len(round_slots), 0.95,
                                 f"MR images for {got} of {len(round_slots)} round slots")
