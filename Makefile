@@ -19,6 +19,7 @@ venv:
 
 lint: venv
 	$(VENV)/bin/ruff check .
+	$(VENV)/bin/lint-imports
 
 pytest: venv
 	$(PY) -m pytest $(PYTEST_ARGS)
@@ -26,6 +27,7 @@ pytest: venv
 test: venv
 	@echo "make test: ROS_DOMAIN_ID=$(ROS_DOMAIN_ID) ROS_AUTOMATIC_DISCOVERY_RANGE=$(ROS_AUTOMATIC_DISCOVERY_RANGE)"
 	$(VENV)/bin/ruff check .
+	$(VENV)/bin/lint-imports
 	@VENV=$(VENV) PYTEST_ARGS="$(PYTEST_ARGS)" bash tools/run_tests.sh
 
 demo: venv

@@ -1,4 +1,10 @@
-"""Uplink closed forms (pure numpy, no rclpy): rate, required power and energy, in the log domain.
+"""The uplink link model (pure numpy, no rclpy): rate, required power and energy, and the link budget.
+
+One module for the robot (its energy ledger), the scheduler (its plan) and the experiments. The
+parameters live in :class:`LinkBudget` (SI units; ``config/link.yaml`` on the nodes, declared by
+:func:`gsrmr_common.ros_node.declare_link_budget`); the fading draws in :mod:`gsrmr_common.channel`.
+
+Closed forms, in the log domain:
 
 Shannon rate of slot t: ``R_t(p) = B·log2(1 + g_t·p/σ²)`` bits/s (``g_t = |h_t|²`` dimensionless power gain,
 ``σ²`` = ``noise_w`` watts, ``B`` = ``bandwidth_hz``). Carrying ``D`` bits in one slot of ``τ`` seconds needs
@@ -14,9 +20,12 @@ is not representable or the gain is 0: such a slot cannot carry ``D`` bits.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 import math
 
 import numpy as np
+
+from gsrmr_common.channel import ChannelModel
 
 LN2 = math.log(2.0)
 #: ln of the largest float64 kept as a finite power/energy (leaves headroom for sums and products).
@@ -97,3 +106,36 @@ def slot_bits(power_w: ArrayLike, gain: ArrayLike, slot_s: float, bandwidth_hz: 
     """Bits carried in one slot: ``τ·R(p)``."""
     r = rate_bps(power_w, gain, bandwidth_hz, noise_w)
     return slot_s * np.asarray(r) if np.ndim(r) else slot_s * float(r)
+
+
+@dataclass(frozen=True)
+class LinkBudget:
+    """Uplink parameters in SI units (distances in metres in ``map``)."""
+
+    bandwidth_hz: float = 1e6
+    noise_w: float = 1e-9  # −60 dBm
+    pathloss_db_at_1m: float = -30.0
+    pathloss_exponent: float = 3.0
+    rician_k: float = 1.0
+    server_position_m: tuple[float, float] = (10.0, 0.0)
+    channel_seed: int = 7
+    min_distance_m: float = 1.0
+
+    def distance_m(self, position_xy: np.ndarray | tuple[float, float] | None) -> float:
+        """Robot–server distance (≥ ``min_distance_m``; the server position itself if unknown)."""
+        if position_xy is None:
+            return max(self.min_distance_m, math.hypot(*self.server_position_m))
+        dx = float(position_xy[0]) - self.server_position_m[0]
+        dy = float(position_xy[1]) - self.server_position_m[1]
+        return max(self.min_distance_m, math.hypot(dx, dy))
+
+    def gain(self, slot: int, position_xy: np.ndarray | tuple[float, float] | None) -> float:
+        """Channel power gain g = |h|² of absolute slot ``slot`` at ``position_xy`` (robot x, y in map)."""
+        model = ChannelModel(self.pathloss_db_at_1m, self.pathloss_exponent, self.rician_k,
+                             seed=[self.channel_seed, int(slot)])  # type: ignore[arg-type]
+        return float(model.gains(np.array([self.distance_m(position_xy)]))[0])
+
+    def required_power_w(self, bits: float, gain: float, slot_s: float, bandwidth_hz: float,
+                         noise_w: float) -> float:
+        """Minimum power to carry ``bits`` in one slot (:func:`required_power_w`)."""
+        return float(required_power_w(bits, gain, slot_s, bandwidth_hz, noise_w))

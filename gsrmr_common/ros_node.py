@@ -6,6 +6,7 @@ Imports rclpy; keep pure logic elsewhere.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+import math
 import sys
 from typing import Any
 
@@ -15,6 +16,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
 from gsrmr_common.interrupts import CLEANUP, POLICY, RUNNING, START
+from gsrmr_common.link_model import LinkBudget
 
 
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, *, threads: int = 1) -> int:
@@ -77,3 +79,27 @@ def declare(node: Node, name: str, default: Any, description: str, *, min_value:
             hi_f = float(max_value) if max_value is not None else sys.float_info.max
             descriptor.floating_point_range = [FloatingPointRange(from_value=lo_f, to_value=hi_f, step=0.0)]
     return node.declare_parameter(name, default, descriptor).value
+
+
+def declare_link_budget(node: Node) -> LinkBudget:
+    """Declare the uplink parameters (``config/link.yaml``) on ``node`` with descriptors and ranges,
+    read-only, and return the :class:`~gsrmr_common.link_model.LinkBudget` they describe (SI units)."""
+    d = LinkBudget()
+    bw = declare(node, "bandwidth_hz", d.bandwidth_hz, "Uplink bandwidth B [Hz]", min_value=1.0,
+                 max_value=1e12, read_only=True)
+    noise_dbm = declare(node, "noise_dbm", 10 * math.log10(d.noise_w * 1e3), "Noise power σ² [dBm]",
+                        min_value=-250.0, max_value=100.0, read_only=True)
+    pl = declare(node, "pathloss_db_at_1m", d.pathloss_db_at_1m, "Path loss ρ0 at 1 m [dB]",
+                 min_value=-300.0, max_value=0.0, read_only=True)
+    alpha = declare(node, "pathloss_exponent", d.pathloss_exponent, "Path-loss exponent α", min_value=0.0,
+                    max_value=10.0, read_only=True)
+    k = declare(node, "rician_k", d.rician_k, "Rician K-factor (LoS/NLoS power)", min_value=0.0,
+                max_value=1e6, read_only=True)
+    server = list(declare(node, "server_position_m", list(d.server_position_m),
+                          "Server (x, y) in map [m]", read_only=True))
+    seed = declare(node, "channel_seed", d.channel_seed, "Seed of the per-slot fading realisation",
+                   min_value=0, max_value=2**31 - 1, read_only=True)
+    if len(server) != 2 or not all(math.isfinite(v) for v in server):
+        raise ValueError("parameter server_position_m must be 2 finite numbers [x_m, y_m]")
+    return LinkBudget(float(bw), 10 ** (noise_dbm / 10) / 1e3, float(pl), float(alpha), float(k),
+                      (float(server[0]), float(server[1])), int(seed))

@@ -115,3 +115,25 @@ class ScheduleMsg:
         if not arr[1] > 0:
             raise ValueError("schedule: slot_s must be > 0")
         return cls(int(arr[0]), float(arr[1]), int(arr[2]), x.astype(np.int8), power.copy())
+
+
+@dataclass(frozen=True)
+class LedgerRow:
+    """One slot of the robot's energy ledger, as sent on ``gsrmr/ledger`` (units in the names).
+
+    The wire contract of robot and server: the server records it beside the slot it composed."""
+
+    slot: int
+    x: int
+    scheduled_power_w: float
+    bits_sent: int
+    gain: float
+    power_w: float
+    energy_j: float
+    upload_all_bits: int
+    upload_all_energy_j: float
+    frame_stamp_s: float = float("nan")  # capture stamp of the camera frame this slot used (NaN: none)
+
+
+# Order of the values in a ``gsrmr/ledger`` Float64MultiArray (one message per slot).
+LEDGER_FIELDS = tuple(LedgerRow.__dataclass_fields__)

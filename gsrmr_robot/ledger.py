@@ -13,33 +13,15 @@ A slot whose bits cannot be carried at any finite power (2^{bits/(τB)} overflow
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 import math
 
-from gsrmr_common.wire import POSE_KEY_BITS
+from gsrmr_common.wire import POSE_KEY_BITS, LedgerRow
 
 # required_power_w(bits, gain, slot_s, bandwidth_hz, noise_w) -> watts (inf if impossible)
 PowerFunction = Callable[[float, float, float, float, float], float]
 
 
-@dataclass(frozen=True)
-class LedgerRow:
-    """One slot of the ledger (units in the names)."""
-
-    slot: int
-    x: int
-    scheduled_power_w: float
-    bits_sent: int
-    gain: float
-    power_w: float
-    energy_j: float
-    upload_all_bits: int
-    upload_all_energy_j: float
-    frame_stamp_s: float = float("nan")  # capture stamp of the camera frame this slot used (NaN: none)
-
-
-# Order of the values in a ``gsrmr/ledger`` Float64MultiArray (one message per slot).
-LEDGER_FIELDS = tuple(LedgerRow.__dataclass_fields__)
 
 
 class EnergyLedger:

@@ -27,7 +27,7 @@ INFO, that no TF is published.
 
 It keeps an energy ledger (:mod:`gsrmr_robot.ledger`) under the link model of
 :mod:`gsrmr_server.scheduling` and publishes each slot's row on ``gsrmr/ledger``
-(``std_msgs/Float64MultiArray``, fields :data:`gsrmr_robot.ledger.LEDGER_FIELDS`) and totals on
+(``std_msgs/Float64MultiArray``, fields :data:`gsrmr_common.wire.LEDGER_FIELDS`) and totals on
 ``/diagnostics`` once a second.
 """
 
@@ -51,7 +51,7 @@ from std_msgs.msg import Float64MultiArray
 
 from gsrmr_common.camera import CameraMount
 from gsrmr_common.jpeg import encode_jpeg
-from gsrmr_common.ros_node import declare, run_node
+from gsrmr_common.ros_node import declare, declare_link_budget, run_node
 from gsrmr_common.ros_wire import compressed_to_msg, image_from_msg, pose_key_to_msg, schedule_from_msg, stamp_to_ns
 from gsrmr_common.tf_tree import (
     BASE_FRAME,
@@ -62,9 +62,8 @@ from gsrmr_common.tf_tree import (
     base_from_camera_optical_transform,
     map_from_odom_transform,
 )
-from gsrmr_common.wire import PoseKey, ScheduleMsg, slot_ns, slot_start_ns
-from gsrmr_robot.ledger import LEDGER_FIELDS, EnergyLedger
-from gsrmr_server.link_params import LinkBudget
+from gsrmr_common.wire import LEDGER_FIELDS, PoseKey, ScheduleMsg, slot_ns, slot_start_ns
+from gsrmr_robot.ledger import EnergyLedger
 
 UPLINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 SCHEDULE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -140,7 +139,7 @@ class RobotNode(Node):
                               min_value=-10.0, max_value=10.0, read_only=True),
             left_m=declare(self, "camera_mount.left_m", d.left_m, "Optical centre left of base_link [m]",
                            min_value=-10.0, max_value=10.0, read_only=True))
-        self.link = LinkBudget.from_node_parameters(self)
+        self.link = declare_link_budget(self)
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._after_set)
         self._slot_len_ns = slot_ns(self.slot_s)

@@ -5,7 +5,7 @@ The scheduler node calls :meth:`OnlinePlanner.plan` at every replan. The planner
 1. predicts the robot's poses for the next ``horizon`` slots by advancing along the scene's route loop
    at the nominal speed from the point nearest to the current pose (:class:`RoutePredictor`);
 2. predicts L_t at those poses from the :class:`~gsrmr_server.loss_map.LossMap`;
-3. takes g_t from the link model (:class:`~gsrmr_server.link_params.LinkBudget`: the seeded channel
+3. takes g_t from the link model (:class:`~gsrmr_common.link_model.LinkBudget`: the seeded channel
    realisation of each absolute slot at the predicted robot–server distance);
 4. sets the horizon's loss budget so that the *run's* mean loss meets L_th:
    ``budget = (L_th · (1 − margin) · (n_done + H) − loss_spent) / H``, clipped to ≥ 0, where ``loss_spent``

@@ -27,11 +27,10 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
-from gsrmr_common.ros_node import declare, run_node
+from gsrmr_common.ros_node import declare, declare_link_budget, run_node
 from gsrmr_common.ros_wire import pose_key_from_msg, schedule_to_msg
 from gsrmr_common.wire import ScheduleMsg, slot_ns
 from gsrmr_server.horizon import OnlinePlanner, PlanResult, RoutePredictor
-from gsrmr_server.link_params import LinkBudget
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.scheduling import METHODS
 from gsrmr_server.world.scene import load_scene
@@ -78,7 +77,7 @@ class SchedulerNode(Node):
                         max_value=1.0, read_only=True)
         self.state_dir = declare(self, "state_dir", "", "Save/restore the last schedule and loss map here",
                                  read_only=True)
-        self.link = LinkBudget.from_node_parameters(self)
+        self.link = declare_link_budget(self)
         self._check_options(self.solver_options)
 
         self._slot_len_ns = slot_ns(self.slot_s)

@@ -56,8 +56,15 @@ from gsrmr_common.ros_wire import (
     schedule_from_msg,
     stamp_to_ns,
 )
-from gsrmr_common.wire import MAX_COMPRESSED_BYTES, PoseKey, ScheduleMsg, slot_index, slot_ns, slot_start_ns
-from gsrmr_robot.ledger import LEDGER_FIELDS
+from gsrmr_common.wire import (
+    LEDGER_FIELDS,
+    MAX_COMPRESSED_BYTES,
+    PoseKey,
+    ScheduleMsg,
+    slot_index,
+    slot_ns,
+    slot_start_ns,
+)
 from gsrmr_server.compose import MRComposer, to_u8
 from gsrmr_server.recording import TOPIC_CAMERA_INFO, RunRecorder
 from gsrmr_server.splatting.model import GaussianModel

@@ -20,7 +20,7 @@ ROSDEP_KEYS = {
     "plyfile": None, "mcap": None, "mcap-ros2-support": None, "clarabel": None, "scs": None, "osqp": None,
     "highspy": None, "rosbags": None,
 }
-BUILD_TOOLS = {"setuptools", "wheel", "ruff"}  # the venv's build and lint tools, not the package's
+BUILD_TOOLS = {"setuptools", "wheel", "ruff", "import-linter", "grimp"}  # build and lint tools, not the package's
 
 
 def _pins(path: Path) -> dict[str, str]:

@@ -7,13 +7,12 @@ import pytest
 
 from gsrmr_common.camera import CameraMount, Intrinsics
 from gsrmr_common.jpeg import encode_jpeg
-from gsrmr_common.wire import POSE_KEY_BITS, PoseKey
-from gsrmr_robot.ledger import LEDGER_FIELDS, EnergyLedger
+from gsrmr_common.link_model import LinkBudget, required_power_w
+from gsrmr_common.wire import LEDGER_FIELDS, POSE_KEY_BITS, PoseKey
+from gsrmr_robot.ledger import EnergyLedger
 from gsrmr_server.compose import MRComposer
 from gsrmr_server.horizon import OnlinePlanner, RoutePredictor
-from gsrmr_server.link_params import LinkBudget
 from gsrmr_server.loss_map import LossMap
-from gsrmr_server.scheduling.link import required_power_w
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.uplink import SlotUploads
 from gsrmr_server.world.scene import load_scene

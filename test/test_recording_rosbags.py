@@ -30,7 +30,7 @@ from std_msgs.msg import Float64MultiArray
 from gsrmr_common import ros_wire, wire
 from gsrmr_common.camera import Intrinsics
 from gsrmr_common.jpeg import decode_jpeg
-from gsrmr_robot.ledger import LEDGER_FIELDS
+from gsrmr_common.wire import LEDGER_FIELDS
 from gsrmr_server import recording as rec
 from gsrmr_server.recording import RunRecorder, read_slots_csv
 

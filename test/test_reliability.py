@@ -471,7 +471,7 @@ def test_hostile_messages_and_parameters_at_the_server(relay_stack, relay_client
     from std_msgs.msg import Float64MultiArray
 
     from gsrmr_common.ros_wire import compressed_to_msg, image_to_msg, ns_to_stamp
-    from gsrmr_robot.ledger import LEDGER_FIELDS
+    from gsrmr_common.wire import LEDGER_FIELDS
 
     h = _harness()
     node, ex, latest = relay_client

@@ -12,9 +12,10 @@ from hypothesis import strategies as st
 import numpy as np
 import pytest
 
-from gsrmr_server.scheduling import METHODS, ChannelModel, Problem, ProblemError, cli, link, solve
+from gsrmr_common import link_model as link
+from gsrmr_common.channel import paper_route_distances
+from gsrmr_server.scheduling import METHODS, ChannelModel, Problem, ProblemError, cli, solve
 from gsrmr_server.scheduling.baselines import relaxed_solution
-from gsrmr_server.scheduling.channel import paper_route_distances
 
 FAST_METHODS = [m for m in METHODS if m != "apo"]
 

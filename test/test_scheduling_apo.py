@@ -9,8 +9,8 @@ import cvxpy as cp
 import numpy as np
 import pytest
 
+from gsrmr_common.channel import paper_route_distances
 from gsrmr_server.scheduling import ChannelModel, Problem, solve
-from gsrmr_server.scheduling.channel import paper_route_distances
 
 HISTORY_KEYS = {"iteration", "dx_norm", "phi", "objective_j", "energy_relaxed_j", "solver"}
 

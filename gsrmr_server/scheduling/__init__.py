@@ -7,8 +7,8 @@ Pure library (numpy, scipy, cvxpy; no rclpy)::
     sched = solve(Problem(channel_gain=gains, gs_loss=losses, loss_threshold=0.03), "exact")
 """
 
-from gsrmr_server.scheduling.channel import ChannelModel
-from gsrmr_server.scheduling.link import energy_j, rate_bps, required_power_w
+from gsrmr_common.channel import ChannelModel
+from gsrmr_common.link_model import energy_j, rate_bps, required_power_w
 from gsrmr_server.scheduling.problem import Problem, ProblemError, Schedule
 from gsrmr_server.scheduling.solve import METHODS, solve
 

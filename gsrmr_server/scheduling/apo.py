@@ -26,7 +26,7 @@ import warnings
 
 import numpy as np
 
-from gsrmr_server.scheduling import link
+from gsrmr_common import link_model as link
 from gsrmr_server.scheduling.baselines import relaxed_energy_j, repair, solve_ranking
 from gsrmr_server.scheduling.problem import Problem, Schedule, infeasibility_reason, schedule_from_x
 

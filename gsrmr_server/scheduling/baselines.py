@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from gsrmr_server.scheduling import link
+from gsrmr_common import link_model as link
 from gsrmr_server.scheduling.problem import (
     IMAGE,
     KEY,

@@ -16,7 +16,7 @@ from typing import Any, NoReturn
 
 import numpy as np
 
-from gsrmr_server.scheduling.channel import ChannelModel, paper_route_distances
+from gsrmr_common.channel import ChannelModel, paper_route_distances
 from gsrmr_server.scheduling.problem import Problem, ProblemError
 from gsrmr_server.scheduling.solve import METHODS, solve
 

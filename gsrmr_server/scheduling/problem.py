@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from gsrmr_server.scheduling import link
+from gsrmr_common import link_model as link
 
 #: Per-slot delivery outcome labels.
 IMAGE, KEY, NONE = "image", "key", "none"
