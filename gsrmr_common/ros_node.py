@@ -45,7 +45,7 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, *, 
         # SIGINT shuts the context down while the executor may be taking a message, or while the factory
         # still creates entities; rclpy then raises a RuntimeError instead of ExternalShutdownException.
         # Only a real error (the context still up) re-raises.
-        if rclpy.ok():
+        if rclpy.ok() and POLICY.received == 0:
             raise
     finally:
         POLICY.enter(CLEANUP)

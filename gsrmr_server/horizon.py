@@ -32,9 +32,9 @@ import time
 
 import numpy as np
 
+from gsrmr_common.route import LoopPath
 from gsrmr_common.wire import ScheduleMsg
 from gsrmr_server.loss_map import LossMap
-from gsrmr_server.world.route import LoopPath
 
 
 class RoutePredictor:

@@ -33,13 +33,20 @@ from gsrmr_common.wire import ScheduleMsg, slot_ns
 from gsrmr_server.horizon import OnlinePlanner, PlanResult, RoutePredictor
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.scheduling import METHODS
-from gsrmr_server.world.scene import load_scene
 
 UPLINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 SCHEDULE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
 PLANNING_PARAMS = {"loss_threshold", "horizon", "method", "solver_options", "image_bits", "pose_bits",
                    "drift_threshold", "drift_window", "loss_margin"}
+
+
+def route_waypoints(flat: list[float]) -> list[tuple[float, float]]:
+    """``[x0, y0, x1, y1, ...]`` (map, metres) → waypoints; a clear error for an unusable route."""
+    if len(flat) < 6 or len(flat) % 2 or not all(math.isfinite(v) for v in flat):
+        raise ValueError("parameter route_waypoints_m must be ≥ 3 finite (x, y) pairs [x0, y0, x1, y1, ...] in "
+                         f"map [m] (a route file: config/routes/*.yaml), got {flat}")
+    return [(float(flat[i]), float(flat[i + 1])) for i in range(0, len(flat), 2)]
 
 
 class SchedulerNode(Node):
@@ -69,8 +76,12 @@ class SchedulerNode(Node):
         self.loss_margin = declare(self, "loss_margin", 0.3, "Plan for loss_threshold·(1 − loss_margin): "
                                    "room for the MR loss image slots keep (JPEG) and for prediction error",
                                    min_value=0.0, max_value=0.99)
-        scene = load_scene(declare(self, "scene", "sandbox", "Scene whose route predicts future poses",
-                                   read_only=True))
+        route_flat = list(declare(self, "route_waypoints_m", [0.0], "The robot's route loop, predicted along: "
+                                  "[x0, y0, x1, y1, ...] in map [m], ≥ 3 points (config/routes/*.yaml)",
+                                  read_only=True))
+        route_speed_mps = declare(self, "route_speed_mps", 0.3, "Nominal speed along the route [m/s]",
+                                  min_value=1e-3, max_value=10.0, read_only=True)
+        waypoints = route_waypoints(route_flat)
         loss_map_file = declare(self, "loss_map_file", "", "Seed loss map (JSON from a previous run)",
                                 read_only=True)
         prior = declare(self, "loss_prior", 0.05, "Predicted loss where the map knows nothing", min_value=0.0,
@@ -88,7 +99,7 @@ class SchedulerNode(Node):
                 loss_map = LossMap.load(candidate)
                 self.get_logger().info(f"loss map loaded from {candidate} ({len(loss_map.cells)} cells)")
                 break
-        self.planner = OnlinePlanner(RoutePredictor(scene.route.waypoints, scene.route.speed_mps), loss_map,
+        self.planner = OnlinePlanner(RoutePredictor(waypoints, route_speed_mps), loss_map,
                                      self.link, slot_s=self.slot_s, image_bits=self.image_bits,
                                      pose_bits=self.pose_bits, loss_threshold=self.loss_threshold,
                                      horizon=self.horizon, method=self.method,

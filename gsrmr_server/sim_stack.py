@@ -87,7 +87,8 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
                     {"scene": scene, "model_path": model_path, "record_dir": record_dir,
                      "evaluate_ground_truth": True}),
         ProcessSpec("gsrmr-scheduler", "gsrmr_scheduler", [link, scheduler],
-                    {"scene": scene, "loss_threshold": loss_threshold, "method": method,
+                    {"route_waypoints_m": [float(v) for xy in sc.route.waypoints for v in xy],
+                     "route_speed_mps": float(sc.route.speed_mps), "loss_threshold": loss_threshold, "method": method,
                      "loss_map_file": loss_map_file, "state_dir": state_dir}),
     ]
     for spec in specs:

@@ -2,7 +2,8 @@
 
 ros2 launch gsrmr server.launch.py model_path:=/path/to/sandbox.ply loss_threshold:=0.03
 
-Parameters: config/link.yaml (shared uplink model), config/server.yaml, config/scheduler.yaml — every
+Parameters: config/link.yaml (shared uplink model), config/server.yaml, config/scheduler.yaml and the
+route file (``route_file:=``, default config/routes/sandbox.yaml) — every
 file keyed ``/**``, so the launch arguments below (passed after them) always win, also under
 ``namespace:=…``.
 """
@@ -24,10 +25,13 @@ def _arg(name: str, value_type: type) -> ParameterValue:
 def generate_launch_description() -> LaunchDescription:
     config = os.path.join(get_package_share_directory("gsrmr"), "config")
     link, server, scheduler = (os.path.join(config, n) for n in ("link.yaml", "server.yaml", "scheduler.yaml"))
+    sandbox_route = os.path.join(config, "routes", "sandbox.yaml")
     namespace = LaunchConfiguration("namespace")
     return LaunchDescription([
         DeclareLaunchArgument("model_path", description="Gaussian-splatting model (.ply, 3DGS layout)"),
-        DeclareLaunchArgument("scene", default_value="sandbox", description="scene name or YAML path"),
+        DeclareLaunchArgument("scene", default_value="sandbox", description="scene name or YAML path (MR content)"),
+        DeclareLaunchArgument("route_file", default_value=sandbox_route,
+                              description="the robot's route as scheduler parameters (config/routes/*.yaml)"),
         DeclareLaunchArgument("loss_threshold", default_value="0.03", description="average MR-loss budget L_th"),
         DeclareLaunchArgument("method", default_value="exact", description="scheduling method"),
         DeclareLaunchArgument("record_dir", default_value="", description="slots.csv + MCAP ('' = off)"),
@@ -37,6 +41,6 @@ def generate_launch_description() -> LaunchDescription:
                                         "record_dir": _arg("record_dir", str)}]),
         Node(package="gsrmr", executable="gsrmr-scheduler", name="gsrmr_scheduler", namespace=namespace,
              output="screen",
-             parameters=[link, scheduler, {"scene": _arg("scene", str), "method": _arg("method", str),
-                                           "loss_threshold": _arg("loss_threshold", float)}]),
+             parameters=[link, scheduler, LaunchConfiguration("route_file"),
+                         {"method": _arg("method", str), "loss_threshold": _arg("loss_threshold", float)}]),
     ])

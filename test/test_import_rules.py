@@ -39,10 +39,20 @@ def test_robot_side_node_loads_no_server_code_and_no_heavy_numerics(script):
     assert offenders(modules, ("gsrmr_server", "gsrmr_sim")) == [], f"{script} loads server/simulator code"
 
 
+def test_scheduler_node_loads_no_simulated_world():
+    """The workstation's scheduler takes its route from parameters, not from the simulator's scene."""
+    modules = loaded_modules("gsrmr_server.scheduler_node")
+    sim = ("gsrmr_server.world", "gsrmr_server.sim_stack", "gsrmr_server.demo", "gsrmr_server.survey",
+           "gsrmr_server.fault_relay", "gsrmr_server.experiments", "gsrmr_sim")
+    assert sorted(m for m in modules if m.startswith(sim)) == []
+
+
 def test_the_check_can_fail():
     """The same check on the scheduler node (which needs the solvers) does find them."""
     modules = loaded_modules("gsrmr_server.scheduler_node")
     assert "numba" in {m.split(".")[0] for m in modules}
+    # and the server node still loads the simulated world (virtual agents, intrinsics): the next step
+    assert any(m.startswith("gsrmr_server.world") for m in loaded_modules("gsrmr_server.server_node"))
 
 
 def test_console_entry_module_is_light():

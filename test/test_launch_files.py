@@ -84,8 +84,22 @@ def test_param_files_are_keyed_wildcard_only():
     launch argument (and stopped matching under a namespace). Every config file is one node's, keyed ``/**``."""
     import yaml
 
-    for path in (REPO / "config").glob("*.yaml"):
+    for path in [*(REPO / "config").glob("*.yaml"), *(REPO / "config" / "routes").glob("*.yaml")]:
         assert list(yaml.safe_load(path.read_text())) == ["/**"], path.name
+
+
+@pytest.mark.parametrize("name", ["sandbox", "garden"])
+def test_route_files_match_the_scenes(name):
+    """config/routes/<scene>.yaml (what the workstation's scheduler predicts along) is the scene's route."""
+    import numpy as np
+    import yaml
+
+    from gsrmr_server.world.scene import load_scene
+
+    params = yaml.safe_load((REPO / "config" / "routes" / f"{name}.yaml").read_text())["/**"]["ros__parameters"]
+    route = load_scene(name).route
+    np.testing.assert_allclose(np.reshape(params["route_waypoints_m"], (-1, 2)), route.waypoints, atol=1e-6)
+    assert params["route_speed_mps"] == route.speed_mps
 
 
 def test_generated_override_file_is_keyed_wildcard(tmp_path):

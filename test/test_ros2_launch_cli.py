@@ -116,7 +116,8 @@ def test_ros2_launch_robot_ctrl_c(ros_processes, tmp_path, stop_after_s):
             run.kill()
     text = run.launch_log()
     codes = exit_codes_from_launch_log(text)
-    assert all(code == 0 for code in codes.values()), f"exit codes after Ctrl-C at {stop_after_s} s: {codes}\n{text}"
+    assert all(code == 0 for code in codes.values()), \
+        f"exit codes after Ctrl-C at {stop_after_s} s: {codes}\n{text}\n{run.output()[-6000:]}"
     assert rc == 0, f"ros2 launch exit code {rc}"
     if stop_after_s >= 20.0:
         assert len(codes) == 2, codes
@@ -146,7 +147,7 @@ def test_ros2_launch_server_arguments_and_ctrl_c(tmp_path):
     isolate_this_process()
     model = make_point_model(tmp_path, n=1000)
     shown = ros2("launch", "gsrmr", "server.launch.py", "--show-args")
-    for name in ("model_path", "scene", "loss_threshold", "method", "record_dir", "namespace"):
+    for name in ("model_path", "scene", "route_file", "loss_threshold", "method", "record_dir", "namespace"):
         assert f"'{name}'" in shown.stdout, shown.stdout
     run = start_ros2_launch(tmp_path, "gsrmr", "server.launch.py", f"model_path:={model}", "loss_threshold:=0.035",
                             "scene:=sandbox", "method:=exact", f"record_dir:={tmp_path / 'record'}")

@@ -27,6 +27,14 @@ from stack_harness import make_point_model  # noqa: E402
 NAMESPACE = "gsrmr_ws"
 
 
+def _route_file(folder: Path) -> Path:
+    """A route file of the user's own (the sandbox loop at 0.25 m/s), keyed ``/**`` like the shipped ones."""
+    path = folder / "route.yaml"
+    path.write_text("/**:\n  ros__parameters:\n    route_waypoints_m: [-1.0, -1.1, 1.0, -1.1, 1.2, 0.9, -1.0, 1.1]\n"
+                    "    route_speed_mps: 0.25\n")
+    return path
+
+
 @needs_ros_tooling
 @pytest.mark.launch_test
 def generate_test_description():
@@ -38,6 +46,7 @@ def generate_test_description():
         "scene": str(Path(get_package_share_directory("gsrmr")) / "config" / "scenes" / "sandbox.yaml"),
         "record_dir": str(folder / "record"),
         "method": "rounding",
+        "route_file": str(_route_file(folder)),
         "namespace": NAMESPACE,
     }
     server = launch.actions.IncludeLaunchDescription(PythonLaunchDescriptionSource(launch_file("server.launch.py")),
@@ -57,7 +66,9 @@ class TestServerLaunchArguments(unittest.TestCase):
             ("gsrmr_server", "model_path"): f"String value is: {args['model_path']}",
             ("gsrmr_server", "scene"): f"String value is: {args['scene']}",
             ("gsrmr_server", "record_dir"): f"String value is: {args['record_dir']}",
-            ("gsrmr_scheduler", "scene"): f"String value is: {args['scene']}",
+            ("gsrmr_scheduler", "route_speed_mps"): "Double value is: 0.25",
+            ("gsrmr_scheduler", "route_waypoints_m"): "Double values are: [-1.0, -1.1, 1.0, -1.1, 1.2, 0.9, -1.0, "
+                                                      "1.1]",
             ("gsrmr_scheduler", "loss_threshold"): "Double value is: 0.035",
             ("gsrmr_scheduler", "method"): "String value is: rounding",
             # and the package's config files still apply where no argument overrides them

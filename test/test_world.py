@@ -13,12 +13,12 @@ import yaml
 
 from gsrmr_common.camera import Camera, CameraMount, camera_from_pose
 from gsrmr_common.nerfstudio import read_dataset
+from gsrmr_common.route import LoopPath, PurePursuit
 from gsrmr_server.world import cli
 from gsrmr_server.world.kinematics import drive_route, lap_time_s, start_pose, unicycle_step
 from gsrmr_server.world.points import find_points_file, make_world
 from gsrmr_server.world.raycast import RayCastWorld
 from gsrmr_server.world.recorder import Round2Record, record_round1, record_round2, with_resolution
-from gsrmr_server.world.route import LoopPath, PurePursuit
 from gsrmr_server.world.scene import SceneError, load_scene, parse_scene, resolve_scene_path
 from gsrmr_server.world.virtual import VirtualViewSource, agent_pose, compose_mask, mr_image
 

@@ -18,9 +18,9 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Int32
 
 from gsrmr_common.camera import camera_from_pose
+from gsrmr_common.route import LoopPath
 from gsrmr_server.world.raycast import RayCastWorld
 from gsrmr_server.world.recorder import with_resolution
-from gsrmr_server.world.route import LoopPath
 from gsrmr_server.world.scene import load_scene
 
 pytestmark = pytest.mark.ros

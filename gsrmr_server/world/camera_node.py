@@ -35,10 +35,10 @@ from std_msgs.msg import Int32
 
 from gsrmr_common.camera import camera_from_pose
 from gsrmr_common.ros_node import declare, run_node
+from gsrmr_common.route import LoopPath
 from gsrmr_server.world.kinematics import has_moved
 from gsrmr_server.world.points import make_world
 from gsrmr_server.world.recorder import with_resolution
-from gsrmr_server.world.route import LoopPath
 from gsrmr_server.world.scene import load_scene
 from gsrmr_server.world.virtual import VirtualViewSource
 

@@ -18,10 +18,10 @@ import cv2
 import numpy as np
 
 from gsrmr_common.camera import camera_from_pose
+from gsrmr_common.route import LoopPath
 from gsrmr_server.world.kinematics import lap_time_s
 from gsrmr_server.world.points import make_world
 from gsrmr_server.world.recorder import record_round1, record_round2, with_resolution
-from gsrmr_server.world.route import LoopPath
 from gsrmr_server.world.scene import SceneError, load_scene
 from gsrmr_server.world.virtual import VirtualViewSource, mr_image
 

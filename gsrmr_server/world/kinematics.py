@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from gsrmr_server.world.route import LoopPath, PurePursuit
+from gsrmr_common.route import LoopPath, PurePursuit
 from gsrmr_server.world.scene import Route
 
 

@@ -18,8 +18,8 @@ from rclpy.qos import qos_profile_sensor_data
 from std_msgs.msg import Int32
 
 from gsrmr_common.ros_node import declare, run_node
+from gsrmr_common.route import LoopPath, PurePursuit, laps_completed
 from gsrmr_server.world.camera_node import yaw_from_quaternion
-from gsrmr_server.world.route import LoopPath, PurePursuit, laps_completed
 from gsrmr_server.world.scene import load_scene
 
 

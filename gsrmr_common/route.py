@@ -1,9 +1,11 @@
 """The robot's route: a closed waypoint loop and a pure-pursuit controller producing (v, ω).
 
-Pure functions, no ROS. Map frame (x forward, y left), metres, radians (counter-clockwise yaw),
-m/s and rad/s. Progress along the loop is an *unwrapped* arc length ``s_m`` (it keeps growing past
-the loop length), so laps are ``floor(s_m / length_m)``; the controller only searches for the
-closest path point in a window ahead of the previous progress, so it never jumps across the loop.
+A library both wings use: the scheduler predicts future poses along the route (its waypoints and
+speed are scheduler parameters), the simulator's route follower drives it. Pure functions, no ROS.
+Map frame (x forward, y left), metres, radians (counter-clockwise yaw), m/s and rad/s. Progress along
+the loop is an *unwrapped* arc length ``s_m`` (it keeps growing past the loop length), so laps are
+``floor(s_m / length_m)``; the controller only searches for the closest path point in a window ahead
+of the previous progress, so it never jumps across the loop.
 """
 
 from __future__ import annotations
