@@ -8,10 +8,13 @@ and ``launch`` reports "process has died". That happens in three places, each ha
 * **start-up** (importing numba/torch, loading a model, compiling kernels — seconds): the interrupt
   must stop the process at once. :class:`InterruptPolicy` raises ``KeyboardInterrupt`` in this phase;
   :func:`node_entry` catches it around the import and the node's ``main`` and returns 0.
-* **running**: rclpy's own signal handler shuts the context down, and the policy raises
-  ``KeyboardInterrupt`` as Python's default handler does (the ``ros2/examples`` pattern: the spin ends
-  with one or the other; relying on rclpy's handler alone left a node spinning after SIGINT, once in
-  ~600 test runs).
+* **running**: the spin must end through rclpy, never through an exception raised at an arbitrary
+  bytecode: a ``KeyboardInterrupt`` that lands between an executor's ``ExitStack.enter_context(handle)``
+  and the registration of its exit leaves the handle "in use", and ``destroy_node`` then spins forever
+  in ``destroy_when_not_in_use`` (seen: a base driver at 98 % CPU after Ctrl-C); shutting rclpy down
+  from the handler mid-executor crashed a node (−11). The policy only sets
+  :attr:`InterruptPolicy.stop_requested`; ``run_node`` spins in 0.1 s steps and stops when it is set
+  (or when rclpy's own handler has shut the context down, whichever comes first).
 * **clean-up** (destroying the node, closing a recording, releasing the serial port): the second
   SIGINT — the one ``launch`` forwards — must not interrupt it. The policy ignores it; only a third
   signal (a user who insists) raises.
@@ -43,6 +46,7 @@ class InterruptPolicy:
         self.phase = START
         self.received = 0
         self._cleanup_received = 0
+        self.stop_requested = False
 
     def install(self) -> InterruptPolicy:
         """Install the handler for SIGINT and SIGTERM (main thread only; elsewhere a no-op)."""
@@ -61,8 +65,10 @@ class InterruptPolicy:
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:
         self.received += 1
-        if self.phase in (START, RUNNING):
+        if self.phase == START:
             raise KeyboardInterrupt
+        if self.phase == RUNNING:
+            self.stop_requested = True
         if self.phase == CLEANUP:
             self._cleanup_received += 1
             if self._cleanup_received > CLEANUP_PATIENCE:

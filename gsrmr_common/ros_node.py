@@ -12,7 +12,7 @@ from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 import rclpy
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 
 from gsrmr_common.interrupts import CLEANUP, POLICY, RUNNING, START
@@ -36,9 +36,13 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, *, 
     try:
         rclpy.init(args=argv)
         node = factory()
-        executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else None
+        executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
+        executor.add_node(node)
         POLICY.enter(RUNNING)
-        rclpy.spin(node, executor=executor)
+        # rclpy.spin, in 0.1 s steps: a signal sets POLICY.stop_requested (nothing is raised inside the
+        # executor), and the loop ends within a step even if rclpy's own handler did not wake it.
+        while rclpy.ok() and not POLICY.stop_requested:
+            executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:

@@ -32,15 +32,13 @@ if os.environ.get("FAIL"):
 def main():
     from gsrmr_common.interrupts import CLEANUP, POLICY, RUNNING
     POLICY.enter(RUNNING)
-    try:
-        print("running", flush=True)
-        while True:
-            time.sleep(0.02)
-    except KeyboardInterrupt:
-        POLICY.enter(CLEANUP)
-        print("cleanup", flush=True)
-        time.sleep(1.0)
-        print("done", flush=True)
+    print("running", flush=True)
+    while not POLICY.stop_requested:  # as run_node's spin loop: nothing is raised while running
+        time.sleep(0.02)
+    POLICY.enter(CLEANUP)
+    print("cleanup", flush=True)
+    time.sleep(1.0)
+    print("done", flush=True)
     return 0
 '''
 
@@ -100,10 +98,13 @@ def test_second_sigint_does_not_cut_the_cleanup_short(tmp_path):
 
 def test_policy_phases():
     policy = InterruptPolicy()
-    for phase in (START, RUNNING):
-        policy.enter(phase)
-        with pytest.raises(KeyboardInterrupt):
-            policy._handle(signal.SIGINT, None)
+    policy.enter(START)
+    with pytest.raises(KeyboardInterrupt):
+        policy._handle(signal.SIGINT, None)
+    policy.enter(RUNNING)
+    assert not policy.stop_requested
+    policy._handle(signal.SIGINT, None)  # no exception inside the executor: the spin loop stops
+    assert policy.stop_requested
     policy.enter(CLEANUP)
     policy._handle(signal.SIGINT, None)
     policy._handle(signal.SIGTERM, None)
