@@ -167,14 +167,15 @@ class TestSimLaunchCli(unittest.TestCase):
             self.assertIn(f"gsrmr {exe}", executables)
         nodes = ros2_until("node", "list", "--no-daemon", ok="gsrmr_scheduler").stdout
         self.assertIn("/gsrmr_scheduler", nodes)
+        # every topic first: a higher L_th (below) lets the scheduler plan no image at all once the robot stands
+        for topic in GSRMR_TOPICS:
+            echo = ros2_until("topic", "echo", "--once", "--no-arr", topic, ok="---", attempts=3, timeout_s=25.0)
+            self.assertIn("---", echo.stdout, f"ros2 topic echo --once {topic}: {echo.stdout[-500:]}{echo.stderr}")
         set_ok = ros2_until("param", "set", "--no-daemon", "/gsrmr_scheduler", "loss_threshold", "0.04",
                             ok="Set parameter successful")
         self.assertIn("Set parameter successful", set_ok.stdout, set_ok.stdout + set_ok.stderr)
         got = ros2_until("param", "get", "--no-daemon", "/gsrmr_scheduler", "loss_threshold", ok="value is")
         self.assertEqual(got.stdout.strip(), "Double value is: 0.04")
-        for topic in GSRMR_TOPICS:
-            echo = ros2_until("topic", "echo", "--once", "--no-arr", topic, ok="---", attempts=2, timeout_s=25.0)
-            self.assertIn("---", echo.stdout, f"ros2 topic echo --once {topic}: {echo.stdout[-500:]}{echo.stderr}")
         exited = [n for n in proc_info.process_names() if getattr(proc_info[n], "returncode", None) is not None]
         self.assertEqual(exited, [], "a node died")
 
