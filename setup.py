@@ -29,18 +29,18 @@ CONSOLE_SCRIPTS = [
     "gsrmr-render = gsrmr_server.splatting.cli:render_main",
     # LIMO base: driver node and byte-exact mock base
     "gsrmr-limo-base = gsrmr_common.interrupts:limo_base",
-    "gsrmr-mock-limo = gsrmr_common.interrupts:mock_limo",
+    "gsrmr-mock-limo = gsrmr_sim.entries:mock_limo",
     # simulated world: headless recorder, mock camera node, route follower node
-    "gsrmr-sim = gsrmr_server.world.cli:main",
-    "gsrmr-mock-camera = gsrmr_common.interrupts:mock_camera",
-    "gsrmr-route-follower = gsrmr_common.interrupts:route_follower",
+    "gsrmr-sim = gsrmr_sim.world.cli:main",
+    "gsrmr-mock-camera = gsrmr_sim.entries:mock_camera",
+    "gsrmr-route-follower = gsrmr_sim.entries:route_follower",
     # node suite, experiments and the main job
     "gsrmr-robot = gsrmr_common.interrupts:robot",
     "gsrmr-server = gsrmr_common.interrupts:server",
     "gsrmr-scheduler = gsrmr_common.interrupts:scheduler",
-    "gsrmr-experiments = gsrmr_server.experiments.cli:main",
-    "gsrmr-demo = gsrmr_server.demo:main",
-    "gsrmr-uplink-relay = gsrmr_common.interrupts:uplink_relay",
+    "gsrmr-experiments = gsrmr_sim.experiments.cli:main",
+    "gsrmr-demo = gsrmr_sim.demo:main",
+    "gsrmr-uplink-relay = gsrmr_sim.entries:uplink_relay",
 ]
 
 

@@ -20,9 +20,9 @@ from gsrmr_common import wire
 from gsrmr_common.camera import camera_from_pose
 from gsrmr_common.jpeg import ImageRejected, check_jpeg_structure, decode_jpeg, encode_jpeg, jpeg_dimensions
 from gsrmr_common.metrics import psnr, ssim
-from gsrmr_server.world.kinematics import drive_route, start_pose
-from gsrmr_server.world.points import make_world
-from gsrmr_server.world.scene import load_scene
+from gsrmr_sim.world.kinematics import drive_route, start_pose
+from gsrmr_sim.world.points import make_world
+from gsrmr_sim.world.scene import load_scene
 
 QUALITIES = (10, 25, 40, 55, 70, 80, 90, 95)
 

@@ -31,7 +31,7 @@ import time
 
 from gsrmr_robot.limo import protocol as p
 from gsrmr_robot.limo.driver import LimoDriver
-from gsrmr_robot.limo.mock import FaultConfig, MockLimo
+from gsrmr_sim.limo.mock import FaultConfig, MockLimo
 
 
 def triplet(k: int) -> list[bytes]:

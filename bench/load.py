@@ -117,9 +117,15 @@ def run_servers(args: argparse.Namespace, model_path: Path) -> dict:
                               env=os.environ.copy(), start_new_session=True,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     rclpy.init()
-    params = [Parameter("model_path", value=str(model_path)), Parameter("width", value=args.width),
-              Parameter("height", value=args.height), Parameter("measure_loss", value=True)]
+    from gsrmr_common.camera import Intrinsics
+    from gsrmr_common.ros_wire import camera_info_from_intrinsics
+
+    params = [Parameter("model_path", value=str(model_path)), Parameter("measure_loss", value=True)]
     servers = [ServerNode(namespace=f"/r{i}", parameter_overrides=params) for i in range(args.robots)]
+    info = camera_info_from_intrinsics(Intrinsics.from_fov(args.width, args.height, math.radians(70)), 0,
+                                       "camera_optical_frame")
+    for s in servers:  # the robots' calibration (what each robot relays on uplink/camera_info)
+        s.use_camera_info(info)
     ex = MultiThreadedExecutor(num_threads=args.threads)
     for s in servers:
         ex.add_node(s)

@@ -3,7 +3,7 @@
 A :class:`~gsrmr_server.server_node.ServerNode` (rclpy, in this process, recording CSV + MCAP to a temp
 dir) is driven slot by slot without waiting for the slot clock: for slot k the robot's pose key (a slow
 circle in ``map``) and, in every ``--image-every``-th slot, a 160×120 JPEG go through the uplink fault
-injector of :mod:`gsrmr_server.fault_relay` (default rates: 10 % drops, 3 % each other fault) into the
+injector of :mod:`gsrmr_sim.fault_relay` (default rates: 10 % drops, 3 % each other fault) into the
 node's :class:`~gsrmr_server.uplink.UplinkAssembler`, then :meth:`ServerNode.process_slot` composes,
 publishes and records the slot. Resident set size (psutil, MiB) is sampled every ``--sample-every``
 slots; growth is measured from the sample after ``--warmup`` slots to the end (the acceptance bound
@@ -52,18 +52,20 @@ def main() -> int:
     from rclpy.parameter import Parameter
     from stack_harness import make_point_model
 
+    from gsrmr_common.camera import Intrinsics
     from gsrmr_common.jpeg import encode_jpeg
+    from gsrmr_common.ros_wire import camera_info_from_intrinsics
     from gsrmr_common.wire import PoseKey
-    from gsrmr_server.fault_relay import FaultInjector, FaultRates, Upload
     from gsrmr_server.server_node import ServerNode
+    from gsrmr_sim.fault_relay import FaultInjector, FaultRates, Upload
 
     tmp = Path(tempfile.mkdtemp(prefix="gsrmr-soak-"))
     model = make_point_model(tmp, n=args.gaussians)
     rclpy.init()
     node = ServerNode(parameter_overrides=[Parameter("model_path", value=str(model)),
-                                           Parameter("width", value=args.width),
-                                           Parameter("height", value=args.height),
                                            Parameter("record_dir", value=str(tmp / "rec"))])
+    node.use_camera_info(camera_info_from_intrinsics(Intrinsics.from_fov(args.width, args.height, math.radians(70)),
+                                                     0, "camera_optical_frame"))  # what the robot relays
     rng = np.random.default_rng(args.seed)
     yy, xx = np.mgrid[0:args.height, 0:args.width]
     frame = np.stack([xx * 255 // args.width, yy * 255 // args.height, (xx + yy) % 256], axis=2)

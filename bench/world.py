@@ -29,11 +29,12 @@ import numpy as np
 
 from gsrmr_common.camera import Camera, camera_from_pose
 from gsrmr_common.metrics import mr_loss
-from gsrmr_server.world.kinematics import drive_route, start_pose
-from gsrmr_server.world.points import make_world
-from gsrmr_server.world.recorder import with_resolution
-from gsrmr_server.world.scene import load_scene
-from gsrmr_server.world.virtual import VirtualViewSource, mr_image
+from gsrmr_server.mr.blend import mr_image
+from gsrmr_sim.world.kinematics import drive_route, start_pose
+from gsrmr_sim.world.points import make_world
+from gsrmr_sim.world.recorder import with_resolution
+from gsrmr_sim.world.scene import load_scene
+from gsrmr_sim.world.virtual import virtual_view
 
 
 def _time_ms(fn: Callable[[Camera, float], object], cams: list[Camera], times_s: list[float],
@@ -70,7 +71,7 @@ def main() -> None:
         cams = [camera_from_pose(*pose, scene.camera.mount, scene.camera.intrinsics) for pose in drive.poses]
         times_s = list(drive.times_s)
         world = make_world(scene, 2)
-        virtual = VirtualViewSource(scene, world)
+        virtual = virtual_view(scene)
 
         def real(cam: Camera, t: float) -> object:
             return world.render(cam, t)  # noqa: B023
@@ -94,7 +95,7 @@ def main() -> None:
         drive = drive_route(scene.route, scene.slots, scene.slot_s,
                             pose0=start_pose(scene.route, scene.route.start_jitter_m, 0))
         now, mapped = make_world(scene, 2), make_world(scene, 1)
-        virtual = VirtualViewSource(scene, now)
+        virtual = virtual_view(scene)
         losses = []
         for t_s, pose in zip(drive.times_s, drive.poses, strict=True):
             cam = camera_from_pose(*pose, scene.camera.mount, scene.camera.intrinsics)

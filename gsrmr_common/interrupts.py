@@ -114,14 +114,11 @@ def node_entry(target: str) -> Callable[[], int]:
     return main
 
 
-# The ROS nodes' console scripts (setup.py): every one ends with code 0 on Ctrl-C.
+# The deployment nodes' console scripts (setup.py): every one ends with code 0 on Ctrl-C. The simulator's
+# are in gsrmr_sim.entries.
 link_echo = node_entry("gsrmr_common.link_check:echo_main")
 link_probe = node_entry("gsrmr_common.link_check:probe_main")
 limo_base = node_entry("gsrmr_robot.limo.node:main")
-mock_limo = node_entry("gsrmr_robot.limo.mock:main")
-mock_camera = node_entry("gsrmr_server.world.camera_node:main")
-route_follower = node_entry("gsrmr_server.world.route_follower:main")
 robot = node_entry("gsrmr_robot.robot_node:main")
 server = node_entry("gsrmr_server.server_node:main")
 scheduler = node_entry("gsrmr_server.scheduler_node:main")
-uplink_relay = node_entry("gsrmr_server.fault_relay:main")

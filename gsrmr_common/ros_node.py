@@ -15,6 +15,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 
+from gsrmr_common.camera import CameraMount
 from gsrmr_common.interrupts import CLEANUP, POLICY, RUNNING, START
 from gsrmr_common.link_model import LinkBudget
 
@@ -83,6 +84,21 @@ def declare(node: Node, name: str, default: Any, description: str, *, min_value:
             hi_f = float(max_value) if max_value is not None else sys.float_info.max
             descriptor.floating_point_range = [FloatingPointRange(from_value=lo_f, to_value=hi_f, step=0.0)]
     return node.declare_parameter(name, default, descriptor).value
+
+
+def declare_camera_mount(node: Node) -> CameraMount:
+    """Declare the ``camera_mount.*`` parameters (``config/camera_mount.yaml``, loaded into the robot and the
+    server) read-only and return the mount: the pose of ``camera_optical_frame`` in ``base_link``."""
+    d = CameraMount()
+    return CameraMount(
+        height_m=declare(node, "camera_mount.height_m", d.height_m, "Optical centre above base_link [m]",
+                         min_value=-10.0, max_value=10.0, read_only=True),
+        pitch_rad=declare(node, "camera_mount.pitch_rad", d.pitch_rad, "Camera pitch, positive = looking "
+                          "down [rad]", min_value=-1.5, max_value=1.5, read_only=True),
+        forward_m=declare(node, "camera_mount.forward_m", d.forward_m, "Optical centre ahead of base_link [m]",
+                          min_value=-10.0, max_value=10.0, read_only=True),
+        left_m=declare(node, "camera_mount.left_m", d.left_m, "Optical centre left of base_link [m]",
+                       min_value=-10.0, max_value=10.0, read_only=True))
 
 
 def declare_link_budget(node: Node) -> LinkBudget:

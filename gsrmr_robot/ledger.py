@@ -35,7 +35,6 @@ class EnergyLedger:
         self.bits_sent = 0
         self.energy_j = 0.0
         self.upload_all_energy_j = 0.0
-        self.last: LedgerRow | None = None
 
     def _energy(self, bits: int, gain: float) -> tuple[float, float]:
         if bits <= 0:
@@ -63,7 +62,6 @@ class EnergyLedger:
             self.undeliverable += 1
         if math.isfinite(ref_energy_j):
             self.upload_all_energy_j += ref_energy_j
-        self.last = row
         return row
 
     def totals(self) -> dict[str, float]:

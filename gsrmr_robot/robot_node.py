@@ -49,9 +49,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profi
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray
 
-from gsrmr_common.camera import CameraMount
 from gsrmr_common.jpeg import encode_jpeg
-from gsrmr_common.ros_node import declare, declare_link_budget, run_node
+from gsrmr_common.ros_node import declare, declare_camera_mount, declare_link_budget, run_node
 from gsrmr_common.ros_wire import compressed_to_msg, image_from_msg, pose_key_to_msg, schedule_from_msg, stamp_to_ns
 from gsrmr_common.tf_tree import (
     BASE_FRAME,
@@ -129,16 +128,7 @@ class RobotNode(Node):
                                   read_only=True)
         self.base_frame = declare(self, "base_frame_id", BASE_FRAME, "Robot body frame (parent of the camera in TF)",
                                   read_only=True)
-        d = CameraMount()
-        self.mount = CameraMount(
-            height_m=declare(self, "camera_mount.height_m", d.height_m, "Optical centre above base_link [m]",
-                             min_value=-10.0, max_value=10.0, read_only=True),
-            pitch_rad=declare(self, "camera_mount.pitch_rad", d.pitch_rad, "Camera pitch, positive = looking "
-                              "down [rad]", min_value=-1.5, max_value=1.5, read_only=True),
-            forward_m=declare(self, "camera_mount.forward_m", d.forward_m, "Optical centre ahead of base_link [m]",
-                              min_value=-10.0, max_value=10.0, read_only=True),
-            left_m=declare(self, "camera_mount.left_m", d.left_m, "Optical centre left of base_link [m]",
-                           min_value=-10.0, max_value=10.0, read_only=True))
+        self.mount = declare_camera_mount(self)
         self.link = declare_link_budget(self)
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._after_set)

@@ -17,17 +17,17 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import time
 
-import cv2
 import numpy as np
 
 from gsrmr_common.camera import CameraMount, Intrinsics, camera_from_pose
 from gsrmr_common.jpeg import ImageRejected, decode_jpeg, jpeg_header
 from gsrmr_common.metrics import mr_loss
 from gsrmr_common.wire import MAX_IMAGE_PIXELS, PoseKey
+from gsrmr_server.mr.blend import mr_image
+from gsrmr_server.mr.content import VirtualViewSource
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.splatting.render import render
 from gsrmr_server.uplink import SlotUploads
-from gsrmr_server.world.virtual import VirtualViewSource, mr_image
 
 
 @dataclass
@@ -126,10 +126,3 @@ def refusal_fault(jpeg: bytes, width_px: int, height_px: int) -> str:
 def to_u8(img: np.ndarray) -> np.ndarray:
     """float [0, 1] image → uint8 (rounded)."""
     return np.clip(np.round(np.asarray(img, np.float32) * 255.0), 0, 255).astype(np.uint8)
-
-
-def resize_to(img: np.ndarray, width: int, height: int) -> np.ndarray:
-    """Resize an image to width×height (area interpolation)."""
-    if img.shape[1] == width and img.shape[0] == height:
-        return img
-    return cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA)

@@ -16,9 +16,12 @@ Subscribes: ``uplink/pose_key`` (geometry_msgs/Vector3Stamped), ``uplink/image_r
 (geometry_msgs/Twist, u_t for the recording), and — only with ``evaluate_ground_truth`` in
 simulation — ``camera/image_raw`` (the true r_t, to measure loss/PSNR/SSIM of m̂_t against m_t).
 ``uplink/camera_info`` (sensor_msgs/CameraInfo, reliable, transient local, depth 1: the robot's latched
-calibration) is compared with the intrinsics the node renders with (the scene's camera): a mismatch is
-logged once at WARN and shown in ``/diagnostics`` (key ``camera_info``); the last one is kept in
-``camera_info`` / ``camera_info_intrinsics`` and recorded on ``/gsrmr/camera_info``.
+calibration) gives the intrinsics the node renders with: the slot clock starts with the first usable one
+(until then ``/diagnostics`` says "waiting for camera_info"); a new calibration is adopted from the next
+slot on and logged; an unusable one (distortion, skew, no K) is refused at WARN and the last usable one
+kept. Every one received is recorded on ``/gsrmr/camera_info``. The camera's mount on the robot comes from
+the ``camera_mount.*`` parameters (``config/camera_mount.yaml``, which the robot loads too), the virtual
+agents from the MR content file (``mr_content``, :mod:`gsrmr_server.mr`).
 
 Publishes: ``mr/image`` (sensor_msgs/Image rgb8, frame ``camera_optical_frame``, stamp = slot start),
 ``mr/image/compressed`` (JPEG), ``gsrmr/loss_sample`` (std_msgs/Float64MultiArray
@@ -46,7 +49,7 @@ from std_msgs.msg import Float64MultiArray
 from gsrmr_common.camera import Intrinsics
 from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.metrics import image_quality
-from gsrmr_common.ros_node import declare, run_node
+from gsrmr_common.ros_node import declare, declare_camera_mount, run_node
 from gsrmr_common.ros_wire import (
     compressed_to_msg,
     image_from_msg,
@@ -66,18 +69,26 @@ from gsrmr_common.wire import (
     slot_start_ns,
 )
 from gsrmr_server.compose import MRComposer, to_u8
+from gsrmr_server.mr.blend import mr_image
+from gsrmr_server.mr.content import AgentsView, load_mr_content
 from gsrmr_server.recording import TOPIC_CAMERA_INFO, RunRecorder
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.uplink import SlotUploads, UplinkAssembler
-from gsrmr_server.world.recorder import with_resolution
-from gsrmr_server.world.scene import load_scene
-from gsrmr_server.world.virtual import VirtualViewSource, mr_image
 
 UPLINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 SCHEDULE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
 CAMERA_INFO_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)  # the robot's latched relay
+
+
+# Intrinsics of the start-up warm-up render (compiles the kernels before any camera_info arrives).
+WARM_UP_INTRINSICS = Intrinsics.from_fov(32, 24, 1.2)
+
+
+def describe(k: Intrinsics) -> str:
+    """``W×H fx=… fy=… cx=… cy=…`` (pixels; OpenCV pixel centres, see :mod:`gsrmr_common.camera`)."""
+    return f"{k.width}×{k.height} fx={k.fx:.3f} fy={k.fy:.3f} cx={k.cx:.3f} cy={k.cy:.3f}"
 
 
 def intrinsics_mismatch(got: Intrinsics, want: Intrinsics, tol_px: float = 1e-3) -> str | None:
@@ -102,12 +113,11 @@ class ServerNode(Node):
                                        max_value=5.0)
         model_path = declare(self, "model_path", "", "Gaussian-splatting model (.ply, 3DGS layout)",
                              read_only=True)
-        scene_name = declare(self, "scene", "sandbox", "Scene (name or YAML path): virtual agents, camera "
-                             "intrinsics and mount", read_only=True)
-        width = declare(self, "width", 0, "Image width [px] (0 = the scene's camera)", min_value=0,
-                        max_value=4096, read_only=True)
-        height = declare(self, "height", 0, "Image height [px] (0 = the scene's camera)", min_value=0,
-                         max_value=4096, read_only=True)
+        mr_content = declare(self, "mr_content", "sandbox", "MR content: the virtual agents and their lights "
+                             "(name in config/mr or a YAML path)", read_only=True)
+        background = list(declare(self, "background_rgb", [0.5, 0.55, 0.6], "Colour where the GS model has no "
+                                  "density (its training background), linear RGB in [0, 1]", read_only=True))
+        mount = declare_camera_mount(self)
         self.measure_loss = declare(self, "measure_loss", True, "Render Φ(s_t) in image slots and publish "
                                     "the measured GS loss")
         self.evaluate = declare(self, "evaluate_ground_truth", False, "Simulation only: compare m̂_t with the "
@@ -123,15 +133,19 @@ class ServerNode(Node):
                                  max_value=256, read_only=True)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-        scene = with_resolution(load_scene(scene_name), width or None, height or None)
-        self.intrinsics = scene.camera.intrinsics
+        if len(background) != 3 or not all(0.0 <= c <= 1.0 for c in background):
+            raise ValueError("parameter background_rgb must be 3 numbers in [0, 1]")
         if not model_path:
             raise ValueError("parameter model_path is required (a 3DGS .ply)")
         model = GaussianModel.load_ply(model_path)
-        self.composer = MRComposer(model, VirtualViewSource(scene), self.intrinsics, scene.camera.mount,
-                                   scene.background, render_threads=render_threads or None)
-        # Warm-up: the first render compiles/loads the rasterizer (~1.5 s); doing it before the slot clock
-        # starts keeps the first slots on time instead of skipping the ones that elapsed meanwhile.
+        content = load_mr_content(mr_content)
+        # Render intrinsics: none until the robot's camera_info arrives (use_camera_info).
+        self.intrinsics: Intrinsics | None = None
+        self.composer = MRComposer(model, AgentsView(content), WARM_UP_INTRINSICS, mount,
+                                   tuple(float(c) for c in background), render_threads=render_threads or None)
+        # Warm-up: the first render compiles/loads the rasterizer and the ray caster (~1.5 s); doing it
+        # before the slot clock starts keeps the first slots on time instead of skipping the ones that
+        # elapsed meanwhile.
         self.composer.compose(SlotUploads(0), PoseKey(0, 0.0, 0.0, 0.0), 0.0, measure_loss=False)
         self._slot_len_ns = slot_ns(self.slot_s)
         self.uplink = UplinkAssembler()
@@ -148,9 +162,8 @@ class ServerNode(Node):
         self.stage_ms: dict[str, deque[float]] = {}
         self.recorder = RunRecorder(record_dir) if record_dir else None
         self.eval_rows: list[dict] = []
-        self.camera_info: CameraInfo | None = None  # last one received (a later issue may render with it)
-        self.camera_info_intrinsics: Intrinsics | None = None  # its intrinsics, None if unusable
-        self.camera_info_status = "none received"
+        self.camera_info: CameraInfo | None = None  # last one received
+        self.camera_info_status = "waiting for camera_info"
         self._camera_info_warned: str | None = None
 
         # One thread: uploads that arrive while a slot is composed are taken right after it (DDS queues
@@ -168,15 +181,15 @@ class ServerNode(Node):
                                  callback_group=io)
         self.create_subscription(Float64MultiArray, "gsrmr/ledger", self._on_ledger, UPLINK_QOS, callback_group=io)
         self.create_subscription(Twist, "cmd_vel", self._on_cmd, 10, callback_group=io)
-        self.create_subscription(CameraInfo, "uplink/camera_info", self._on_camera_info, CAMERA_INFO_QOS,
+        self.create_subscription(CameraInfo, "uplink/camera_info", self.use_camera_info, CAMERA_INFO_QOS,
                                  callback_group=io)
         if self.evaluate:
             self.create_subscription(Image, "camera/image_raw", self._on_camera, qos_profile_sensor_data,
                                      callback_group=io)
         self.create_timer(0.01, self._tick)  # 10 ms: a slot is composed ≤ 10 ms after it is complete or due
         self.create_timer(1.0, self._publish_diagnostics)
-        self.get_logger().info(f"server: model {model_path} ({model.num_gaussians} Gaussians), scene "
-                               f"{scene.name}, {self.intrinsics.width}×{self.intrinsics.height}")
+        self.get_logger().info(f"server: model {model_path} ({model.num_gaussians} Gaussians), MR content "
+                               f"{content.name} ({len(content.agents)} agents); waiting for uplink/camera_info")
 
     def _apply_parameters(self, params) -> None:
         """Live parameters (ranges were checked by their descriptors; read-only ones cannot change)."""
@@ -239,24 +252,32 @@ class ServerNode(Node):
     def _on_cmd(self, msg: Twist) -> None:
         self._cmd = (float(msg.linear.x), float(msg.angular.z))
 
-    def _on_camera_info(self, msg: CameraInfo) -> None:
-        """Keep the robot's calibration; WARN once (per distinct problem) if it is not what we render with."""
-        try:
-            got: Intrinsics | None = intrinsics_from_camera_info(msg)
-            problem = intrinsics_mismatch(got, self.intrinsics)
-        except ValueError as err:  # distortion, skew, uncalibrated: our pinhole renderer cannot match it
-            got, problem = None, str(err)
-        with self._lock:
-            self.camera_info, self.camera_info_intrinsics = msg, got
-            self.camera_info_status = "match" if problem is None else f"mismatch: {problem}"
-        if problem is not None and problem != self._camera_info_warned:
-            self._camera_info_warned = problem
-            self.get_logger().warning(f"camera_info from the robot does not match the render intrinsics "
-                                      f"(scene camera {self.intrinsics.width}×{self.intrinsics.height}, "
-                                      f"fx={self.intrinsics.fx:.3f} fy={self.intrinsics.fy:.3f} "
-                                      f"cx={self.intrinsics.cx:.3f} cy={self.intrinsics.cy:.3f}): {problem}")
+    def use_camera_info(self, msg: CameraInfo) -> None:
+        """Render with the robot's calibration from now on (the ``uplink/camera_info`` callback).
+
+        An unusable one (distortion, skew, no K: the pinhole renderer cannot match it) is refused with one
+        WARN per distinct problem and the last usable one is kept."""
         if self.recorder is not None:
             self.recorder.write_message(TOPIC_CAMERA_INFO, msg, self.get_clock().now().nanoseconds)
+        try:
+            got = intrinsics_from_camera_info(msg)
+        except ValueError as err:
+            with self._lock:
+                self.camera_info = msg
+                self.camera_info_status = f"unusable: {err}"
+            if str(err) != self._camera_info_warned:
+                self._camera_info_warned = str(err)
+                kept = "no intrinsics yet" if self.intrinsics is None else "keeping " + describe(self.intrinsics)
+                self.get_logger().warning(f"camera_info from the robot refused ({kept}): {err}")
+            return
+        with self._lock:
+            previous, self.camera_info = self.intrinsics, msg
+            self.camera_info_status = describe(got)
+            if got == previous:
+                return
+            self.intrinsics = self.composer.intrinsics = got
+        change = "" if previous is None else f" (was {describe(previous)}: {intrinsics_mismatch(got, previous)})"
+        self.get_logger().info(f"render intrinsics from camera_info: {describe(got)}{change}")
 
     def _on_camera(self, msg: Image) -> None:
         try:
@@ -269,6 +290,8 @@ class ServerNode(Node):
 
     # ---------------------------------------------------------------- slots
     def _tick(self) -> None:
+        if self.intrinsics is None:  # the slot clock starts with the robot's calibration
+            return
         now_ns = self.get_clock().now().nanoseconds
         due = (now_ns - round(self.process_delay_s * 1e9)) // self._slot_len_ns
         if self._next_slot is None:
@@ -373,8 +396,10 @@ class ServerNode(Node):
             info_status = self.camera_info_status
         values["camera_info"] = info_status
         problems = ["uplink faults counted"] if self.uplink.faults else []
-        if info_status.startswith("mismatch"):
-            problems.append("camera_info mismatch")
+        if self.intrinsics is None:
+            problems.append("waiting for camera_info")
+        if info_status.startswith("unusable"):
+            problems.append("camera_info refused")
         level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
         status = DiagnosticStatus(level=level, name=f"{self.get_name()}: MR composition", hardware_id="gsrmr_server",
                                   message="; ".join(problems) or "ok",

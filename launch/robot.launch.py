@@ -3,7 +3,8 @@
 ros2 launch gsrmr robot.launch.py port:=/dev/ttyTHS1 camera_image_topic:=/camera/color/image_raw \
     camera_info_topic:=/camera/color/camera_info
 
-Parameters: config/link.yaml (shared uplink model), config/limo_base.yaml, config/robot.yaml — every
+Parameters: config/link.yaml (shared uplink model), config/limo_base.yaml, config/camera_mount.yaml (also
+loaded by the server), config/robot.yaml — every
 file keyed ``/**``, so the launch arguments below (passed after them) always win, also under
 ``namespace:=…``.
 """
@@ -20,7 +21,8 @@ from launch_ros.parameter_descriptions import ParameterValue
 
 def generate_launch_description() -> LaunchDescription:
     config = os.path.join(get_package_share_directory("gsrmr"), "config")
-    link, base, robot = (os.path.join(config, name) for name in ("link.yaml", "limo_base.yaml", "robot.yaml"))
+    link, base, mount, robot = (os.path.join(config, name)
+                                for name in ("link.yaml", "limo_base.yaml", "camera_mount.yaml", "robot.yaml"))
     namespace = LaunchConfiguration("namespace")
     return LaunchDescription([
         DeclareLaunchArgument("port", default_value="/dev/ttyTHS1", description="LIMO serial port"),
@@ -34,7 +36,7 @@ def generate_launch_description() -> LaunchDescription:
              output="screen",
              parameters=[base, {"port": ParameterValue(LaunchConfiguration("port"), value_type=str)}]),
         Node(package="gsrmr", executable="gsrmr-robot", name="gsrmr_robot", namespace=namespace, output="screen",
-             parameters=[link, robot, {"jpeg_quality": ParameterValue(LaunchConfiguration("jpeg_quality"),
+             parameters=[link, mount, robot, {"jpeg_quality": ParameterValue(LaunchConfiguration("jpeg_quality"),
                                                                       value_type=int)}],
              remappings=[("camera/image_raw", LaunchConfiguration("camera_image_topic")),
                          ("camera/camera_info", LaunchConfiguration("camera_info_topic"))]),

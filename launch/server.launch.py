@@ -2,10 +2,11 @@
 
 ros2 launch gsrmr server.launch.py model_path:=/path/to/sandbox.ply loss_threshold:=0.03
 
-Parameters: config/link.yaml (shared uplink model), config/server.yaml, config/scheduler.yaml and the
-route file (``route_file:=``, default config/routes/sandbox.yaml) — every
-file keyed ``/**``, so the launch arguments below (passed after them) always win, also under
-``namespace:=…``.
+The render intrinsics come from the robot's ``uplink/camera_info`` (latched); the camera's mount from
+config/camera_mount.yaml (the robot loads the same file). Parameters: config/link.yaml (shared uplink
+model), config/camera_mount.yaml, config/server.yaml, config/scheduler.yaml and the route file
+(``route_file:=``, default config/routes/sandbox.yaml) — every file keyed ``/**``, so the launch
+arguments below (passed after them) always win, also under ``namespace:=…``.
 """
 
 import os
@@ -24,12 +25,14 @@ def _arg(name: str, value_type: type) -> ParameterValue:
 
 def generate_launch_description() -> LaunchDescription:
     config = os.path.join(get_package_share_directory("gsrmr"), "config")
-    link, server, scheduler = (os.path.join(config, n) for n in ("link.yaml", "server.yaml", "scheduler.yaml"))
+    link, mount, server, scheduler = (os.path.join(config, n) for n in ("link.yaml", "camera_mount.yaml", "server.yaml",
+                                                                       "scheduler.yaml"))
     sandbox_route = os.path.join(config, "routes", "sandbox.yaml")
     namespace = LaunchConfiguration("namespace")
     return LaunchDescription([
         DeclareLaunchArgument("model_path", description="Gaussian-splatting model (.ply, 3DGS layout)"),
-        DeclareLaunchArgument("scene", default_value="sandbox", description="scene name or YAML path (MR content)"),
+        DeclareLaunchArgument("mr_content", default_value="sandbox",
+                              description="MR content: virtual agents (config/mr/<name>.yaml or a path)"),
         DeclareLaunchArgument("route_file", default_value=sandbox_route,
                               description="the robot's route as scheduler parameters (config/routes/*.yaml)"),
         DeclareLaunchArgument("loss_threshold", default_value="0.03", description="average MR-loss budget L_th"),
@@ -37,7 +40,8 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("record_dir", default_value="", description="slots.csv + MCAP ('' = off)"),
         DeclareLaunchArgument("namespace", default_value="", description="ROS namespace of both nodes"),
         Node(package="gsrmr", executable="gsrmr-server", name="gsrmr_server", namespace=namespace, output="screen",
-             parameters=[link, server, {"model_path": _arg("model_path", str), "scene": _arg("scene", str),
+             parameters=[link, mount, server, {"model_path": _arg("model_path", str),
+                                               "mr_content": _arg("mr_content", str),
                                         "record_dir": _arg("record_dir", str)}]),
         Node(package="gsrmr", executable="gsrmr-scheduler", name="gsrmr_scheduler", namespace=namespace,
              output="screen",

@@ -2,7 +2,7 @@
 
 ros2 launch gsrmr sim.launch.py model_path:=/path/to/sandbox.ply record_dir:=/tmp/gsrmr_run
 
-The process list comes from gsrmr_server.sim_stack, the same definition `make demo` runs. Every
+The process list comes from gsrmr_sim.sim_stack, the same definition `make demo` runs. Every
 config file is keyed ``/**`` and the launch arguments come after them, so the arguments always win.
 """
 
@@ -11,7 +11,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from gsrmr_server.sim_stack import nice_prefix, sim_stack
+from gsrmr_sim.sim_stack import nice_prefix, sim_stack
 
 
 def _nodes(context):

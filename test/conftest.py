@@ -70,8 +70,8 @@ class ProcessHarness:
 
     def start(self, script: str, *args: str) -> subprocess.Popen:
         """Start console script ``<script> args…`` where the installed package exposes it
-        (:func:`gsrmr_server.sim_stack.executable_path`); stdout/stderr go to files under tmp_path."""
-        from gsrmr_server.sim_stack import executable_path
+        (:func:`gsrmr_sim.sim_stack.executable_path`); stdout/stderr go to files under tmp_path."""
+        from gsrmr_sim.sim_stack import executable_path
 
         exe = executable_path(script)
         n = len(self.procs)

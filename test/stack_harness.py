@@ -1,7 +1,7 @@
 """Test helpers shared by the node-suite and reliability tests: the simulated stack as processes.
 
-:class:`Stack` starts the processes of :func:`gsrmr_server.sim_stack.sim_stack` (plus any extra
-:class:`~gsrmr_server.sim_stack.ProcessSpec`) in one isolated ROS domain; :func:`ros_client` gives the
+:class:`Stack` starts the processes of :func:`gsrmr_sim.sim_stack.sim_stack` (plus any extra
+:class:`~gsrmr_sim.sim_stack.ProcessSpec`) in one isolated ROS domain; :func:`ros_client` gives the
 test an rclpy node and executor in that domain; :func:`make_small_model` trains the small GS model the
 node suite uses, :func:`make_point_model` writes a cheap untrained one (enough for fault tests).
 """
@@ -24,8 +24,8 @@ WIDTH, HEIGHT = 160, 120
 def make_small_model(folder: Path, width: int = WIDTH, height: int = HEIGHT) -> Path:
     """A GS model of the sandbox from 12 round-1 frames (depth-initialised, briefly trained)."""
     from gsrmr_server.splatting.train import TrainConfig, Trainer
-    from gsrmr_server.world.recorder import record_round1, with_resolution
-    from gsrmr_server.world.scene import load_scene
+    from gsrmr_sim.world.recorder import record_round1, with_resolution
+    from gsrmr_sim.world.scene import load_scene
 
     scene = with_resolution(load_scene("sandbox"), width, height)
     dataset = record_round1(scene, folder / "round1", frames=12)
@@ -54,12 +54,12 @@ class Stack:
 
     def __init__(self, tmp: Path, model: Path, env: dict[str, str], *, overrides: dict[str, dict] | None = None,
                  remappings: dict[str, list[tuple[str, str]]] | None = None, extra: tuple = ()) -> None:
-        from gsrmr_server.sim_stack import environment, sim_stack
+        from gsrmr_sim.sim_stack import environment, sim_stack
 
         self.tmp, self.env = tmp, environment(base=env, kill_safe=True)  # tests kill nodes with -9
         self.link = str(tmp / "limo_pty")
         size = {"width": WIDTH, "height": HEIGHT}
-        over: dict[str, dict] = {"gsrmr_server": dict(size), "gsrmr_mock_camera": dict(size),
+        over: dict[str, dict] = {"gsrmr_mock_camera": dict(size),  # the server renders at its camera_info
                                  "gsrmr_scheduler": {"horizon": 60, "replan_period_s": 1.0}}
         for name, params in (overrides or {}).items():
             over.setdefault(name, {}).update(params)
@@ -73,7 +73,7 @@ class Stack:
         self.procs: dict[str, subprocess.Popen] = {}
 
     def start(self, name: str) -> subprocess.Popen:
-        from gsrmr_server.sim_stack import command_line
+        from gsrmr_sim.sim_stack import command_line
 
         argv = command_line(self.specs[name], None, self.tmp / "params")
         log = (self.tmp / f"{name}.log").open("a")

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from gsrmr_server.experiments import cli
-from gsrmr_server.experiments.report import PAPER_CLAIMS
+from gsrmr_sim.experiments import cli
+from gsrmr_sim.experiments.report import PAPER_CLAIMS
 
 SCENES = ("sandbox", "garden")
 LTH = ("0.02", "0.025", "0.03", "0.035", "0.04")

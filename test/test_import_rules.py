@@ -36,26 +36,35 @@ def test_robot_side_node_loads_no_server_code_and_no_heavy_numerics(script):
     modules = loaded_modules(ROBOT_SIDE[script])
     assert ROBOT_SIDE[script] in modules
     assert offenders(modules, HEAVY) == [], f"{script} loads heavy modules"
-    assert offenders(modules, ("gsrmr_server", "gsrmr_sim")) == [], f"{script} loads server/simulator code"
+    assert offenders(modules, ("gsrmr_server", "gsrmr_sim", "gsrmr_shapes")) == [], \
+        f"{script} loads server, simulator or ray-caster code"
 
 
-def test_scheduler_node_loads_no_simulated_world():
-    """The workstation's scheduler takes its route from parameters, not from the simulator's scene."""
+@pytest.mark.parametrize("module", ["gsrmr_server.server_node", "gsrmr_server.scheduler_node"])
+def test_workstation_nodes_load_no_simulated_world(module):
+    """The server takes intrinsics from camera_info and its virtual agents from the MR content; the
+    scheduler its route from parameters: neither loads the simulator's scene, camera or stacks."""
+    modules = loaded_modules(module)
+    assert module in modules
+    assert offenders(modules, ("gsrmr_sim",)) == []
+
+
+def test_scheduler_node_loads_no_renderer():
     modules = loaded_modules("gsrmr_server.scheduler_node")
-    sim = ("gsrmr_server.world", "gsrmr_server.sim_stack", "gsrmr_server.demo", "gsrmr_server.survey",
-           "gsrmr_server.fault_relay", "gsrmr_server.experiments", "gsrmr_sim")
-    assert sorted(m for m in modules if m.startswith(sim)) == []
+    assert sorted(m for m in modules if m.startswith(("gsrmr_server.splatting", "gsrmr_server.mr",
+                                                       "gsrmr_server.compose", "gsrmr_shapes", "torch"))) == []
 
 
 def test_the_check_can_fail():
-    """The same check on the scheduler node (which needs the solvers) does find them."""
-    modules = loaded_modules("gsrmr_server.scheduler_node")
-    assert "numba" in {m.split(".")[0] for m in modules}
-    # and the server node still loads the simulated world (virtual agents, intrinsics): the next step
-    assert any(m.startswith("gsrmr_server.world") for m in loaded_modules("gsrmr_server.server_node"))
+    """The same checks do find what is there: the scheduler needs the solvers, the server the renderer and
+    the ray caster, and the simulator's nodes load the simulator."""
+    assert "numba" in {m.split(".")[0] for m in loaded_modules("gsrmr_server.scheduler_node")}
+    assert {"gsrmr_shapes.raycast", "gsrmr_server.splatting.render"} <= loaded_modules("gsrmr_server.server_node")
+    assert "gsrmr_sim.world.scene" in loaded_modules("gsrmr_sim.world.camera_node")
 
 
-def test_console_entry_module_is_light():
-    """The entry wrapper every node script goes through imports nothing before the guard is in place."""
-    modules = loaded_modules("gsrmr_common.interrupts")
+@pytest.mark.parametrize("module", ["gsrmr_common.interrupts", "gsrmr_sim.entries"])
+def test_console_entry_module_is_light(module):
+    """The entry wrappers every node script goes through import nothing before the guard is in place."""
+    modules = loaded_modules(module)
     assert offenders(modules, (*HEAVY, "numpy", "rclpy", "gsrmr_server", "gsrmr_robot")) == []

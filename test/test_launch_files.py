@@ -1,7 +1,7 @@
 """Every launch file names executables that setup.py installs and config files that setup.py ships.
 
 Launch files target real ROS 2 installs (no `launch` here); this checks them statically, plus the
-process list of sim.launch.py (gsrmr_server.sim_stack) that `make demo` and the integration tests run.
+process list of sim.launch.py (gsrmr_sim.sim_stack) that `make demo` and the integration tests run.
 """
 
 import ast
@@ -40,7 +40,7 @@ def test_launch_file_executables_and_configs(path):
 
 
 def test_sim_stack_executables_and_param_files_are_installed():
-    from gsrmr_server.sim_stack import sim_stack
+    from gsrmr_sim.sim_stack import sim_stack
 
     scripts = console_scripts()
     specs = sim_stack(model_path="/nonexistent.ply", config=REPO / "config")
@@ -94,7 +94,7 @@ def test_route_files_match_the_scenes(name):
     import numpy as np
     import yaml
 
-    from gsrmr_server.world.scene import load_scene
+    from gsrmr_sim.world.scene import load_scene
 
     params = yaml.safe_load((REPO / "config" / "routes" / f"{name}.yaml").read_text())["/**"]["ros__parameters"]
     route = load_scene(name).route
@@ -106,7 +106,7 @@ def test_generated_override_file_is_keyed_wildcard(tmp_path):
     """The demo's and the test stacks' override files follow launch_ros: keyed ``/**``, passed last."""
     import yaml
 
-    from gsrmr_server.sim_stack import command_line, sim_stack
+    from gsrmr_sim.sim_stack import command_line, sim_stack
 
     spec = next(s for s in sim_stack(model_path="/m.ply", config=REPO / "config") if s.name == "gsrmr_server")
     argv = command_line(spec, tmp_path, tmp_path / "params")

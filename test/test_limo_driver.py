@@ -20,7 +20,7 @@ import serial
 
 from gsrmr_robot.limo import protocol as p
 from gsrmr_robot.limo.driver import LimoDriver
-from gsrmr_robot.limo.mock import FaultConfig, MockLimo
+from gsrmr_sim.limo.mock import FaultConfig, MockLimo
 
 
 def wait_until(cond, timeout_s: float, period_s: float = 0.01) -> bool:

@@ -1,7 +1,7 @@
 """Integration: the node suite as real processes over DDS on a short route of the sandbox.
 
 One stack (mock LIMO on a pty, LIMO driver, mock camera, route follower, robot, server, scheduler) is
-started from the same process list as ``sim.launch.py`` (:func:`gsrmr_server.sim_stack.sim_stack`) at
+started from the same process list as ``sim.launch.py`` (:func:`gsrmr_sim.sim_stack.sim_stack`) at
 160×120 with a small GS model made from a few round-1 frames. The tests then check the image path, the
 key path, replanning through the service, parameter rejection, and a server killed and restarted.
 """

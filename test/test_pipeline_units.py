@@ -15,8 +15,8 @@ from gsrmr_server.horizon import OnlinePlanner, RoutePredictor
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.uplink import SlotUploads
-from gsrmr_server.world.scene import load_scene
-from gsrmr_server.world.virtual import VirtualViewSource
+from gsrmr_sim.world.scene import load_scene
+from gsrmr_sim.world.virtual import virtual_view
 
 
 def test_ledger_prices_actual_bits_and_upload_all_reference():
@@ -43,7 +43,7 @@ def composer():
     k = Intrinsics.from_fov(48, 36, math.radians(70))
     pts = np.array([[x, y, z] for x in (1.0, 1.5) for y in (-0.5, 0.0, 0.5) for z in (0.1, 0.3)], float)
     model = GaussianModel.from_points(pts, np.full((len(pts), 3), 0.7), scales_m=0.2, opacities=0.9)
-    return MRComposer(model, VirtualViewSource(scene), k, CameraMount(), (0.2, 0.2, 0.2))
+    return MRComposer(model, virtual_view(scene), k, CameraMount(), (0.2, 0.2, 0.2))
 
 
 def test_composer_sources_and_faults(composer):
@@ -120,7 +120,7 @@ def test_planner_charges_key_slots_at_the_reported_pose_and_backs_off_by_the_mar
 
 
 def test_demo_round_starts_at_the_first_slot_whose_pose_key_moved():
-    from gsrmr_server.demo import first_moving_slot
+    from gsrmr_sim.demo import first_moving_slot
 
     def row(source, pose):
         a, b, t = pose if pose else (None, None, None)

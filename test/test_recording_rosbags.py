@@ -235,18 +235,17 @@ def _count(text: str, needle: str) -> int:
 
 
 @pytest.mark.ros
-def test_real_run_camera_info_relayed_latched_to_a_late_server_and_recorded(ros_processes, tmp_path: Path) -> None:
-    """Robot relays camera_info (latched); a server started afterwards gets it, flags a mismatch, records it."""
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+def test_real_run_camera_info_relayed_latched_to_a_late_server_which_renders_with_it(ros_processes,
+                                                                                    tmp_path: Path) -> None:
+    """Robot relays camera_info (latched); a server started afterwards gets it, renders at its size, adopts a
+    new calibration when the robot relays one, and records both."""
+    from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
     from sensor_msgs.msg import CameraInfo
 
-    from gsrmr_server.world.recorder import with_resolution
-    from gsrmr_server.world.scene import load_scene
-
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    render_k = with_resolution(load_scene("sandbox"), WIDTH, HEIGHT).camera.intrinsics
-    wrong = ros_wire.camera_info_from_intrinsics(Intrinsics.from_fov(320, 240, math.radians(90)), 0,
+    render_k = Intrinsics.from_fov(WIDTH, HEIGHT, math.radians(70))
+    first = ros_wire.camera_info_from_intrinsics(Intrinsics.from_fov(320, 240, math.radians(90)), 0,
                                                  "camera_optical_frame")
     right = ros_wire.camera_info_from_intrinsics(render_k, 0, "camera_optical_frame")
     model = make_point_model(tmp_path, n=500)
@@ -266,22 +265,22 @@ def test_real_run_camera_info_relayed_latched_to_a_late_server_and_recorded(ros_
                 pub.publish(msg)
                 ex.spin_once(timeout_sec=0.05)
 
-        publish_until(wrong, 1)
+        publish_until(first, 1)
         for _ in range(10):  # the same calibration with new stamps is not a change: no re-publish
-            wrong.header.stamp = node.get_clock().now().to_msg()
-            pub.publish(wrong)
+            first.header.stamp = node.get_clock().now().to_msg()
+            pub.publish(first)
             ex.spin_once(timeout_sec=0.05)
         # Nobody published camera/camera_info from here on; subscribers that join now get the latched copy.
         late: list[CameraInfo] = []
         node.create_subscription(CameraInfo, "uplink/camera_info", late.append, latched)
         assert spin_until(ex, lambda: bool(late), 15), "late subscriber got no latched camera_info"
         assert (late[0].width, late[0].height) == (320, 240)
-        np.testing.assert_array_equal(late[0].k, wrong.k)
+        np.testing.assert_array_equal(late[0].k, first.k)
         assert _count("".join(ros_processes.output(robot)), relay_line) == 1
 
         server = ros_processes.start(
-            "gsrmr-server", "--ros-args", "-p", f"model_path:={model}", "-p", "scene:=sandbox",
-            "-p", f"width:={WIDTH}", "-p", f"height:={HEIGHT}", "-p", f"record_dir:={record_dir}")
+            "gsrmr-server", "--ros-args", "-p", f"model_path:={model}", "-p", "mr_content:=sandbox",
+            "-p", f"record_dir:={record_dir}")
         statuses: list = []
         node.create_subscription(DiagnosticArray, "/diagnostics",
                                  lambda m: statuses.extend(s for s in m.status if "MR composition" in s.name), 10)
@@ -289,16 +288,18 @@ def test_real_run_camera_info_relayed_latched_to_a_late_server_and_recorded(ros_
         def server_camera_info() -> str | None:
             return next((kv.value for s in reversed(statuses) for kv in s.values if kv.key == "camera_info"), None)
 
-        ros_processes.wait_for(server, "does not match the render intrinsics", timeout_s=90)
-        assert spin_until(ex, lambda: (server_camera_info() or "").startswith("mismatch"), 20), statuses[-1:]
-        assert f"size 320×240 != {WIDTH}×{HEIGHT}" in (server_camera_info() or "")
-        assert any(s.level == DiagnosticStatus.WARN and "camera_info mismatch" in s.message for s in statuses)
+        ros_processes.wait_for(server, "render intrinsics from camera_info: 320×240", timeout_s=90)
+        assert spin_until(ex, lambda: (server_camera_info() or "").startswith("320×240"), 20), statuses[-1:]
+        assert not any("camera_info" in s.message for s in statuses[-1:]), statuses[-1:]  # no camera_info problem
+        assert spin_until(ex, lambda: len(read_slots_csv(record_dir / "slots.csv")) >= 3, 30)
 
-        publish_until(right, 2)  # a new calibration is relayed at once; this one matches
-        assert spin_until(ex, lambda: server_camera_info() == "match", 20), server_camera_info()
-        assert spin_until(ex, lambda: len(read_slots_csv(record_dir / "slots.csv")) >= 5, 30)
+        publish_until(right, 2)  # a new calibration is relayed at once and adopted
+        assert spin_until(ex, lambda: (server_camera_info() or "").startswith(f"{WIDTH}×{HEIGHT}"), 20), \
+            server_camera_info()
+        n = len(read_slots_csv(record_dir / "slots.csv"))
+        assert spin_until(ex, lambda: len(read_slots_csv(record_dir / "slots.csv")) >= n + 3, 30)
     server_out = "".join(ros_processes.output(server))
-    assert _count(server_out, "does not match the render intrinsics") == 1  # warned once
+    assert _count(server_out, "render intrinsics from camera_info") == 2 and "(was 320×240" in server_out
     robot_out = "".join(ros_processes.output(robot))
     if importlib.util.find_spec("tf2_ros") is None:  # this venv: said once, at INFO
         assert _count(robot_out, "[INFO]") and _count(robot_out, "TF not published: tf2_ros does not import") == 1
@@ -310,7 +311,7 @@ def test_real_run_camera_info_relayed_latched_to_a_late_server_and_recorded(ros_
     assert types[rec.TOPIC_CAMERA_INFO] == "sensor_msgs/msg/CameraInfo"
     infos = [m for _, m in by_topic[rec.TOPIC_CAMERA_INFO]]
     assert [(m.width, m.height) for m in infos] == [(320, 240), (WIDTH, HEIGHT)]
-    np.testing.assert_array_equal(infos[0].k, wrong.k)
+    np.testing.assert_array_equal(infos[0].k, first.k)
     np.testing.assert_array_equal(infos[1].k, right.k)
     assert Intrinsics.from_ros_k(infos[1].k, WIDTH, HEIGHT) == render_k
     rows = read_slots_csv(record_dir / "slots.csv")
@@ -318,6 +319,9 @@ def test_real_run_camera_info_relayed_latched_to_a_late_server_and_recorded(ros_
     assert len(logs) == len(rows) >= 5 and [r["slot"] for r in logs] == [r["slot"] for r in rows]
     images = by_topic[rec.TOPIC_MR_IMAGE]
     assert len(images) == len(rows)  # the server records m̂_t every slot
+    shapes = []
     for log_time, img in images:
         assert stamp_ns(img.header.stamp) == log_time
-        assert decode_jpeg(bytes(img.data)).shape == (HEIGHT, WIDTH, 3)
+        shapes.append(decode_jpeg(bytes(img.data)).shape)
+    switch = shapes.index((HEIGHT, WIDTH, 3))  # rendered at the first calibration, then at the new one
+    assert switch >= 3 and set(shapes[:switch]) == {(240, 320, 3)} and set(shapes[switch:]) == {(HEIGHT, WIDTH, 3)}

@@ -1,6 +1,6 @@
 """Reliability and security: uplink faults, node crashes, hostile input and serial faults.
 
-Pure part (no ROS): the fault injector of :mod:`gsrmr_server.fault_relay`, replayed slot by slot
+Pure part (no ROS): the fault injector of :mod:`gsrmr_sim.fault_relay`, replayed slot by slot
 through the server's own :class:`~gsrmr_server.uplink.UplinkAssembler` and
 :class:`~gsrmr_server.compose.MRComposer` — every slot composed, every injected fault counted exactly
 once under its server name; guarded decoding and file parsing against hostile input.
@@ -21,7 +21,7 @@ import pytest
 
 from gsrmr_common.jpeg import ImageRejected, decode_jpeg, encode_jpeg, jpeg_header
 from gsrmr_common.wire import PoseKey
-from gsrmr_server.fault_relay import (
+from gsrmr_sim.fault_relay import (
     ALL_FAULTS,
     IMAGE_FAULTS,
     KEY_FAULTS,
@@ -54,15 +54,15 @@ def jpeg() -> bytes:
 def composer():
     from gsrmr_server.compose import MRComposer
     from gsrmr_server.splatting.model import GaussianModel
-    from gsrmr_server.world.recorder import with_resolution
-    from gsrmr_server.world.scene import load_scene
-    from gsrmr_server.world.virtual import VirtualViewSource
+    from gsrmr_sim.world.recorder import with_resolution
+    from gsrmr_sim.world.scene import load_scene
+    from gsrmr_sim.world.virtual import virtual_view
 
     scene = with_resolution(load_scene("sandbox"), W, H)
     rng = np.random.default_rng(3)
     model = GaussianModel.from_points(rng.uniform([-3, -3, 0], [3, 3, 1.5], (500, 3)),
                                       rng.uniform(0, 1, (500, 3)), scales_m=0.05, opacities=0.5)
-    return MRComposer(model, VirtualViewSource(scene), scene.camera.intrinsics, scene.camera.mount,
+    return MRComposer(model, virtual_view(scene), scene.camera.intrinsics, scene.camera.mount,
                       scene.background)
 
 
@@ -303,7 +303,7 @@ def relay_stack(tmp_path_factory):
     """robot → /robot/uplink/* → relay (every fault on, seed 0) → uplink/* → server; scheduler plans all images."""
     from conftest import ros_env
 
-    from gsrmr_server.sim_stack import ProcessSpec, config_dir
+    from gsrmr_sim.sim_stack import ProcessSpec, config_dir
 
     h = _harness()
     tmp = tmp_path_factory.mktemp("relay_stack")

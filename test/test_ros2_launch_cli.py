@@ -147,10 +147,10 @@ def test_ros2_launch_server_arguments_and_ctrl_c(tmp_path):
     isolate_this_process()
     model = make_point_model(tmp_path, n=1000)
     shown = ros2("launch", "gsrmr", "server.launch.py", "--show-args")
-    for name in ("model_path", "scene", "route_file", "loss_threshold", "method", "record_dir", "namespace"):
+    for name in ("model_path", "mr_content", "route_file", "loss_threshold", "method", "record_dir", "namespace"):
         assert f"'{name}'" in shown.stdout, shown.stdout
     run = start_ros2_launch(tmp_path, "gsrmr", "server.launch.py", f"model_path:={model}", "loss_threshold:=0.035",
-                            "scene:=sandbox", "method:=exact", f"record_dir:={tmp_path / 'record'}")
+                            "mr_content:=sandbox", "method:=exact", f"record_dir:={tmp_path / 'record'}")
     try:
         got = ros2_until("param", "get", "--no-daemon", "/gsrmr_scheduler", "loss_threshold", ok="value is",
                          attempts=20)

@@ -91,6 +91,8 @@ def test_server_catches_up_a_short_stall_and_skips_ahead_only_past_the_backlog_b
     from rclpy.parameter import Parameter
     from stack_harness import make_point_model
 
+    from gsrmr_common.camera import Intrinsics
+    from gsrmr_common.ros_wire import camera_info_from_intrinsics
     from gsrmr_server.server_node import ServerNode
 
     env = ros_env()
@@ -99,12 +101,16 @@ def test_server_catches_up_a_short_stall_and_skips_ahead_only_past_the_backlog_b
     try:
         node = ServerNode(context=ctx, parameter_overrides=[
             Parameter("model_path", value=str(make_point_model(tmp_path, n=50))),
-            Parameter("width", value=32), Parameter("height", value=24), Parameter("process_delay_s", value=0.0)])
+            Parameter("process_delay_s", value=0.0)])
         slot_ns = node._slot_len_ns
         now = {"ns": 1_000_000 * slot_ns}
         node.get_clock = lambda: SimpleNamespace(now=lambda: SimpleNamespace(nanoseconds=now["ns"]))
         composed: list[int] = []
         node.process_slot = composed.append
+        node._tick()
+        assert node._next_slot is None and node.intrinsics is None  # no camera_info yet: the clock waits
+        node.use_camera_info(camera_info_from_intrinsics(Intrinsics.from_fov(32, 24, 1.2), 0, "camera_optical_frame"))
+        assert (node.intrinsics.width, node.intrinsics.height) == (32, 24) == (node.composer.intrinsics.width, 24)
 
         def tick_until_idle() -> None:
             for _ in range(1000):
@@ -142,6 +148,47 @@ def test_server_catches_up_a_short_stall_and_skips_ahead_only_past_the_backlog_b
         assert composed[n:] == [slot]
         node._tick()
         assert composed[n:] == [slot]  # the next slot has not started
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
+@pytest.mark.ros
+def test_server_renders_with_the_robots_camera_info_and_refuses_an_unusable_one(tmp_path):
+    """The render intrinsics are the robot's calibration: the first usable camera_info starts the slot clock,
+    a new one is adopted for the next slot (the MR image has its size), a distorted one is refused (WARN in
+    /diagnostics) and the last usable one kept."""
+    from conftest import ros_env
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+    from stack_harness import make_point_model
+
+    from gsrmr_common.camera import Intrinsics
+    from gsrmr_common.ros_wire import camera_info_from_intrinsics
+    from gsrmr_server.server_node import ServerNode
+
+    env = ros_env()
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=int(env["ROS_DOMAIN_ID"]))
+    try:
+        node = ServerNode(context=ctx, parameter_overrides=[
+            Parameter("model_path", value=str(make_point_model(tmp_path, n=50)))])
+        assert node.camera_info_status == "waiting for camera_info"
+        small, large = Intrinsics.from_fov(32, 24, 1.2), Intrinsics.from_fov(48, 36, 1.0)
+        node.use_camera_info(camera_info_from_intrinsics(small, 0, "camera_optical_frame"))
+        assert node.intrinsics == small and node.camera_info_status.startswith("32×24 fx=")
+        node.process_slot(10)
+        node.use_camera_info(camera_info_from_intrinsics(large, 0, "camera_optical_frame"))
+        assert node.intrinsics == large == node.composer.intrinsics
+        distorted = camera_info_from_intrinsics(small, 0, "camera_optical_frame")
+        distorted.d = [0.1, 0.0, 0.0, 0.0, 0.0]
+        node.use_camera_info(distorted)
+        assert node.intrinsics == large and node.camera_info_status.startswith("unusable:")
+        shapes: list[tuple[int, int]] = []
+        node._pub_mr.publish = lambda msg: shapes.append((msg.width, msg.height))
+        node.process_slot(11)
+        assert shapes == [(48, 36)]
         node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)

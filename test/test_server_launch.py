@@ -43,7 +43,7 @@ def generate_test_description():
     args = {
         "model_path": str(make_point_model(folder, n=1000)),
         "loss_threshold": "0.035",
-        "scene": str(Path(get_package_share_directory("gsrmr")) / "config" / "scenes" / "sandbox.yaml"),
+        "mr_content": str(Path(get_package_share_directory("gsrmr")) / "config" / "mr" / "sandbox.yaml"),
         "record_dir": str(folder / "record"),
         "method": "rounding",
         "route_file": str(_route_file(folder)),
@@ -64,7 +64,7 @@ class TestServerLaunchArguments(unittest.TestCase):
     def test_every_argument_reaches_its_node(self, proc_info, args):
         expected = {
             ("gsrmr_server", "model_path"): f"String value is: {args['model_path']}",
-            ("gsrmr_server", "scene"): f"String value is: {args['scene']}",
+            ("gsrmr_server", "mr_content"): f"String value is: {args['mr_content']}",
             ("gsrmr_server", "record_dir"): f"String value is: {args['record_dir']}",
             ("gsrmr_scheduler", "route_speed_mps"): "Double value is: 0.25",
             ("gsrmr_scheduler", "route_waypoints_m"): "Double values are: [-1.0, -1.1, 1.0, -1.1, 1.2, 0.9, -1.0, "
@@ -75,6 +75,7 @@ class TestServerLaunchArguments(unittest.TestCase):
             ("gsrmr_scheduler", "horizon"): "Integer value is: 100",
             ("gsrmr_server", "jpeg_quality"): "Integer value is: 85",
             ("gsrmr_scheduler", "bandwidth_hz"): "Double value is: 1000000.0",
+            ("gsrmr_server", "camera_mount.height_m"): "Double value is: 0.15",  # config/camera_mount.yaml
         }
         for (node, name), answer in expected.items():
             self.assertEqual(param_get(node, name), answer, f"{node}.{name}")

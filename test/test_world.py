@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import math
+import sys
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -14,13 +15,13 @@ import yaml
 from gsrmr_common.camera import Camera, CameraMount, camera_from_pose
 from gsrmr_common.nerfstudio import read_dataset
 from gsrmr_common.route import LoopPath, PurePursuit
-from gsrmr_server.world import cli
-from gsrmr_server.world.kinematics import drive_route, lap_time_s, start_pose, unicycle_step
-from gsrmr_server.world.points import find_points_file, make_world
-from gsrmr_server.world.raycast import RayCastWorld
-from gsrmr_server.world.recorder import Round2Record, record_round1, record_round2, with_resolution
-from gsrmr_server.world.scene import SceneError, load_scene, parse_scene, resolve_scene_path
-from gsrmr_server.world.virtual import VirtualViewSource, agent_pose, compose_mask, mr_image
+from gsrmr_sim.world import cli
+from gsrmr_sim.world.kinematics import drive_route, lap_time_s, start_pose, unicycle_step
+from gsrmr_sim.world.points import find_points_file, make_world
+from gsrmr_sim.world.raycast import RayCastWorld
+from gsrmr_sim.world.recorder import Round2Record, record_round1, record_round2, with_resolution
+from gsrmr_sim.world.scene import SceneError, load_scene, parse_scene, resolve_scene_path
+from gsrmr_sim.world.virtual import virtual_view
 
 MINIMAL = {"route": {"waypoints": [[0, 0], [1, 0], [1, 1]]}}
 
@@ -60,14 +61,13 @@ def test_minimal_scene_gets_documented_defaults():
      "events[0].object: no object with id 'ghost'"),
     ({"events": [{"type": "light", "light": "ambient", "from_s": 2.0, "to_s": 1.0}]},
      "events[0].to_s: must be > from_s"),
-    ({"virtual_agents": [{"position": [0, 0], "path": {"waypoints": [[0, 0]]}}]},
-     "virtual_agents[0].path.waypoints: needs at least 2 waypoints"),
+    ({"virtual_agents": []}, "virtual_agents: unknown key"),  # the server's MR content (config/mr), not the world's
     ({"objects": [{"id": "a", "position": [0, 0]}, {"id": "a", "position": [1, 0]}]},
      "objects[1].id: duplicate id 'a'"),
     ({"teleporter": True}, "teleporter: unknown key"),
     ({"objects": [{"position": [0, 0], "path": {"waypoints": [[0, 0], [1, 0]]}}]}, "objects[0].path: unknown key"),
-    ({"virtual_agents": [{"position": [0, 0], "shape": "cylinder", "size": [1, 1, 1]}]},
-     "virtual_agents[0].size: not allowed for a cylinder"),
+    ({"objects": [{"position": [0, 0], "shape": "cylinder", "size": [1, 1, 1]}]},
+     "objects[0].size: not allowed for a cylinder"),
 ])
 def test_bad_scene_values_are_errors_naming_the_key(patch, message):
     with pytest.raises(SceneError) as info:
@@ -92,8 +92,7 @@ def test_scene_file_errors_carry_the_file_and_key(tmp_path):
 def test_shipped_scenes_load_by_name():
     sandbox = load_scene("sandbox")
     assert resolve_scene_path("sandbox").name == "sandbox.yaml"
-    assert len(sandbox.agents) == 2 and any(a.path is not None for a in sandbox.agents)
-    assert any(a.path is None for a in sandbox.agents)
+    assert sandbox.mr_content == "sandbox" and len(virtual_view(sandbox).content.agents) == 2
     assert sandbox.slots == 288 and sandbox.slot_s == 0.1
     assert {ev.type for ev in sandbox.events} >= {"move", "light", "add", "region_light"}
     assert math.dist(sandbox.server_position_m[:2], (0.0, 0.0)) == pytest.approx(10.0, abs=1.0)
@@ -102,13 +101,13 @@ def test_shipped_scenes_load_by_name():
 
 
 def test_scene_names_resolve_from_the_install_share_dir_without_the_source_tree(tmp_path, monkeypatch):
-    from gsrmr_server.world import scene as scene_mod
+    from gsrmr_sim.world import scene as scene_mod
 
     share = tmp_path / "share" / "gsrmr" / "config" / "scenes"
     share.mkdir(parents=True)
     (share / "sandbox.yaml").write_text(resolve_scene_path("sandbox").read_text())
     monkeypatch.setattr(scene_mod, "REPO_SCENES_DIR", tmp_path / "no_repo")
-    monkeypatch.setattr(scene_mod.sys, "prefix", str(tmp_path))
+    monkeypatch.setattr(sys, "prefix", str(tmp_path))
     found = resolve_scene_path("sandbox")
     assert found.exists() and "no_repo" not in str(found)
     assert load_scene("sandbox").name == "sandbox"
@@ -203,7 +202,7 @@ def test_every_hit_pixel_back_projects_onto_the_yawed_box_surface(x, y, yaw_deg,
 
 
 def test_screen_space_culling_never_changes_the_image(monkeypatch, small_sandbox):
-    from gsrmr_server.world import raycast
+    from gsrmr_shapes import raycast
 
     drive = drive_route(small_sandbox.route, 16, 1.8)
     world = RayCastWorld(small_sandbox, 2)
@@ -252,58 +251,6 @@ def test_textures_are_prefiltered_so_a_fine_checker_far_away_averages_instead_of
                               camera={"width": 64, "height": 48, "mount": {"pitch_deg": 80, "height_m": 0.5}}))
     rgb, _ = RayCastWorld(near).render(camera_from_pose(0.0, 0.0, 0.0, near.camera.mount, near.camera.intrinsics))
     assert rgb.max() > 0.85 and rgb.min() < 0.15  # cells of ≥ 10 px keep their full contrast
-
-
-# ---------------------------------------------------------------------------------------------- virtual view
-
-
-def _agent_scene(agent_x: float):
-    return _box_scene(virtual_agents=[{"id": "ghost", "shape": "cylinder", "position": [agent_x, 0.0],
-                                       "radius_m": 0.1, "height_m": 0.2,
-                                       "material": {"texture": "flat", "color": [1, 0, 0]}}],
-                      lights=[])
-
-
-def test_virtual_agent_behind_a_real_box_is_hidden_and_in_front_is_shown():
-    for agent_x, expect_visible in ((3.0, False), (1.0, True)):
-        s = _agent_scene(agent_x)
-        world = RayCastWorld(s)
-        cam = camera_from_pose(0.0, 0.0, 0.0, s.camera.mount, s.camera.intrinsics)
-        real, _ = world.render(cam)
-        v, d = VirtualViewSource(s, world).render(cam)
-        assert set(np.unique(d)) <= {0.0, 1.0} and d.dtype == np.float32 and v.dtype == np.float32
-        assert np.all(v[d == 1.0] == 0.0)
-        virtual_px = d == 0.0
-        if expect_visible:
-            assert virtual_px.sum() > 20
-            assert np.allclose(v[virtual_px], [1.0, 0.0, 0.0])
-            m = mr_image(real, v, d)
-            assert np.allclose(m[virtual_px], [1.0, 0.0, 0.0])
-            assert np.allclose(m[~virtual_px], real[~virtual_px])
-        else:
-            assert virtual_px.sum() == 0
-    # the hidden agent is really in view (only occluded): without the box it shows
-    s = parse_scene({**_scene(room=None), "virtual_agents": [{"shape": "cylinder", "position": [3.0, 0.0]}],
-                     "camera": {"width": 160, "height": 120,
-                                "mount": {"pitch_deg": 0, "forward_m": 0, "height_m": 0.15}}})
-    cam = camera_from_pose(0.0, 0.0, 0.0, s.camera.mount, s.camera.intrinsics)
-    assert (VirtualViewSource(s, RayCastWorld(s)).render(cam)[1] == 0).sum() > 0
-
-
-def test_mask_treats_missing_real_depth_as_no_surface():
-    virtual = np.array([[1.0, 1.0, 1.0, np.inf]], np.float32)
-    real = np.array([[0.0, np.nan, 0.5, 0.5]], np.float32)
-    assert compose_mask(virtual, real).tolist() == [[0.0, 0.0, 1.0, 1.0]]
-
-
-def test_moving_agent_goes_there_and_back():
-    s = load_scene("sandbox")
-    walker = next(a for a in s.agents if a.path is not None)
-    x0, y0, _ = agent_pose(walker, 0.0)
-    x1, _, yaw1 = agent_pose(walker, 1.4 / 0.2)  # end of the 1.4 m segment
-    x2, _, yaw2 = agent_pose(walker, 2 * 1.4 / 0.2)
-    assert (x0, y0) == pytest.approx((-0.7, 0.55)) and x1 == pytest.approx(0.7) and x2 == pytest.approx(-0.7)
-    assert math.cos(yaw2 - yaw1) < 0
 
 
 # ---------------------------------------------------------------------------------------------- route
@@ -410,7 +357,7 @@ def test_garden_points_world_renders_with_depth_and_an_occluding_mask():
     cam = camera_from_pose(x, y, math.pi / 2, s.camera.mount, s.camera.intrinsics)
     rgb, depth = world.render(cam)
     assert np.isfinite(depth).mean() > 0.5 and rgb.std() > 0.05
-    _, d = VirtualViewSource(s, world).render(cam, real_depth_m=depth)
+    _, d = virtual_view(s).render(cam, real_depth_m=depth)
     assert set(np.unique(d)) <= {0.0, 1.0}
 
 

@@ -19,9 +19,9 @@ from std_msgs.msg import Int32
 
 from gsrmr_common.camera import camera_from_pose
 from gsrmr_common.route import LoopPath
-from gsrmr_server.world.raycast import RayCastWorld
-from gsrmr_server.world.recorder import with_resolution
-from gsrmr_server.world.scene import load_scene
+from gsrmr_sim.world.raycast import RayCastWorld
+from gsrmr_sim.world.recorder import with_resolution
+from gsrmr_sim.world.scene import load_scene
 
 pytestmark = pytest.mark.ros
 
@@ -67,18 +67,16 @@ def odom_msg(x: float, y: float, yaw: float) -> Odometry:
     return msg
 
 
-def test_mock_camera_publishes_image_info_and_mask_at_the_odometry_pose(ros_processes, test_node):
+def test_mock_camera_publishes_image_info_and_depth_at_the_odometry_pose(ros_processes, test_node):
     cam_proc = ros_processes.start("gsrmr-mock-camera", "--ros-args", "-p", "width:=64", "-p", "height:=48",
                                    "-p", "rate_hz:=10.0", "-p", "round:=0")
     images: list[Image] = []
     infos: list[CameraInfo] = []
-    masks: list[Image] = []
     test_node.create_subscription(Image, "camera/image_raw", images.append, qos_profile_sensor_data)
     test_node.create_subscription(CameraInfo, "camera/camera_info", infos.append, qos_profile_sensor_data)
     depths: list[Image] = []
-    test_node.create_subscription(Image, "sim/virtual/mask", masks.append, qos_profile_sensor_data)
     test_node.create_subscription(Image, "camera/depth/image_raw", depths.append, qos_profile_sensor_data)
-    assert spin_until(test_node, lambda: min(len(images), len(infos), len(masks), len(depths)) >= 2, 60.0), \
+    assert spin_until(test_node, lambda: min(len(images), len(infos), len(depths)) >= 2, 60.0), \
         ros_processes.output(cam_proc)
     img, info = images[-1], infos[-1]
     assert (img.width, img.height, img.encoding, img.step) == (64, 48, "rgb8", 64 * 3)
@@ -89,7 +87,6 @@ def test_mock_camera_publishes_image_info_and_mask_at_the_odometry_pose(ros_proc
     assert (info.width, info.height) == (64, 48)
     stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in images}
     assert any((i.header.stamp.sec, i.header.stamp.nanosec) in stamps for i in infos)
-    assert masks[-1].encoding == "mono8" and set(np.frombuffer(bytes(masks[-1].data), np.uint8)) <= {0, 255}
     depth = np.frombuffer(bytes(depths[-1].data), "<f4").reshape(48, 64)
     assert depths[-1].encoding == "32FC1" and np.all(depth > 0) and np.isfinite(depth).mean() > 0.9
 

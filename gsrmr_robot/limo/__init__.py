@@ -1,5 +1,5 @@
-"""AgileX LIMO base over pyserial: protocol codecs, kinematics, odometry, driver, mock base, ROS node.
+"""AgileX LIMO base over pyserial: protocol codecs, kinematics, odometry, driver, ROS node.
 
-Pure (no rclpy): :mod:`protocol`, :mod:`kinematics`, :mod:`odometry`, :mod:`driver`, :mod:`mock`.
-ROS: :mod:`node` (``gsrmr-limo-base``) and :mod:`mock_ros` (ground-truth publisher of the mock).
+Pure (no rclpy): :mod:`protocol`, :mod:`kinematics`, :mod:`odometry`, :mod:`driver`. ROS: :mod:`node`
+(``gsrmr-limo-base``). The byte-exact mock base is simulation: :mod:`gsrmr_sim.limo`.
 """

@@ -1,0 +1,183 @@
+"""The simulated system as a list of processes: one definition for ``sim.launch.py`` and ``make demo``.
+
+:func:`sim_stack` returns, for a scene and a GS model, every node of the closed loop with its
+executable, node name, parameter files, parameter overrides, arguments and remappings. The launch file
+turns each :class:`ProcessSpec` into a ``launch_ros`` ``Node``; the demo and the integration tests
+start the same executables as plain processes with :func:`command_line` — so what is tested here is
+what ``ros2 launch gsrmr sim.launch.py`` runs on a ROS install.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import os
+from pathlib import Path
+import shutil
+import sys
+import tempfile
+from typing import Any
+
+import yaml
+
+from gsrmr_sim.world.kinematics import start_pose
+from gsrmr_sim.world.scene import load_scene
+
+REPO_CONFIG = Path(__file__).resolve().parents[1] / "config"
+
+
+def config_dir() -> Path:
+    """The package's config folder: the installed share dir on a ROS install, else the source tree."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        share = Path(get_package_share_directory("gsrmr")) / "config"
+        if share.is_dir():
+            return share
+    except Exception:
+        pass
+    return REPO_CONFIG
+
+
+@dataclass
+class ProcessSpec:
+    """One node of the stack."""
+
+    executable: str
+    name: str
+    param_files: list[str] = field(default_factory=list)
+    params: dict[str, Any] = field(default_factory=dict)
+    arguments: list[str] = field(default_factory=list)
+    remappings: list[tuple[str, str]] = field(default_factory=list)
+    ros: bool = True  # False: a plain CLI (arguments only)
+    nice: int = 0  # scheduling niceness added to the process (see WORLD_NICE)
+
+
+# The simulated world (mock LIMO, mock camera, route follower) stands in for hardware and physics that
+# do not share the server's CPU on a real deployment. On one small machine it runs at a lower CPU
+# priority, so that it takes the cores the system under test leaves idle instead of delaying the
+# server's slots; it still gets most of a core when the system idles.
+WORLD_NICE = 10
+
+
+def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", loss_threshold: float = 0.03,
+              link_path: str = "/tmp/gsrmr_limo", laps: int = 1, method: str = "exact",
+              loss_map_file: str = "", state_dir: str = "", overrides: dict[str, dict] | None = None,
+              config: Path | None = None) -> list[ProcessSpec]:
+    """Every process of the simulated closed loop (mock base and camera, robot, server, scheduler)."""
+    cfg = config or config_dir()
+    link, base, robot, server, scheduler = (
+        str(cfg / n) for n in ("link.yaml", "limo_base.yaml", "robot.yaml", "server.yaml", "scheduler.yaml"))
+    sc = load_scene(scene)
+    a0, b0, t0 = start_pose(sc.route)
+    m = sc.camera.mount  # the simulated camera's mount: the robot's /tf_static and the server's render pose
+    mount = {"camera_mount.height_m": m.height_m, "camera_mount.pitch_rad": m.pitch_rad,
+             "camera_mount.forward_m": m.forward_m, "camera_mount.left_m": m.left_m}
+    over = overrides or {}
+    specs = [
+        ProcessSpec("gsrmr-mock-limo", "gsrmr_mock_limo", ros=True,
+                    arguments=["--link", link_path, f"--start-pose={a0},{b0},{t0}"], nice=WORLD_NICE),
+        ProcessSpec("gsrmr-limo-base", "gsrmr_limo_base", [base], {"port": link_path}),
+        ProcessSpec("gsrmr-mock-camera", "gsrmr_mock_camera", [],
+                    {"scene": scene, "round": 2, "clock_from_motion": True}, nice=WORLD_NICE),
+        ProcessSpec("gsrmr-route-follower", "gsrmr_route_follower", [],
+                    {"scene": scene, "laps": laps, "odom_topic": "/sim/ground_truth/odom"}, nice=WORLD_NICE),
+        ProcessSpec("gsrmr-robot", "gsrmr_robot", [link, robot],
+                    {"map_from_odom": [a0, b0, t0], **mount}),
+        ProcessSpec("gsrmr-server", "gsrmr_server", [link, server],
+                    {"mr_content": sc.mr_content, "background_rgb": [float(c) for c in sc.background], **mount,
+                     "model_path": model_path, "record_dir": record_dir, "evaluate_ground_truth": True}),
+        ProcessSpec("gsrmr-scheduler", "gsrmr_scheduler", [link, scheduler],
+                    {"route_waypoints_m": [float(v) for xy in sc.route.waypoints for v in xy],
+                     "route_speed_mps": float(sc.route.speed_mps), "loss_threshold": loss_threshold, "method": method,
+                     "loss_map_file": loss_map_file, "state_dir": state_dir}),
+    ]
+    for spec in specs:
+        spec.params.update(over.get(spec.name, {}))
+    return specs
+
+
+def nice_prefix(spec: ProcessSpec) -> list[str]:
+    """``nice -n N`` for a process with a niceness (the launch files' ``prefix``), else nothing."""
+    return ["nice", "-n", str(spec.nice)] if spec.nice else []
+
+
+def executable_path(name: str) -> Path:
+    """Where the installed package exposes console script ``name``, found as ``ros2 run`` finds it.
+
+    In order: ``<prefix>/lib/gsrmr/<name>`` of the ament-indexed package (``colcon build`` and a
+    sourced ``install/setup.bash``, or a ROS install), the folder of the running interpreter (a venv's
+    ``bin`` after ``pip install``), then ``PATH``. Raises ``FileNotFoundError`` naming every place
+    looked at.
+    """
+    tried: list[str] = []
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+
+        try:
+            candidate = Path(get_package_prefix("gsrmr")) / "lib" / "gsrmr" / name
+            if candidate.is_file() and os.access(candidate, os.X_OK):
+                return candidate
+            tried.append(str(candidate))
+        except (PackageNotFoundError, LookupError, OSError):  # OSError: AMENT_PREFIX_PATH not set at all
+            tried.append("ament index (gsrmr not indexed: AMENT_PREFIX_PATH)")
+    except ImportError:
+        tried.append("ament index (ament_index_python not installed)")
+    candidate = Path(sys.executable).parent / name
+    if candidate.is_file() and os.access(candidate, os.X_OK):
+        return candidate
+    tried.append(str(candidate))
+    found = shutil.which(name)
+    if found:
+        return Path(found)
+    tried.append("PATH")
+    raise FileNotFoundError(f"console script {name} not found; looked in: {', '.join(tried)}")
+
+
+def command_line(spec: ProcessSpec, bin_dir: str | Path | None = None,
+                 param_dir: str | Path | None = None) -> list[str]:
+    """argv that runs ``spec`` as a process (overrides go through a generated parameter file).
+
+    Every file is keyed ``/**``, as ``launch_ros`` writes a launch file's parameter dict, so the
+    overrides (the last file) win over the package's config files exactly as under ``ros2 launch``.
+    """
+    exe = executable_path(spec.executable) if bin_dir is None else Path(bin_dir) / spec.executable
+    argv = [*nice_prefix(spec), str(exe), *spec.arguments]
+    if not spec.ros:
+        return argv
+    ros = ["--ros-args", "-r", f"__node:={spec.name}"]
+    for path in spec.param_files:
+        ros += ["--params-file", path]
+    if spec.params:
+        folder = Path(param_dir or tempfile.mkdtemp(prefix="gsrmr-params-"))
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"{spec.name}.yaml"
+        path.write_text(yaml.safe_dump({"/**": {"ros__parameters": spec.params}}))
+        ros += ["--params-file", str(path)]
+    for src, dst in spec.remappings:
+        ros += ["-r", f"{src}:={dst}"]
+    return argv + ros
+
+
+# Fast DDS's default shared-memory transport does not survive a peer killed with -9: the dead
+# process's ports can block other participants' writes for about a second and leave a restarted
+# node's endpoints unmatched (eProsima/Fast-DDS #5469, #6535; docs/reliability.md). Stacks whose
+# nodes may be killed use UDP on the loopback instead (robot and server talk UDP on a real deployment
+# anyway). The demo keeps the default: on one machine shared memory costs less CPU per camera frame
+# (≥ 287 of 288 slots on time in 10 of 10 demo runs with it; 281–288 with UDP). An explicit
+# FASTDDS_BUILTIN_TRANSPORTS in the caller's environment wins.
+KILL_SAFE_TRANSPORT = {"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
+
+
+def environment(domain_id: int | None = None, base: dict[str, str] | None = None, *,
+                kill_safe: bool = False) -> dict[str, str]:
+    """Process environment (a copy of ``base``, default ``os.environ``): localhost-only discovery,
+    unbuffered output, the given ROS domain and, with ``kill_safe``, the kill-safe Fast DDS transport."""
+    env = dict(os.environ if base is None else base)
+    if domain_id is not None:
+        env["ROS_DOMAIN_ID"] = str(domain_id)
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    if kill_safe:
+        for key, value in KILL_SAFE_TRANSPORT.items():
+            env.setdefault(key, value)
+    env["PYTHONUNBUFFERED"] = "1"
+    return env

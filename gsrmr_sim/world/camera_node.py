@@ -1,0 +1,187 @@
+"""``gsrmr-mock-camera``: the robot's camera in the simulated world, as a ROS 2 node.
+
+Publishes at ``rate_hz`` (default: the scene's camera rate, 10 Hz), all with the sensor-data QoS
+(best effort, keep last 5) and one shared stamp per frame:
+
+* ``camera/image_raw`` (sensor_msgs/Image, rgb8, frame ``camera_optical_frame``): the real image r_t
+* ``camera/camera_info`` (sensor_msgs/CameraInfo): K in the ROS convention (``Intrinsics.ros_k()``,
+  pixel centres at integers), plumb_bob with zero distortion, P = [K | 0]
+* ``camera/depth/image_raw`` (32FC1, metres = camera-space z, +inf where nothing is hit; parameter
+  ``publish_depth``): the LIMO's RGB-D depth, registered to the colour image
+
+The pose is the true pose from ``odom_topic`` (default ``/sim/ground_truth/odom``, nav_msgs/Odometry in
+``map``: x, y and yaw of base_link). Until the first message arrives (or when it is older than
+``odom_timeout_s``) the node falls back to a scripted pose: the route driven open-loop at its nominal
+speed (arc length = speed · round time, heading along the path). Round time is the node clock
+(sim time if ``use_sim_time``) since start; the scene's change events apply by it when ``round`` = 2.
+With ``round`` = 0 the node follows ``sim/route/lap`` (std_msgs/Int32 from the route follower): the
+round becomes 1 + laps (capped at 2) and the round clock restarts at every lap.
+"""
+
+from __future__ import annotations
+
+import math
+
+from nav_msgs.msg import Odometry
+import numpy as np
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from rclpy.time import Time
+from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import Int32
+
+from gsrmr_common.camera import camera_from_pose
+from gsrmr_common.ros_node import declare, run_node
+from gsrmr_common.route import LoopPath
+from gsrmr_sim.world.kinematics import has_moved
+from gsrmr_sim.world.points import make_world
+from gsrmr_sim.world.recorder import with_resolution
+from gsrmr_sim.world.scene import load_scene
+
+FRAME_ID = "camera_optical_frame"
+
+
+def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
+    """Yaw (rad, about +z) of a quaternion."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def image_msg(img_u8: np.ndarray, encoding: str, stamp: object, frame_id: str = FRAME_ID) -> Image:
+    """sensor_msgs/Image from an H×W×3 (rgb8) or H×W (mono8) uint8 array."""
+    msg = Image()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    msg.height, msg.width = int(img_u8.shape[0]), int(img_u8.shape[1])
+    msg.encoding = encoding
+    msg.is_bigendian = 0
+    channels = 1 if img_u8.ndim == 2 else img_u8.shape[2]
+    msg.step = msg.width * channels
+    msg.data = np.ascontiguousarray(img_u8, dtype=np.uint8).tobytes()
+    return msg
+
+
+def depth_msg(depth_m: np.ndarray, stamp: object, frame_id: str = FRAME_ID) -> Image:
+    """sensor_msgs/Image 32FC1 (metres along the optical axis, +inf = nothing in range; REP 118)."""
+    msg = Image()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    msg.height, msg.width = int(depth_m.shape[0]), int(depth_m.shape[1])
+    msg.encoding = "32FC1"
+    msg.is_bigendian = 0
+    msg.step = msg.width * 4
+    msg.data = np.ascontiguousarray(depth_m, dtype="<f4").tobytes()
+    return msg
+
+
+class MockCamera(Node):
+    """Renders the scene's real world at the robot's true pose."""
+
+    def __init__(self) -> None:
+        super().__init__("gsrmr_mock_camera")
+        scene_name = declare(self, "scene", "sandbox", "scene name (config/scenes) or YAML path")
+        self.round_param = declare(self, "round", 1, "1 = mapping (static world), 2 = apply change events, "
+                                   "0 = follow sim/route/lap (round = 1 + laps, clock restarts per lap)",
+                                   min_value=0, max_value=2)
+        self.round_index = self.round_param or 1
+        rate = declare(self, "rate_hz", 0.0, "camera rate in Hz (0 = the scene's)", min_value=0.0,
+                       max_value=100.0)
+        width = declare(self, "width", 0, "image width in pixels (0 = the scene's)", min_value=0,
+                        max_value=4096)
+        height = declare(self, "height", 0, "image height in pixels (0 = the scene's)", min_value=0,
+                         max_value=4096)
+        odom_topic = declare(self, "odom_topic", "/sim/ground_truth/odom", "true pose (nav_msgs/Odometry)")
+        self.odom_timeout_s = declare(self, "odom_timeout_s", 1.0, "use the scripted pose when odom is older",
+                                      min_value=0.0)
+        self.clock_from_motion = declare(self, "clock_from_motion", False,
+                                         "start the round clock when the true pose first moves (> 1 cm "
+                                         "or 0.01 rad) instead of at node start: change events and agents "
+                                         "then follow the route progress however long the stack takes to start")
+        self.publish_depth = declare(self, "publish_depth", True,
+                                     "publish camera/depth/image_raw (32FC1, metres, REP 118)")
+        self.scene = with_resolution(load_scene(scene_name), width or None, height or None)
+        self.world = make_world(self.scene, self.round_index)
+        self.path = LoopPath(self.scene.route.waypoints)
+        self.k = self.scene.camera.intrinsics
+        self.pub_image = self.create_publisher(Image, "camera/image_raw", qos_profile_sensor_data)
+        self.pub_info = self.create_publisher(CameraInfo, "camera/camera_info", qos_profile_sensor_data)
+        self.pub_depth = self.create_publisher(Image, "camera/depth/image_raw", qos_profile_sensor_data)
+        self.create_subscription(Odometry, odom_topic, self._on_odom, qos_profile_sensor_data)
+        if self.round_param == 0:
+            self.create_subscription(Int32, "sim/route/lap", self._on_lap, 10)
+        self.odom_pose: tuple[float, float, float] | None = None
+        self.odom_time: Time | None = None
+        self.rest_pose: tuple[float, float, float] | None = None  # first true pose, while waiting for motion
+        self.start: Time | None = None if self.clock_from_motion else self.get_clock().now()
+        self.frames = 0
+        period = 1.0 / (rate or self.scene.camera.rate_hz)
+        self.timer = self.create_timer(period, self._tick)
+        self.get_logger().info(f"mock camera ready: scene {self.scene.name}, round {self.round_index}, "
+                               f"{self.k.width}x{self.k.height} at {1.0 / period:.1f} Hz, "
+                               f"pose from {odom_topic} "
+                               "(scripted route until it arrives)")
+
+    def _on_lap(self, msg: Int32) -> None:
+        new_round = min(2, 1 + int(msg.data))
+        self.start = self.get_clock().now()
+        if new_round != self.round_index:
+            self.round_index = new_round
+            self.world = make_world(self.scene, new_round)
+        self.get_logger().info(f"lap {msg.data}: round {self.round_index}, round clock restarted")
+
+    def _on_odom(self, msg: Odometry) -> None:
+        q = msg.pose.pose.orientation
+        self.odom_pose = (msg.pose.pose.position.x, msg.pose.pose.position.y,
+                          yaw_from_quaternion(q.x, q.y, q.z, q.w))
+        self.odom_time = self.get_clock().now()
+        if self.start is None:
+            self.rest_pose = self.rest_pose or self.odom_pose
+            if has_moved(self.odom_pose, self.rest_pose):
+                self.start = self.odom_time
+                self.get_logger().info("robot moving: round clock started")
+
+    def scripted_pose(self, t_s: float) -> tuple[float, float, float]:
+        """Open-loop route pose at round time ``t_s``: arc length speed·t along the loop."""
+        s = self.scene.route.speed_mps * t_s
+        x, y = self.path.point_at(s)
+        return x, y, self.path.heading_at(s)
+
+    def camera_info(self, stamp: object) -> CameraInfo:
+        """CameraInfo with the ROS-convention K of the current intrinsics."""
+        info = CameraInfo()
+        info.header.stamp = stamp
+        info.header.frame_id = FRAME_ID
+        info.width, info.height = self.k.width, self.k.height
+        info.distortion_model = "plumb_bob"
+        info.d = [0.0] * 5
+        k = self.k.ros_k()
+        info.k = k.reshape(-1).tolist()
+        info.r = np.eye(3).reshape(-1).tolist()
+        info.p = np.hstack([k, np.zeros((3, 1))]).reshape(-1).tolist()
+        return info
+
+    def _tick(self) -> None:
+        now = self.get_clock().now()
+        t_s = 0.0 if self.start is None else max(0.0, (now - self.start).nanoseconds * 1e-9)
+        fresh = (self.odom_pose is not None and self.odom_time is not None
+                 and (now - self.odom_time).nanoseconds * 1e-9 <= self.odom_timeout_s)
+        pose = self.odom_pose if fresh and self.odom_pose is not None else self.scripted_pose(t_s)
+        cam = camera_from_pose(*pose, self.scene.camera.mount, self.k)
+        rgb, depth = self.world.render(cam, t_s)
+        stamp = now.to_msg()
+        rgb_u8 = np.clip(np.round(rgb * 255), 0, 255).astype(np.uint8)
+        self.pub_image.publish(image_msg(rgb_u8, "rgb8", stamp))
+        self.pub_info.publish(self.camera_info(stamp))
+        if self.publish_depth:
+            self.pub_depth.publish(depth_msg(depth, stamp))
+        self.frames += 1
+        if self.frames == 1:
+            self.get_logger().info(f"first frame published (pose source: {'odom' if fresh else 'scripted'})")
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``gsrmr-mock-camera``."""
+    return run_node(MockCamera, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

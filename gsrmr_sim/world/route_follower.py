@@ -1,0 +1,89 @@
+"""``gsrmr-route-follower``: drive the scene's route loop by publishing cmd_vel (pure pursuit).
+
+Subscribes ``odom_topic`` (nav_msgs/Odometry; default ``odom``, or ``/sim/ground_truth/odom`` for the
+true pose), publishes ``cmd_vel`` (geometry_msgs/Twist: linear.x in m/s, angular.z in rad/s, robot
+frame) at ``rate_hz``, and ``sim/route/lap`` (std_msgs/Int32, laps completed, on every change).
+After ``laps`` laps (0 = never stop) it publishes a zero Twist and stays stopped. Before the first
+odometry message it publishes nothing. Progress starts at the path point closest to the first pose.
+"""
+
+from __future__ import annotations
+
+import contextlib
+
+from geometry_msgs.msg import Twist
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from std_msgs.msg import Int32
+
+from gsrmr_common.ros_node import declare, run_node
+from gsrmr_common.route import LoopPath, PurePursuit, laps_completed
+from gsrmr_sim.world.camera_node import yaw_from_quaternion
+from gsrmr_sim.world.scene import load_scene
+
+
+class RouteFollower(Node):
+    """Pure pursuit around the scene's route; counts laps and stops after ``laps``."""
+
+    def __init__(self) -> None:
+        super().__init__("gsrmr_route_follower")
+        scene = load_scene(declare(self, "scene", "sandbox", "scene name (config/scenes) or YAML path"))
+        odom_topic = declare(self, "odom_topic", "odom", "pose feedback (nav_msgs/Odometry)")
+        self.max_laps = declare(self, "laps", 2, "stop after this many laps (0 = never)", min_value=0)
+        rate = declare(self, "rate_hz", 20.0, "control rate in Hz", min_value=1.0, max_value=200.0)
+        speed = declare(self, "speed_mps", scene.route.speed_mps, "nominal speed (m/s)", min_value=0.0,
+                        max_value=2.0)
+        self.path = LoopPath(scene.route.waypoints)
+        self.ctrl = PurePursuit(speed, scene.route.lookahead_m, scene.route.max_omega_rps)
+        self.pub = self.create_publisher(Twist, "cmd_vel", 10)
+        self.pub_lap = self.create_publisher(Int32, "sim/route/lap", 10)
+        self.create_subscription(Odometry, odom_topic, self._on_odom, qos_profile_sensor_data)
+        self.pose: tuple[float, float, float] | None = None
+        self.s0: float | None = None
+        self.s = 0.0
+        self.laps = 0
+        self.done = False
+        self.create_timer(1.0 / rate, self._tick)
+        self.get_logger().info(f"route follower: {self.path.length_m:.2f} m loop of scene {scene.name}, "
+                               f"{self.max_laps or 'unlimited'} laps, odom from {odom_topic}")
+
+    def _on_odom(self, msg: Odometry) -> None:
+        q = msg.pose.pose.orientation
+        p = msg.pose.pose.position
+        self.pose = (p.x, p.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
+        if self.s0 is None:
+            self.s0 = self.path.project(self.pose[0], self.pose[1], 0.0, window_m=self.path.length_m)
+            self.s = self.s0
+
+    def _tick(self) -> None:
+        if self.pose is None or self.s0 is None:
+            return
+        cmd = Twist()
+        if not self.done:
+            v, w, self.s = self.ctrl.command(self.path, self.pose, self.s)
+            laps = laps_completed(self.s - self.s0, self.path.length_m)
+            if laps != self.laps:
+                self.laps = laps
+                self.pub_lap.publish(Int32(data=laps))
+                self.get_logger().info(f"lap {laps} completed")
+            if self.max_laps and self.laps >= self.max_laps:
+                self.done = True
+                self.get_logger().info(f"route complete after {self.laps} laps; stopping")
+            else:
+                cmd.linear.x, cmd.angular.z = float(v), float(w)
+        self.pub.publish(cmd)
+
+    def on_shutdown(self) -> None:
+        """Leave the robot stopped."""
+        with contextlib.suppress(Exception):
+            self.pub.publish(Twist())
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``gsrmr-route-follower``."""
+    return run_node(RouteFollower, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
