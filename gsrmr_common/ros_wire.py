@@ -7,6 +7,8 @@ module only maps fields:
 * pose key ↔ ``geometry_msgs/Vector3Stamped``: ``vector = (a_m, b_m, theta_rad)`` in ``map``,
   ``header.stamp`` = start of the key's slot.
 * schedule ↔ ``std_msgs/Float64MultiArray``: ``layout.dim = [meta(4), x(n), power_w(n)]``.
+* ledger row and loss sample ↔ ``std_msgs/Float64MultiArray``: ``layout.dim = [ledger(10)]`` /
+  ``[loss_sample(5)]`` (an empty layout is accepted too).
 * raw image ↔ ``sensor_msgs/Image``: our in-process images are H×W×3 ``uint8`` RGB; the pixel work
   is :mod:`gsrmr_common.image_bridge` (``cv_bridge`` where a ROS install has it, else the project's
   own conversion with the same semantics). ``image_from_msg`` accepts ``rgb8``, ``bgr8``, ``rgba8``,
@@ -110,6 +112,43 @@ def schedule_from_msg(msg: Float64MultiArray) -> wire.ScheduleMsg:
 
 
 # ------------------------------------------------------------------------------------------ images
+
+def _flat_record_msg(label: str, data: list[float]) -> Float64MultiArray:
+    msg = Float64MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label=label, size=len(data), stride=len(data))]
+    msg.layout.data_offset = 0
+    msg.data = data
+    return msg
+
+
+def _check_flat_layout(msg: Float64MultiArray, label: str) -> None:
+    dims = [(d.label, int(d.size)) for d in msg.layout.dim]
+    if msg.layout.data_offset != 0 or dims not in ([], [(label, len(msg.data))]):
+        raise ValueError(f"{label}: layout {dims} (offset {msg.layout.data_offset}) does not match "
+                         f"{label}({len(msg.data)})")
+
+
+def ledger_to_msg(row: wire.LedgerRow) -> Float64MultiArray:
+    """Ledger row → ``Float64MultiArray`` (``layout.dim = [ledger(10)]``, fields in ``LEDGER_FIELDS`` order)."""
+    return _flat_record_msg("ledger", wire.ledger_row_to_data(row))
+
+
+def ledger_from_msg(msg: Float64MultiArray) -> wire.LedgerRow:
+    """``Float64MultiArray`` → ledger row; ValueError if it does not parse (see ``ledger_row_from_data``)."""
+    _check_flat_layout(msg, "ledger")
+    return wire.ledger_row_from_data(np.asarray(msg.data, dtype=np.float64))
+
+
+def loss_sample_to_msg(sample: wire.LossSample) -> Float64MultiArray:
+    """Loss sample → ``Float64MultiArray`` (``layout.dim = [loss_sample(5)]``: slot, a_m, b_m, theta_rad, loss)."""
+    return _flat_record_msg("loss_sample", sample.to_data())
+
+
+def loss_sample_from_msg(msg: Float64MultiArray) -> wire.LossSample:
+    """``Float64MultiArray`` → loss sample; ValueError if it does not parse."""
+    _check_flat_layout(msg, "loss_sample")
+    return wire.LossSample.from_data(np.asarray(msg.data, dtype=np.float64))
+
 
 def image_to_msg(rgb: np.ndarray, stamp_ns: int, frame_id: str) -> Image:
     """H×W×3 ``uint8`` RGB → ``sensor_msgs/Image`` (``rgb8``, no row padding)."""

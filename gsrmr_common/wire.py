@@ -23,11 +23,23 @@ Schedule: ``std_msgs/Float64MultiArray``; ``data`` = ``[first_slot, slot_s, seq,
 ``x[slots]`` (0 = pose key, 1 = image) and ``power_w[slots]`` (transmit power, watts). ``layout.dim``
 labels the three consecutive blocks ``meta``, ``x``, ``power_w`` with their sizes (``stride`` = size).
 ``first_slot`` is an absolute slot index (exact in float64 up to 2^53).
+
+Ledger row (one per slot, robot → server, ``gsrmr/ledger``): ``std_msgs/Float64MultiArray`` whose
+``data`` are the fields of :class:`LedgerRow` in :data:`LEDGER_FIELDS` order.
+
+Loss sample (server → scheduler, ``gsrmr/loss_sample``): ``std_msgs/Float64MultiArray`` with
+``data = [slot, a_m, b_m, theta_rad, loss]`` (:class:`LossSample`): the GS loss L_t measured in an image
+slot at the pose the robot reported.
+
+Names that cross a boundary as strings (CSV cells, diagnostics JSON, the demo summary) are enums here:
+:class:`Delivery` (what reached the server), :class:`RealSource` (where the server's real-view estimate
+came from) and :class:`UplinkFault` (the server's fault counters).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import astuple, dataclass
+from enum import Enum
 import math
 
 import numpy as np
@@ -137,3 +149,98 @@ class LedgerRow:
 
 # Order of the values in a ``gsrmr/ledger`` Float64MultiArray (one message per slot).
 LEDGER_FIELDS = tuple(LedgerRow.__dataclass_fields__)
+
+
+LOSS_SAMPLE_FIELDS = ("slot", "a_m", "b_m", "theta_rad", "loss")
+
+
+@dataclass(frozen=True)
+class LossSample:
+    """The GS loss L_t measured by the server in image slot ``slot`` at the reported pose (map, m, rad)."""
+
+    slot: int
+    a_m: float
+    b_m: float
+    theta_rad: float
+    loss: float
+
+    def to_data(self) -> list[float]:
+        """Flat float64 list for ``Float64MultiArray.data`` (:data:`LOSS_SAMPLE_FIELDS` order)."""
+        return [float(v) for v in astuple(self)]
+
+    @classmethod
+    def from_data(cls, data: list[float] | np.ndarray) -> LossSample:
+        """Parse ``Float64MultiArray.data``; ValueError unless 5 finite values with a loss ≥ 0."""
+        arr = np.asarray(data, dtype=np.float64)
+        if arr.shape != (len(LOSS_SAMPLE_FIELDS),) or not np.all(np.isfinite(arr)) or arr[4] < 0:
+            raise ValueError(f"loss sample: expected {len(LOSS_SAMPLE_FIELDS)} finite values {LOSS_SAMPLE_FIELDS} "
+                             "with loss ≥ 0")
+        return cls(int(arr[0]), float(arr[1]), float(arr[2]), float(arr[3]), float(arr[4]))
+
+
+def ledger_row_to_data(row: LedgerRow) -> list[float]:
+    """A ledger row as ``Float64MultiArray.data`` (:data:`LEDGER_FIELDS` order)."""
+    return [float(getattr(row, f)) for f in LEDGER_FIELDS]
+
+
+def ledger_row_from_data(data: list[float] | np.ndarray) -> LedgerRow:
+    """Parse ``gsrmr/ledger`` data; ValueError on a wrong length or a non-finite slot, x or bits_sent
+    (energies and gains may be inf/NaN: a slot that could not carry its upload)."""
+    arr = np.asarray(data, dtype=np.float64)
+    if arr.shape != (len(LEDGER_FIELDS),):
+        raise ValueError(f"ledger row: expected {len(LEDGER_FIELDS)} values {LEDGER_FIELDS}, got {arr.size}")
+    row = dict(zip(LEDGER_FIELDS, arr.tolist(), strict=True))
+    if not all(math.isfinite(row[k]) for k in ("slot", "x", "bits_sent", "upload_all_bits")):
+        raise ValueError("ledger row: slot, x, bits_sent and upload_all_bits must be finite")
+    for k in ("slot", "x", "bits_sent", "upload_all_bits"):
+        row[k] = int(row[k])
+    return LedgerRow(**row)
+
+
+class WireName(str, Enum):
+    """A name that crosses a boundary as its string value: ``str(name)``, f-strings, JSON and ``==`` with
+    the plain string all give the value (Python 3.10 has no ``StrEnum``)."""
+
+    def __str__(self) -> str:
+        return str(self.value)
+
+    def __format__(self, spec: str) -> str:
+        return format(str(self.value), spec)
+
+
+class Delivery(WireName):
+    """What reached the server for a slot: the image, only the pose key, or nothing in time."""
+
+    IMAGE = "image"
+    KEY = "key"
+    NONE = "none"
+
+
+class RealSource(WireName):
+    """Where the server's real-view estimate r̂_t came from (the ``source`` column of ``slots.csv``)."""
+
+    IMAGE = "image"  # the uploaded JPEG, decoded
+    RENDER = "render"  # the GS render at the slot's pose key
+    FALLBACK = "fallback"  # the GS render at the best pose estimate (upload missing, late or refused)
+    NONE = "none"  # no pose ever received: the background colour
+
+
+class UplinkFault(WireName):
+    """The server's fault counters (``/diagnostics`` key ``faults``, ``slots.csv`` column ``faults``)."""
+
+    DUPLICATE_KEY = "duplicate_key"
+    DUPLICATE_IMAGE = "duplicate_image"
+    INVALID_KEY = "invalid_key"  # NaN or inf
+    LATE = "late"  # arrived after its slot was composed
+    FUTURE = "future"  # more than max_future_slots ahead of the slot clock
+    EVICTED = "evicted"  # pending uploads over the memory bound
+    MISSING_KEY = "missing_key"
+    MISSING_IMAGE = "missing_image"  # the schedule said x = 1 and no image came
+    CORRUPT_IMAGE = "corrupt_image"  # unreadable or truncated JPEG
+    WRONG_SIZE = "wrong_size"  # a readable JPEG of another size than the camera's
+    OVERSIZED_HEADER = "oversized_header"  # a JPEG header claiming more than MAX_IMAGE_PIXELS
+    OVERSIZED_IMAGE = "oversized_image"  # a payload over MAX_COMPRESSED_BYTES
+    MALFORMED_KEY = "malformed_key"  # wrong frame or an invalid stamp
+    MALFORMED_IMAGE = "malformed_image"  # an invalid stamp
+    MALFORMED_LEDGER = "malformed_ledger"  # a ledger row that does not parse
+    SKIPPED_SLOTS = "skipped_slots"  # the server fell more than max_backlog_slots behind and skipped ahead

@@ -22,8 +22,6 @@ from gsrmr_common.wire import POSE_KEY_BITS, LedgerRow
 PowerFunction = Callable[[float, float, float, float, float], float]
 
 
-
-
 class EnergyLedger:
     """Accumulates :class:`LedgerRow` totals; thread-compatible (callers serialise access)."""
 

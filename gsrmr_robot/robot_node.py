@@ -51,7 +51,14 @@ from std_msgs.msg import Float64MultiArray
 
 from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.ros_node import declare, declare_camera_mount, declare_link_budget, run_node
-from gsrmr_common.ros_wire import compressed_to_msg, image_from_msg, pose_key_to_msg, schedule_from_msg, stamp_to_ns
+from gsrmr_common.ros_wire import (
+    compressed_to_msg,
+    image_from_msg,
+    ledger_to_msg,
+    pose_key_to_msg,
+    schedule_from_msg,
+    stamp_to_ns,
+)
 from gsrmr_common.tf_tree import (
     BASE_FRAME,
     CAMERA_OPTICAL_FRAME,
@@ -61,7 +68,7 @@ from gsrmr_common.tf_tree import (
     base_from_camera_optical_transform,
     map_from_odom_transform,
 )
-from gsrmr_common.wire import LEDGER_FIELDS, PoseKey, ScheduleMsg, slot_ns, slot_start_ns
+from gsrmr_common.wire import PoseKey, ScheduleMsg, slot_ns, slot_start_ns
 from gsrmr_robot.ledger import EnergyLedger
 
 UPLINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
@@ -306,7 +313,7 @@ class RobotNode(Node):
                                  frame_stamp_ns / 1e9 if frame_stamp_ns is not None else float("nan"))
         if pose is None and sent_image is None:
             return
-        self._pub_ledger.publish(Float64MultiArray(data=[float(getattr(row, f)) for f in LEDGER_FIELDS]))
+        self._pub_ledger.publish(ledger_to_msg(row))
 
     def _publish_diagnostics(self) -> None:
         totals = self.ledger.totals()

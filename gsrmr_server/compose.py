@@ -22,7 +22,7 @@ import numpy as np
 from gsrmr_common.camera import CameraMount, Intrinsics, camera_from_pose
 from gsrmr_common.jpeg import ImageRejected, decode_jpeg, jpeg_header
 from gsrmr_common.metrics import mr_loss
-from gsrmr_common.wire import MAX_IMAGE_PIXELS, PoseKey
+from gsrmr_common.wire import MAX_IMAGE_PIXELS, PoseKey, RealSource, UplinkFault
 from gsrmr_server.mr.blend import mr_image
 from gsrmr_server.mr.content import VirtualViewSource
 from gsrmr_server.splatting.model import GaussianModel
@@ -39,10 +39,10 @@ class ComposedSlot:
     real_estimate: np.ndarray  # r̂_t
     virtual: np.ndarray  # v_t
     mask: np.ndarray  # d_t, 1 = real
-    source: str  # image | render | fallback | none
+    source: RealSource  # where r̂_t came from
     pose: PoseKey | None
     gs_loss: float | None = None  # measured L_t (image slots only)
-    faults: list[str] = field(default_factory=list)
+    faults: list[UplinkFault] = field(default_factory=list)
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
@@ -79,7 +79,8 @@ class MRComposer:
                 r_hat = image.astype(np.float32) / 255.0
             v = np.zeros((k.height, k.width, 3), np.float32)
             d = np.ones((k.height, k.width), np.float32)
-            return ComposedSlot(uploads.slot, r_hat.copy(), r_hat, v, d, "image" if image is not None else "none",
+            return ComposedSlot(uploads.slot, r_hat.copy(), r_hat, v, d,
+                                RealSource.IMAGE if image is not None else RealSource.NONE,
                                 None, None, faults, {"total": 1e3 * (time.perf_counter() - t0)})
         camera = camera_from_pose(pose.a_m, pose.b_m, pose.theta_rad, self.mount, k)
         cpu0 = time.thread_time()
@@ -94,12 +95,12 @@ class MRComposer:
         if image is not None:
             r_hat = image.astype(np.float32) / 255.0
             mr = mr_image(r_hat, v, d)
-            source = "image"
+            source = RealSource.IMAGE
             if measure_loss and uploads.key is not None:
                 gs_loss = mr_loss(mr, gs_mr)
         else:
             r_hat, mr = out.rgb, gs_mr
-            source = "render" if uploads.key is not None and uploads.jpeg is None else "fallback"
+            source = RealSource.RENDER if uploads.key is not None and uploads.jpeg is None else RealSource.FALLBACK
         t_end = time.perf_counter()
         timings = {"decode": 1e3 * (t_decode - t0), "render": 1e3 * (t_render - t_decode),
                    "render_cpu": render_cpu_ms, "virtual": 1e3 * (t_virtual - t_render),
@@ -108,19 +109,19 @@ class MRComposer:
         return ComposedSlot(uploads.slot, mr, r_hat, v, d, source, pose, gs_loss, faults, timings)
 
 
-def refusal_fault(jpeg: bytes, width_px: int, height_px: int) -> str:
+def refusal_fault(jpeg: bytes, width_px: int, height_px: int) -> UplinkFault:
     """Fault name for a refused upload: ``oversized_header`` (frame header claims more than
     :data:`~gsrmr_common.wire.MAX_IMAGE_PIXELS`), ``wrong_size`` (a readable header of another size than
     ``width_px`` × ``height_px``) or ``corrupt_image`` (unreadable header, truncated or corrupt data)."""
     try:
         header = jpeg_header(jpeg)
     except ImageRejected:
-        return "corrupt_image"
+        return UplinkFault.CORRUPT_IMAGE
     if header.width * header.height > MAX_IMAGE_PIXELS:
-        return "oversized_header"
+        return UplinkFault.OVERSIZED_HEADER
     if (header.width, header.height) != (width_px, height_px):
-        return "wrong_size"
-    return "corrupt_image"
+        return UplinkFault.WRONG_SIZE
+    return UplinkFault.CORRUPT_IMAGE
 
 
 def to_u8(img: np.ndarray) -> np.ndarray:

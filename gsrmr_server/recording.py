@@ -68,13 +68,14 @@ from std_msgs.msg import String
 
 from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.ros_wire import compressed_to_msg, ns_to_stamp
+from gsrmr_common.wire import RealSource
 
 CSV_COLUMNS = ("slot", "stamp_s", "x", "power_w", "bytes_sent", "energy_j", "loss", "psnr_db", "ssim",
                "source", "pose_a_m", "pose_b_m", "pose_theta_rad", "latency_ms", "faults", "gs_loss",
                "energy_upload_all_j")
 _INT_COLUMNS = frozenset({"slot", "x", "bytes_sent"})
 _STR_COLUMNS = frozenset({"source", "faults"})
-SOURCES = ("image", "render", "fallback")
+SOURCES = tuple(s.value for s in RealSource)  # the source column: where r̂_t came from
 
 TOPIC_MR_IMAGE = "/gsrmr/mr/image/compressed"
 TOPIC_CMD_VEL = "/gsrmr/cmd_vel"

@@ -28,7 +28,7 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from gsrmr_common.ros_node import declare, declare_link_budget, run_node
-from gsrmr_common.ros_wire import pose_key_from_msg, schedule_to_msg
+from gsrmr_common.ros_wire import loss_sample_from_msg, pose_key_from_msg, schedule_to_msg
 from gsrmr_common.wire import ScheduleMsg, slot_ns
 from gsrmr_server.horizon import OnlinePlanner, PlanResult, RoutePredictor
 from gsrmr_server.loss_map import LossMap
@@ -169,11 +169,12 @@ class SchedulerNode(Node):
                 self.planner.record_pose(key.slot, *self._pose)
 
     def _on_loss(self, msg: Float64MultiArray) -> None:
-        if len(msg.data) != 5 or not all(math.isfinite(v) for v in msg.data):
+        try:
+            s = loss_sample_from_msg(msg)
+        except ValueError:
             return
-        slot, a, b, theta, loss = msg.data
         with self._lock:
-            drift = self.planner.observe(int(slot), a, b, theta, loss)
+            drift = self.planner.observe(s.slot, s.a_m, s.b_m, s.theta_rad, s.loss)
         if drift:
             self._request("drift")
 

@@ -55,15 +55,19 @@ from gsrmr_common.ros_wire import (
     image_from_msg,
     image_to_msg,
     intrinsics_from_camera_info,
+    ledger_from_msg,
+    loss_sample_to_msg,
     pose_key_from_msg,
     schedule_from_msg,
     stamp_to_ns,
 )
 from gsrmr_common.wire import (
-    LEDGER_FIELDS,
     MAX_COMPRESSED_BYTES,
+    LedgerRow,
+    LossSample,
     PoseKey,
     ScheduleMsg,
+    UplinkFault,
     slot_index,
     slot_ns,
     slot_start_ns,
@@ -151,7 +155,7 @@ class ServerNode(Node):
         self.uplink = UplinkAssembler()
         self._lock = threading.Lock()
         self._schedule: ScheduleMsg | None = None
-        self._ledger: dict[int, dict] = {}
+        self._ledger: dict[int, LedgerRow] = {}
         self._cmd: tuple[float, float] | None = None
         self._frames: deque[tuple[int, np.ndarray]] = deque(maxlen=30)
         self._next_slot: int | None = None
@@ -208,7 +212,7 @@ class ServerNode(Node):
             key = pose_key_from_msg(msg, self._slot_len_ns)
         except ValueError:  # wrong frame or an invalid stamp: refuse, never raise out of the callback
             with self._lock:
-                self.uplink.count("malformed_key")
+                self.uplink.count(UplinkFault.MALFORMED_KEY)
             return
         with self._lock:
             self.uplink.on_key(key, slot, now_ns)
@@ -218,12 +222,12 @@ class ServerNode(Node):
         data = bytes(msg.data)
         with self._lock:
             if len(data) > MAX_COMPRESSED_BYTES:
-                self.uplink.count("oversized_image")
+                self.uplink.count(UplinkFault.OVERSIZED_IMAGE)
                 return
             try:
                 stamp_ns = stamp_to_ns(msg.header.stamp)
             except ValueError:
-                self.uplink.count("malformed_image")
+                self.uplink.count(UplinkFault.MALFORMED_IMAGE)
                 return
             self.uplink.on_image(slot_index(stamp_ns, self._slot_len_ns), data, slot, now_ns)
 
@@ -237,15 +241,14 @@ class ServerNode(Node):
             self._schedule = sched
 
     def _on_ledger(self, msg: Float64MultiArray) -> None:
-        if len(msg.data) != len(LEDGER_FIELDS):
-            return
-        row = dict(zip(LEDGER_FIELDS, msg.data, strict=True))
-        if not all(math.isfinite(row[k]) for k in ("slot", "x", "bits_sent")):  # int() of NaN/inf would raise
+        try:
+            row = ledger_from_msg(msg)
+        except ValueError:  # wrong length, or a NaN/inf slot, x or bit count
             with self._lock:
-                self.uplink.count("malformed_ledger")
+                self.uplink.count(UplinkFault.MALFORMED_LEDGER)
             return
         with self._lock:
-            self._ledger[int(row["slot"])] = row
+            self._ledger[row.slot] = row
             if len(self._ledger) > 200:
                 del self._ledger[min(self._ledger)]
 
@@ -302,7 +305,7 @@ class ServerNode(Node):
                                           and self._uploads_complete(self._next_slot)):
             return
         if due > self._next_slot + self.max_backlog_slots:  # far behind (suspended, clock jump): skip ahead
-            self.uplink.count("skipped_slots")
+            self.uplink.count(UplinkFault.SKIPPED_SLOTS)
             self._next_slot = due
         slot = self._next_slot
         self._next_slot += 1
@@ -338,8 +341,7 @@ class ServerNode(Node):
         self.sources[result.source] = self.sources.get(result.source, 0) + 1
         if result.gs_loss is not None and result.pose is not None:
             p = result.pose
-            self._pub_loss.publish(Float64MultiArray(data=[float(slot), p.a_m, p.b_m, p.theta_rad,
-                                                           float(result.gs_loss)]))
+            self._pub_loss.publish(loss_sample_to_msg(LossSample(slot, p.a_m, p.b_m, p.theta_rad, result.gs_loss)))
         quality = self._evaluate(slot, start_ns, result) if self.evaluate else None
         if self.recorder is not None:
             self._record(slot, start_ns, result, quality, latency_ms, jpeg, entry)
@@ -352,7 +354,7 @@ class ServerNode(Node):
         with self._lock:
             led = self._ledger.get(slot)
             frames = list(self._frames)
-        used = led.get("frame_stamp_s") if led else None
+        used = led.frame_stamp_s if led else None
         if used is not None and math.isfinite(used):
             match = [f for f in frames if abs(f[0] / 1e9 - used) < 1e-3]
         else:
@@ -371,18 +373,18 @@ class ServerNode(Node):
             led = self._ledger.pop(slot, None)
         pose = result.pose
         row = {"slot": slot, "stamp_s": start_ns / 1e9,
-               "x": int(led["x"]) if led else (entry[0] if entry else None),
-               "power_w": led["power_w"] if led else None,
-               "bytes_sent": int(led["bits_sent"]) // 8 if led else None,
-               "energy_j": led["energy_j"] if led else None,
+               "x": led.x if led else (entry[0] if entry else None),
+               "power_w": led.power_w if led else None,
+               "bytes_sent": led.bits_sent // 8 if led else None,
+               "energy_j": led.energy_j if led else None,
                "loss": quality["loss"] if quality else None,
                "psnr_db": quality["psnr_db"] if quality else None,
                "ssim": quality["ssim"] if quality else None,
-               "source": result.source if result.source != "none" else "fallback",
+               "source": result.source,
                "pose_a_m": pose.a_m if pose else None, "pose_b_m": pose.b_m if pose else None,
                "pose_theta_rad": pose.theta_rad if pose else None, "latency_ms": latency_ms,
                "faults": ";".join(result.faults), "gs_loss": result.gs_loss,
-               "energy_upload_all_j": led["upload_all_energy_j"] if led else None}
+               "energy_upload_all_j": led.upload_all_energy_j if led else None}
         self.recorder.write_slot(row, jpeg, self._cmd, stamp_ns=start_ns)
 
     def _publish_diagnostics(self) -> None:

@@ -6,14 +6,11 @@ A missing, late, duplicated, stale or corrupt upload never blocks a slot: :meth:
 always returns what is known, and :meth:`best_pose` extrapolates the last valid pose key so the
 server can fall back to a render.
 
-Fault counters (all cumulative): ``duplicate_key``, ``duplicate_image``, ``invalid_key`` (NaN or
-inf), ``late`` (arrived after its slot was taken), ``future`` (more than ``max_future_slots`` ahead
-of the slot clock: a wrong clock or a forged stamp), ``missing_key`` / ``missing_image``
-(nothing arrived for the slot, or the schedule expected an image and none came), ``corrupt_image``
-(reported by the decoder through :meth:`count`); counted by the server node: ``wrong_size``,
-``oversized_header`` (refused JPEGs, see :func:`gsrmr_server.compose.refusal_fault`),
-``oversized_image`` (payload over the byte limit), ``malformed_key`` / ``malformed_image`` (wrong frame
-or an invalid stamp), ``malformed_ledger`` (a ledger row with a NaN/inf slot, x or bits_sent).
+Fault counters (all cumulative) are named by :class:`gsrmr_common.wire.UplinkFault`, which documents
+each one. This class counts those it sees (duplicates, invalid keys, late, future, evicted, missing key
+or image); the server node counts the others through :meth:`UplinkAssembler.count` (refused JPEGs, see
+:func:`gsrmr_server.compose.refusal_fault`; oversized or malformed uploads; malformed ledger rows;
+skipped slots).
 """
 
 from __future__ import annotations
@@ -22,7 +19,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 import math
 
-from gsrmr_common.wire import PoseKey
+from gsrmr_common.wire import PoseKey, UplinkFault
 
 
 @dataclass
@@ -34,7 +31,7 @@ class SlotUploads:
     jpeg: bytes | None = None
     key_arrival_ns: int | None = None
     image_arrival_ns: int | None = None
-    faults: list[str] = field(default_factory=list)
+    faults: list[UplinkFault] = field(default_factory=list)
 
 
 class UplinkAssembler:
@@ -49,7 +46,7 @@ class UplinkAssembler:
         self._last_pose: PoseKey | None = None
         self._velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)  # per slot
 
-    def count(self, fault: str, slot: int | None = None) -> None:
+    def count(self, fault: UplinkFault, slot: int | None = None) -> None:
         """Count a fault found elsewhere (e.g. a JPEG that failed to decode)."""
         self.faults[fault] += 1
         if slot is not None and slot in self._pending:
@@ -57,27 +54,27 @@ class UplinkAssembler:
 
     def _admit(self, slot: int, now_slot: int) -> SlotUploads | None:
         if self._taken_up_to is not None and slot <= self._taken_up_to:
-            self.faults["late"] += 1
+            self.faults[UplinkFault.LATE] += 1
             return None
         if slot > now_slot + self.max_future_slots:
-            self.faults["future"] += 1
+            self.faults[UplinkFault.FUTURE] += 1
             return None
         if len(self._pending) > 4 * self.max_future_slots:  # bound memory whatever arrives
             oldest = min(self._pending)
             del self._pending[oldest]
-            self.faults["evicted"] += 1
+            self.faults[UplinkFault.EVICTED] += 1
         return self._pending.setdefault(slot, SlotUploads(slot))
 
     def on_key(self, key: PoseKey, now_slot: int, now_ns: int) -> None:
         """A pose key arrived (``now_slot`` = the server's current slot index)."""
         if not key.is_valid():
-            self.faults["invalid_key"] += 1
+            self.faults[UplinkFault.INVALID_KEY] += 1
             return
         entry = self._admit(key.slot, now_slot)
         if entry is None:
             return
         if entry.key is not None:
-            self.faults["duplicate_key"] += 1
+            self.faults[UplinkFault.DUPLICATE_KEY] += 1
             return
         entry.key, entry.key_arrival_ns = key, now_ns
         self._update_motion(key)
@@ -88,7 +85,7 @@ class UplinkAssembler:
         if entry is None:
             return
         if entry.jpeg is not None:
-            self.faults["duplicate_image"] += 1
+            self.faults[UplinkFault.DUPLICATE_IMAGE] += 1
             return
         entry.jpeg, entry.image_arrival_ns = bytes(jpeg), now_ns
 
@@ -116,11 +113,11 @@ class UplinkAssembler:
             del self._pending[old]
         self._taken_up_to = slot if self._taken_up_to is None else max(self._taken_up_to, slot)
         if entry.key is None:
-            entry.faults.append("missing_key")
-            self.faults["missing_key"] += 1
+            entry.faults.append(UplinkFault.MISSING_KEY)
+            self.faults[UplinkFault.MISSING_KEY] += 1
         if image_expected and entry.jpeg is None:
-            entry.faults.append("missing_image")
-            self.faults["missing_image"] += 1
+            entry.faults.append(UplinkFault.MISSING_IMAGE)
+            self.faults[UplinkFault.MISSING_IMAGE] += 1
         return entry
 
     def best_pose(self, slot: int) -> PoseKey | None:

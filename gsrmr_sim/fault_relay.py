@@ -55,10 +55,6 @@ IMAGE_FAULTS = ("drop", "duplicate", "reorder", "delay", "stale", "truncate", "c
                 "forged_header")
 ALL_FAULTS = tuple(dict.fromkeys(KEY_FAULTS + IMAGE_FAULTS))
 FORGED_SIDE_PX = 20000
-# What the server's uplink/compose counters (gsrmr_server.uplink, gsrmr_server.compose) call each fault.
-SERVER_COUNTER = {"drop": "missing", "duplicate": "duplicate", "reorder": "late", "delay": "late",
-                  "stale": "late", "nan_key": "invalid_key", "truncate": "corrupt_image",
-                  "corrupt": "corrupt_image", "wrong_size": "wrong_size", "forged_header": "oversized_header"}
 
 
 @dataclass(frozen=True)

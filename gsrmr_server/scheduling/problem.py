@@ -19,9 +19,10 @@ from typing import Any
 import numpy as np
 
 from gsrmr_common import link_model as link
+from gsrmr_common.wire import Delivery
 
-#: Per-slot delivery outcome labels.
-IMAGE, KEY, NONE = "image", "key", "none"
+#: Per-slot delivery outcome labels (the wire contract's :class:`~gsrmr_common.wire.Delivery`).
+IMAGE, KEY, NONE = Delivery.IMAGE, Delivery.KEY, Delivery.NONE
 
 
 class ProblemError(ValueError):

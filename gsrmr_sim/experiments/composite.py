@@ -22,11 +22,10 @@ import numpy as np
 
 from gsrmr_common.metrics import image_quality
 from gsrmr_server.mr.blend import mr_image
+from gsrmr_server.scheduling.problem import IMAGE, KEY, NONE
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.splatting.render import render
 from gsrmr_sim.world import Round2Record
-
-IMAGE, KEY, NONE = "image", "key", "none"
 
 
 @dataclass

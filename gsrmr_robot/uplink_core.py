@@ -1,0 +1,110 @@
+"""The robot's slot core (pure: no ROS): what to upload in one slot, and what it cost.
+
+:meth:`UplinkCore.run_slot` takes what the robot knows at the start of slot k — the newest camera frame
+(if fresh), the odometry pose at that frame's capture time, the schedule's ``(x_k, p_k)`` — and returns a
+:class:`SlotDecision`: the pose key to send, the JPEG to send when ``x_k = 1``, and the energy-ledger row.
+The node (:mod:`gsrmr_robot.robot_node`) only gathers the inputs and publishes the decision;
+``bench/soak.py``-style drivers and tests call the core directly.
+
+Frames and units: poses are ``base_link`` in ``map`` — ``(a_m, b_m, theta_rad)``, REP-103 (x forward,
+y left, θ counter-clockwise); stamps are ROS time in integer nanoseconds; powers in W, energies in J.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+import math
+
+import numpy as np
+
+from gsrmr_common.jpeg import encode_jpeg
+from gsrmr_common.link_model import LinkBudget
+from gsrmr_common.wire import LedgerRow, PoseKey
+from gsrmr_robot.ledger import EnergyLedger
+
+Pose = tuple[float, float, float]  # (a_m, b_m, theta_rad) of base_link in map
+
+
+def odom_to_map(map_from_odom: Pose, x_m: float, y_m: float, yaw_rad: float) -> Pose:
+    """A pose in ``odom`` expressed in ``map``, given the pose of ``odom`` in ``map`` (θ wrapped to (−π, π])."""
+    a0, b0, t0 = map_from_odom
+    c, s = math.cos(t0), math.sin(t0)
+    return (a0 + c * x_m - s * y_m, b0 + s * x_m + c * y_m, math.atan2(math.sin(t0 + yaw_rad), math.cos(t0 + yaw_rad)))
+
+
+class PoseHistory:
+    """Recent odometry poses in ``map`` by stamp: the key of a slot is the pose when its frame was taken."""
+
+    def __init__(self, maxlen: int = 100) -> None:
+        self._poses: deque[tuple[int, Pose]] = deque(maxlen=maxlen)
+        self.latest: Pose | None = None
+
+    def add(self, stamp_ns: int, pose: Pose) -> bool:
+        """Keep a pose; a non-finite one is refused (returns False)."""
+        if not all(math.isfinite(v) for v in pose):
+            return False
+        self.latest = pose
+        self._poses.append((int(stamp_ns), pose))
+        return True
+
+    def at(self, stamp_ns: int | None) -> Pose | None:
+        """The pose nearest in time to ``stamp_ns`` (the latest one when ``stamp_ns`` is None)."""
+        if stamp_ns is None or not self._poses:
+            return self.latest
+        return min(self._poses, key=lambda item: abs(item[0] - stamp_ns))[1]
+
+
+@dataclass(frozen=True)
+class SlotInputs:
+    """What the robot knows at the start of ``slot``."""
+
+    slot: int
+    frame: np.ndarray | None  # H×W×3 uint8 RGB, None when no frame is fresh enough
+    frame_stamp_ns: int | None  # its capture stamp
+    pose: Pose | None  # at the frame's capture time (the latest pose when there is no frame)
+    entry: tuple[int, float] | None  # (x, power_w) of the schedule, None when no schedule covers the slot
+
+
+@dataclass(frozen=True)
+class SlotDecision:
+    """What the robot sends in one slot."""
+
+    slot: int
+    x: int  # 1 = image slot, 0 = key only
+    key: PoseKey | None  # None without a pose
+    jpeg: bytes | None  # the upload of an image slot (None in key slots or without a frame)
+    row: LedgerRow  # the energy ledger's row for this slot
+    scheduled: bool  # a schedule covered the slot
+    publish_row: bool  # False when nothing at all was sent (no pose and no image)
+
+
+class UplinkCore:
+    """Decides each slot's upload and books its energy (see the module docstring)."""
+
+    def __init__(self, link: LinkBudget, slot_s: float, jpeg_quality: int = 80,
+                 default_upload_image: bool = True) -> None:
+        self.link = link
+        self.jpeg_quality = int(jpeg_quality)
+        self.default_upload_image = bool(default_upload_image)
+        self.ledger = EnergyLedger(link.required_power_w, slot_s, link.bandwidth_hz, link.noise_w)
+
+    def run_slot(self, inputs: SlotInputs) -> SlotDecision:
+        """The upload of one slot; every slot is booked in the ledger, whatever was sent."""
+        if inputs.entry is None:
+            x, power_w = int(self.default_upload_image), float("nan")
+        else:
+            x, power_w = inputs.entry
+        frame = inputs.frame
+        # Encoded in key slots too: the ledger books what an image would have cost (upload-all baseline).
+        jpeg = encode_jpeg(frame, self.jpeg_quality) if frame is not None else None
+        upload = jpeg if x == 1 else None
+        pose = inputs.pose
+        key = PoseKey(inputs.slot, *pose) if pose is not None else None
+        gain = self.link.gain(inputs.slot, pose[:2] if pose is not None else None)
+        stamp_s = inputs.frame_stamp_ns / 1e9 if inputs.frame_stamp_ns is not None and frame is not None \
+            else float("nan")
+        row = self.ledger.record(inputs.slot, x, power_w, len(upload) if upload is not None else None, gain,
+                                 len(jpeg) if jpeg is not None else None, stamp_s)
+        return SlotDecision(inputs.slot, x, key, upload, row, inputs.entry is not None,
+                            publish_row=key is not None or upload is not None)
