@@ -10,6 +10,7 @@ import math
 import sys
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
@@ -84,6 +85,22 @@ def declare(node: Node, name: str, default: Any, description: str, *, min_value:
             hi_f = float(max_value) if max_value is not None else sys.float_info.max
             descriptor.floating_point_range = [FloatingPointRange(from_value=lo_f, to_value=hi_f, step=0.0)]
     return node.declare_parameter(name, default, descriptor).value
+
+
+def diagnostics_msg(node: Node, *, name: str, hardware_id: str, values: dict[str, object],
+                    problems: Sequence[str] = (), level: bytes | None = None, message: str | None = None
+                    ) -> DiagnosticArray:
+    """One ``/diagnostics`` status of ``node``, stamped now: level WARN when there are ``problems`` (else OK)
+    unless ``level`` is given, message the problems joined by "; " (or "ok") unless ``message`` is given,
+    every value as a string."""
+    if level is None:
+        level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
+    status = DiagnosticStatus(level=level, name=name, hardware_id=hardware_id,
+                              message=message if message is not None else ("; ".join(problems) or "ok"),
+                              values=[KeyValue(key=str(k), value=str(v)) for k, v in values.items()])
+    arr = DiagnosticArray(status=[status])
+    arr.header.stamp = node.get_clock().now().to_msg()
+    return arr
 
 
 def declare_camera_mount(node: Node) -> CameraMount:

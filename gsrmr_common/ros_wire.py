@@ -28,6 +28,7 @@ from __future__ import annotations
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Vector3Stamped
 import numpy as np
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
@@ -43,6 +44,17 @@ SCHEDULE_LABELS = ("meta", "x", "power_w")
 # case-insensitively (image_bridge, like ROS, is case-sensitive)
 _RGB_SOURCE_ENCODINGS = frozenset({"rgb8", "bgr8", "rgba8", "bgra8", "mono8", "mono16"})
 
+
+# QoS of the robot ↔ workstation topics (camera and odometry inputs use the sensor-data profile).
+#: pose keys, ledger rows, loss samples: reliable, a few seconds of slots queued.
+UPLINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+#: JPEG uploads: reliable, depth 10 (each is 5–40 kB).
+IMAGE_UPLOAD_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+#: the schedule: latched (reliable, transient local, depth 1): a robot started later gets the newest one.
+SCHEDULE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: the robot's relayed calibration: latched, so a server started before or after the robot holds the newest.
+CAMERA_INFO_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 def stamp_to_ns(stamp: Time) -> int:
     """``builtin_interfaces/Time`` → integer nanoseconds since the clock's epoch."""

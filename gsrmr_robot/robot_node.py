@@ -25,33 +25,38 @@ and ``base_link → camera_frame_id`` from the ``camera_mount.*`` parameters; ``
 from the base driver (``gsrmr-limo-base`` with ``publish_tf``). Without ``tf2_ros`` it logs once, at
 INFO, that no TF is published.
 
-It keeps an energy ledger (:mod:`gsrmr_robot.ledger`) under the link model of
-:mod:`gsrmr_server.scheduling` and publishes each slot's row on ``gsrmr/ledger``
+What to send in a slot and its energy are decided by the pure slot core
+(:class:`gsrmr_robot.uplink_core.UplinkCore`: the energy ledger under the link model of
+:mod:`gsrmr_common.link_model`); the node publishes each slot's ledger row on ``gsrmr/ledger``
 (``std_msgs/Float64MultiArray``, fields :data:`gsrmr_common.wire.LEDGER_FIELDS`) and totals on
-``/diagnostics`` once a second.
+``/diagnostics`` once a second. Live parameters (:class:`RobotParameters`) are checked in the on-set
+callback and applied in the post-set callback.
 """
 
 from __future__ import annotations
 
-from collections import deque
+from dataclasses import dataclass, replace
 import math
 import threading
 from types import ModuleType
 
 from builtin_interfaces.msg import Time
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TransformStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray
 
-from gsrmr_common.jpeg import encode_jpeg
-from gsrmr_common.ros_node import declare, declare_camera_mount, declare_link_budget, run_node
+from gsrmr_common.ros_node import declare, declare_camera_mount, declare_link_budget, diagnostics_msg, run_node
 from gsrmr_common.ros_wire import (
+    CAMERA_INFO_QOS,
+    IMAGE_UPLOAD_QOS,
+    SCHEDULE_QOS,
+    UPLINK_QOS,
     compressed_to_msg,
     image_from_msg,
     ledger_to_msg,
@@ -68,15 +73,36 @@ from gsrmr_common.tf_tree import (
     base_from_camera_optical_transform,
     map_from_odom_transform,
 )
-from gsrmr_common.wire import PoseKey, ScheduleMsg, slot_ns, slot_start_ns
-from gsrmr_robot.ledger import EnergyLedger
+from gsrmr_common.wire import ScheduleMsg, slot_ns, slot_start_ns
+from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, odom_to_map
 
-UPLINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-SCHEDULE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
-# Latched: the server (started before or after the robot) always holds the newest calibration.
-CAMERA_INFO_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+@dataclass(frozen=True)
+class RobotParameters:
+    """The robot node's live parameters (ROS names; units in the names)."""
+
+    jpeg_quality: int = 80  # JPEG quality of uploaded images, 1–100
+    default_upload_image: bool = True  # upload the image in slots no schedule covers
+    max_frame_age_s: float = 0.5  # older camera frames are not uploaded
+    map_from_odom: tuple[float, float, float] = (0.0, 0.0, 0.0)  # pose of odom in map [a_m, b_m, theta_rad]
+    camera_frame_id: str = CAMERA_OPTICAL_FRAME  # frame of uploaded images (the camera's optical frame)
+
+    @staticmethod
+    def problem(name: str, value: object) -> str | None:
+        """Why ``value`` cannot be set for ``name`` beyond its descriptor's range, or None."""
+        if name == "map_from_odom":
+            v = list(value)  # type: ignore[call-overload]
+            if len(v) != 3 or not all(math.isfinite(x) for x in v):
+                return "map_from_odom must be 3 finite numbers [a_m, b_m, theta_rad]"
+        if name == "camera_frame_id" and not str(value):
+            return "camera_frame_id must not be empty"
+        return None
+
+    def with_values(self, values: dict[str, object]) -> RobotParameters:
+        """A copy with the given parameters (names of this class's fields; others ignored)."""
+        known = {k: (tuple(v) if k == "map_from_odom" else v) for k, v in values.items()
+                 if k in self.__dataclass_fields__}
+        return replace(self, **known)
 
 
 def load_tf2_ros() -> tuple[ModuleType | None, str]:
@@ -121,16 +147,22 @@ class RobotNode(Node):
         super().__init__("gsrmr_robot", **node_kwargs)
         self.slot_s = declare(self, "slot_s", 0.1, "Slot length τ [s]; must equal the server's", min_value=0.01,
                               max_value=10.0, read_only=True)
-        self.jpeg_quality = declare(self, "jpeg_quality", 80, "JPEG quality of uploaded images (1-100)",
-                                    min_value=1, max_value=100)
-        self.default_upload_image = declare(self, "default_upload_image", True,
-                                            "Upload the image in slots no schedule covers")
-        self.max_frame_age_s = declare(self, "max_frame_age_s", 0.5, "Older camera frames are not uploaded [s]",
-                                       min_value=0.0, max_value=10.0)
-        self.map_from_odom = list(declare(self, "map_from_odom", [0.0, 0.0, 0.0],
-                                          "Pose of the odom frame in map: [a_m, b_m, theta_rad]"))
-        self.camera_frame = declare(self, "camera_frame_id", CAMERA_OPTICAL_FRAME,
-                                    "Frame of uploaded images: the camera's optical frame (x right, y down, z forward)")
+        d = RobotParameters()
+        self.params = RobotParameters(
+            jpeg_quality=declare(self, "jpeg_quality", d.jpeg_quality, "JPEG quality of uploaded images (1-100)",
+                                 min_value=1, max_value=100),
+            default_upload_image=declare(self, "default_upload_image", d.default_upload_image,
+                                         "Upload the image in slots no schedule covers"),
+            max_frame_age_s=declare(self, "max_frame_age_s", d.max_frame_age_s,
+                                    "Older camera frames are not uploaded [s]", min_value=0.0, max_value=10.0),
+            map_from_odom=tuple(declare(self, "map_from_odom", list(d.map_from_odom),
+                                        "Pose of the odom frame in map: [a_m, b_m, theta_rad]")),
+            camera_frame_id=declare(self, "camera_frame_id", d.camera_frame_id, "Frame of uploaded images: the "
+                                    "camera's optical frame (x right, y down, z forward)"))
+        problem = next((msg for name in ("map_from_odom", "camera_frame_id")
+                        if (msg := RobotParameters.problem(name, getattr(self.params, name)))), None)
+        if problem:
+            raise ValueError(problem)
         self.odom_frame = declare(self, "odom_frame_id", ODOM_FRAME, "Odometry frame (child of map in TF)",
                                   read_only=True)
         self.base_frame = declare(self, "base_frame_id", BASE_FRAME, "Robot body frame (parent of the camera in TF)",
@@ -144,18 +176,16 @@ class RobotNode(Node):
         self._frame: np.ndarray | None = None
         self._frame_ns = 0
         self._frame_stamp_ns = 0
-        self._pose: tuple[float, float, float] | None = None
-        # Recent (stamp_ns, pose in map): the key is the pose at the capture time of the frame it stands for.
-        self._poses: deque[tuple[int, tuple[float, float, float]]] = deque(maxlen=100)
+        # Recent poses in map: the key is the pose at the capture time of the frame it stands for.
+        self._poses = PoseHistory()
         self._schedule: ScheduleMsg | None = None
         self._last_slot: int | None = None
         self.schedule_misses = self.no_frame = self.no_pose = 0
-        self.ledger = EnergyLedger(self.link.required_power_w, self.slot_s, self.link.bandwidth_hz,
-                                   self.link.noise_w)
+        self.core = UplinkCore(self.link, self.slot_s, self.params.jpeg_quality, self.params.default_upload_image)
+        self.ledger = self.core.ledger
 
         self._pub_key = self.create_publisher(Vector3Stamped, "uplink/pose_key", UPLINK_QOS)
-        self._pub_img = self.create_publisher(CompressedImage, "uplink/image_raw/compressed",
-                                              QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        self._pub_img = self.create_publisher(CompressedImage, "uplink/image_raw/compressed", IMAGE_UPLOAD_QOS)
         self._pub_ledger = self.create_publisher(Float64MultiArray, "gsrmr/ledger", UPLINK_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._pub_info = self.create_publisher(CameraInfo, "uplink/camera_info", CAMERA_INFO_QOS)
@@ -172,11 +202,11 @@ class RobotNode(Node):
         tf2_ros, why = load_tf2_ros()
         if tf2_ros is None:
             self.get_logger().info(f"TF not published: {why}; map → {self.odom_frame} and {self.base_frame} → "
-                                   f"{self.camera_frame} need a ROS 2 install with tf2_ros")
+                                   f"{self.params.camera_frame_id} need a ROS 2 install with tf2_ros")
         else:
             self._tf_static = tf2_ros.StaticTransformBroadcaster(self)
             self._send_static_tf()
-        self.get_logger().info(f"robot uplink: τ={self.slot_s}s, JPEG q={self.jpeg_quality}, "
+        self.get_logger().info(f"robot uplink: τ={self.slot_s}s, JPEG q={self.params.jpeg_quality}, "
                                f"server at {self.link.server_position_m}")
 
     def _send_static_tf(self) -> None:
@@ -189,24 +219,25 @@ class RobotNode(Node):
             return
         stamp = self.get_clock().now().to_msg()
         self._tf_static.sendTransform([
-            transform_to_msg(MAP_FRAME, self.odom_frame, map_from_odom_transform(*self.map_from_odom), stamp),
-            transform_to_msg(self.base_frame, self.camera_frame, base_from_camera_optical_transform(self.mount),
-                             stamp)])
+            transform_to_msg(MAP_FRAME, self.odom_frame, map_from_odom_transform(*self.params.map_from_odom), stamp),
+            transform_to_msg(self.base_frame, self.params.camera_frame_id,
+                             base_from_camera_optical_transform(self.mount), stamp)])
 
     def _validate(self, params) -> SetParametersResult:
+        """On-set: refuse what the descriptors cannot express; change nothing."""
         for p in params:
-            if p.name == "map_from_odom":
-                v = list(p.value)
-                if len(v) != 3 or not all(math.isfinite(x) for x in v):
-                    return SetParametersResult(successful=False, reason="map_from_odom must be 3 finite numbers")
-                self.map_from_odom = v
-            elif p.name == "jpeg_quality":
-                self.jpeg_quality = int(p.value)
+            problem = RobotParameters.problem(p.name, p.value)
+            if problem:
+                return SetParametersResult(successful=False, reason=problem)
         return SetParametersResult(successful=True)
 
     def _after_set(self, params) -> None:
-        """Re-send the static TF once a new map_from_odom is in effect."""
-        if any(p.name == "map_from_odom" for p in params):
+        """Post-set: apply the accepted values; re-send the static TF when a frame or map_from_odom changed."""
+        with self._lock:
+            self.params = self.params.with_values({p.name: p.value for p in params})
+            self.core.jpeg_quality = self.params.jpeg_quality
+            self.core.default_upload_image = self.params.default_upload_image
+        if any(p.name in ("map_from_odom", "camera_frame_id") for p in params):
             self._send_static_tf()
 
     # ---------------------------------------------------------------- inputs
@@ -235,19 +266,14 @@ class RobotNode(Node):
 
     def _on_odom(self, msg: Odometry) -> None:
         p = msg.pose.pose
-        a0, b0, t0 = self.map_from_odom
-        c, s = math.cos(t0), math.sin(t0)
-        x, y, yaw = p.position.x, p.position.y, yaw_of(p.orientation)
-        pose = (a0 + c * x - s * y, b0 + s * x + c * y, math.atan2(math.sin(t0 + yaw), math.cos(t0 + yaw)))
         try:
             stamp_ns = stamp_to_ns(msg.header.stamp)
         except ValueError as err:
             self.get_logger().warning(f"odometry refused: {err}", throttle_duration_sec=5.0)
             return
-        if all(math.isfinite(v) for v in pose):
-            with self._lock:
-                self._pose = pose
-                self._poses.append((stamp_ns, pose))
+        with self._lock:
+            self._poses.add(stamp_ns, odom_to_map(self.params.map_from_odom, p.position.x, p.position.y,
+                                                  yaw_of(p.orientation)))
 
     def _on_schedule(self, msg: Float64MultiArray) -> None:
         try:
@@ -260,12 +286,6 @@ class RobotNode(Node):
             return
         with self._lock:
             self._schedule = sched
-
-    def _pose_at(self, stamp_ns: int) -> tuple[float, float, float] | None:
-        """Odometry pose (map) nearest in time to ``stamp_ns`` (caller holds the lock)."""
-        if not self._poses:
-            return self._pose
-        return min(self._poses, key=lambda item: abs(item[0] - stamp_ns))[1]
 
     # ---------------------------------------------------------------- slots
     def _tick(self) -> None:
@@ -283,51 +303,35 @@ class RobotNode(Node):
         self.run_slot(slot, now_ns)
 
     def run_slot(self, slot: int, now_ns: int) -> None:
-        """Upload for one slot (public for tests)."""
+        """Gather the slot's inputs, let the core decide, publish (public for tests)."""
         with self._lock:
-            frame = self._frame if now_ns - self._frame_ns <= self.max_frame_age_s * 1e9 else None
+            fresh = now_ns - self._frame_ns <= self.params.max_frame_age_s * 1e9
+            frame = self._frame if fresh else None
             frame_stamp_ns = self._frame_stamp_ns if frame is not None else None
-            pose = self._pose_at(frame_stamp_ns) if frame_stamp_ns is not None else self._pose
+            pose = self._poses.at(frame_stamp_ns)
             sched = self._schedule
-        entry = sched.lookup(slot) if sched is not None else None
-        if entry is None:
-            self.schedule_misses += 1
-            x, power_w = int(self.default_upload_image), float("nan")
-        else:
-            x, power_w = entry
+            frame_id = self.params.camera_frame_id
+            decision = self.core.run_slot(SlotInputs(slot, frame, frame_stamp_ns, pose,
+                                                     sched.lookup(slot) if sched is not None else None))
+        self.schedule_misses += int(not decision.scheduled)
+        self.no_frame += int(frame is None)
+        self.no_pose += int(decision.key is None)
         stamp_ns = slot_start_ns(slot, self._slot_len_ns)
-        jpeg = encode_jpeg(frame, self.jpeg_quality) if frame is not None else None
-        if frame is None:
-            self.no_frame += 1
-        sent_image = None
-        if x == 1 and jpeg is not None:
-            self._pub_img.publish(compressed_to_msg(jpeg, stamp_ns, self.camera_frame))
-            sent_image = len(jpeg)
-        if pose is None:
-            self.no_pose += 1
-            gain = self.link.gain(slot, None)
-        else:
-            self._pub_key.publish(pose_key_to_msg(PoseKey(slot, *pose), self._slot_len_ns))
-            gain = self.link.gain(slot, pose[:2])
-        row = self.ledger.record(slot, x, power_w, sent_image, gain, len(jpeg) if jpeg is not None else None,
-                                 frame_stamp_ns / 1e9 if frame_stamp_ns is not None else float("nan"))
-        if pose is None and sent_image is None:
-            return
-        self._pub_ledger.publish(ledger_to_msg(row))
+        if decision.jpeg is not None:
+            self._pub_img.publish(compressed_to_msg(decision.jpeg, stamp_ns, frame_id))
+        if decision.key is not None:
+            self._pub_key.publish(pose_key_to_msg(decision.key, self._slot_len_ns))
+        if decision.publish_row:
+            self._pub_ledger.publish(ledger_to_msg(decision.row))
 
     def _publish_diagnostics(self) -> None:
         totals = self.ledger.totals()
         extra = {"schedule_misses": self.schedule_misses, "no_frame": self.no_frame, "no_pose": self.no_pose,
                  "schedule_seq": self._schedule.seq if self._schedule else -1,
                  "camera_info_changes": self.camera_info_changes, "tf_published": self._tf_static is not None}
-        level = DiagnosticStatus.OK if not (self.no_frame or self.no_pose) else DiagnosticStatus.WARN
-        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: uplink energy ledger",
-                                  hardware_id="gsrmr_robot",
-                                  message="ok" if level == DiagnosticStatus.OK else "missing frames or pose",
-                                  values=[KeyValue(key=k, value=f"{v}") for k, v in {**totals, **extra}.items()])
-        arr = DiagnosticArray(status=[status])
-        arr.header.stamp = self.get_clock().now().to_msg()
-        self._pub_diag.publish(arr)
+        self._pub_diag.publish(diagnostics_msg(
+            self, name=f"{self.get_name()}: uplink energy ledger", hardware_id="gsrmr_robot",
+            values={**totals, **extra}, problems=["missing frames or pose"] if self.no_frame or self.no_pose else []))
 
 
 def main(args: list[str] | None = None) -> int:

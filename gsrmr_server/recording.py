@@ -64,15 +64,15 @@ from mcap.writer import Writer as McapWriter
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as Ros2Writer
 import numpy as np
+from sensor_msgs.msg import CompressedImage
 from std_msgs.msg import String
 
 from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.ros_wire import compressed_to_msg, ns_to_stamp
 from gsrmr_common.wire import RealSource
+from gsrmr_server.slot_row import SLOT_ROW_COLUMNS, SlotRow
 
-CSV_COLUMNS = ("slot", "stamp_s", "x", "power_w", "bytes_sent", "energy_j", "loss", "psnr_db", "ssim",
-               "source", "pose_a_m", "pose_b_m", "pose_theta_rad", "latency_ms", "faults", "gs_loss",
-               "energy_upload_all_j")
+CSV_COLUMNS = SLOT_ROW_COLUMNS  # the fields of gsrmr_server.slot_row.SlotRow, in order
 _INT_COLUMNS = frozenset({"slot", "x", "bytes_sent"})
 _STR_COLUMNS = frozenset({"source", "faults"})
 SOURCES = tuple(s.value for s in RealSource)  # the source column: where r̂_t came from
@@ -437,16 +437,19 @@ class RunRecorder:
         self._segment_index += 1
 
     # -- public API
-    def write_slot(self, row: Mapping[str, Any], mr_image: np.ndarray | bytes | None,
+    def write_slot(self, row: SlotRow | Mapping[str, Any], mr_image: np.ndarray | bytes | CompressedImage | None,
                    cmd: tuple[float, float] | None, *, stamp_ns: int | None = None) -> None:
         """Record one slot.
 
-        ``row`` maps (a subset of) :data:`CSV_COLUMNS` to values; ``slot`` is required, unknown keys
-        are refused. ``mr_image`` is the MR image m̂_t (H×W×3 RGB, ``uint8`` or float in [0, 1]) or
-        already-encoded JPEG bytes, or None. ``cmd`` is u_t = (v_mps, w_radps) or None. The time stamp
-        is ``stamp_ns`` if given, else ``row["stamp_s"]`` (slot start, s), else the wall clock.
+        ``row`` is a :class:`~gsrmr_server.slot_row.SlotRow` or maps (a subset of) :data:`CSV_COLUMNS` to
+        values; ``slot`` is required, unknown keys are refused. ``mr_image`` is the MR image m̂_t: the
+        ``sensor_msgs/CompressedImage`` already published (stored as it is), JPEG bytes, an H×W×3 RGB
+        array (``uint8`` or float in [0, 1]), or None. ``cmd`` is u_t = (v_mps, w_radps) or None. The time
+        stamp is ``stamp_ns`` if given, else ``row["stamp_s"]`` (slot start, s), else the wall clock.
         The CSV row is flushed before this returns.
         """
+        if isinstance(row, SlotRow):
+            row = {c: getattr(row, c) for c in CSV_COLUMNS}
         unknown = set(row) - set(CSV_COLUMNS)
         if unknown:
             raise ValueError(f"slot row: unknown columns {sorted(unknown)}")
@@ -456,10 +459,11 @@ class RunRecorder:
         if stamp_ns is None:
             stamp_s = row.get("stamp_s")
             stamp_ns = round(float(stamp_s) * 1e9) if stamp_s is not None else time.time_ns()
-        jpeg = None
-        if mr_image is not None:
+        image_msg = mr_image if isinstance(mr_image, CompressedImage) else None
+        if mr_image is not None and image_msg is None:
             jpeg = bytes(mr_image) if isinstance(mr_image, (bytes, bytearray)) \
                 else encode_jpeg(mr_image, self.jpeg_quality)
+            image_msg = compressed_to_msg(jpeg, stamp_ns, self.image_frame_id)
         # The JSON row is exactly what read_slots_csv returns for this line (non-finite -> null).
         log_json = json.dumps({c: _json_value(_parse_cell(c, cell)) for c, cell in zip(CSV_COLUMNS, cells,
                                                                                       strict=True)},
@@ -472,8 +476,8 @@ class RunRecorder:
             if self.fsync:
                 os.fsync(self._csv_file.fileno())
             seq = self.slots_written
-            if jpeg is not None:
-                self._write(TOPIC_MR_IMAGE, compressed_to_msg(jpeg, stamp_ns, self.image_frame_id), stamp_ns, seq)
+            if image_msg is not None:
+                self._write(TOPIC_MR_IMAGE, image_msg, stamp_ns, seq)
             if cmd is not None:
                 twist = TwistStamped()
                 twist.header.stamp = ns_to_stamp(stamp_ns)

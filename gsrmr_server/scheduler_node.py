@@ -19,24 +19,20 @@ import math
 from pathlib import Path
 import threading
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
-from gsrmr_common.ros_node import declare, declare_link_budget, run_node
-from gsrmr_common.ros_wire import loss_sample_from_msg, pose_key_from_msg, schedule_to_msg
+from gsrmr_common.ros_node import declare, declare_link_budget, diagnostics_msg, run_node
+from gsrmr_common.ros_wire import SCHEDULE_QOS, UPLINK_QOS, loss_sample_from_msg, pose_key_from_msg, schedule_to_msg
 from gsrmr_common.wire import ScheduleMsg, slot_ns
 from gsrmr_server.horizon import OnlinePlanner, PlanResult, RoutePredictor
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.scheduling import METHODS
 
-UPLINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-SCHEDULE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 PLANNING_PARAMS = {"loss_threshold", "horizon", "method", "solver_options", "image_bits", "pose_bits",
                    "drift_threshold", "drift_window", "loss_margin"}
 
@@ -261,13 +257,9 @@ class SchedulerNode(Node):
             values.update({"method": r.method, "horizon": len(r.schedule.x), "images": r.images,
                            "energy_j": r.energy_j, "feasible": r.feasible, "solve_time_s": round(r.solve_time_s, 5),
                            "seq": r.schedule.seq})
-        level = DiagnosticStatus.OK if r is None or r.feasible else DiagnosticStatus.WARN
-        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: schedule", hardware_id="gsrmr_server",
-                                  message="ok" if level == DiagnosticStatus.OK else "plan infeasible",
-                                  values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
-        arr = DiagnosticArray(status=[status])
-        arr.header.stamp = self.get_clock().now().to_msg()
-        self._pub_diag.publish(arr)
+        self._pub_diag.publish(diagnostics_msg(
+            self, name=f"{self.get_name()}: schedule", hardware_id="gsrmr_server", values=values,
+            problems=[] if r is None or r.feasible else ["plan infeasible"]))
 
 
 def main(args: list[str] | None = None) -> int:

@@ -32,25 +32,27 @@ Records ``slots.csv`` and MCAP into ``record_dir`` when set.
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import replace
 import json
-import math
 from pathlib import Path
 import threading
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, Vector3Stamped
 import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray
 
 from gsrmr_common.camera import Intrinsics
-from gsrmr_common.jpeg import encode_jpeg
-from gsrmr_common.metrics import image_quality
-from gsrmr_common.ros_node import declare, declare_camera_mount, run_node
+from gsrmr_common.ros_node import declare, declare_camera_mount, diagnostics_msg, run_node
 from gsrmr_common.ros_wire import (
+    CAMERA_INFO_QOS,
+    IMAGE_UPLOAD_QOS,
+    SCHEDULE_QOS,
+    UPLINK_QOS,
     compressed_to_msg,
     image_from_msg,
     image_to_msg,
@@ -64,7 +66,6 @@ from gsrmr_common.ros_wire import (
 from gsrmr_common.wire import (
     MAX_COMPRESSED_BYTES,
     LedgerRow,
-    LossSample,
     PoseKey,
     ScheduleMsg,
     UplinkFault,
@@ -72,19 +73,12 @@ from gsrmr_common.wire import (
     slot_ns,
     slot_start_ns,
 )
-from gsrmr_server.compose import MRComposer, to_u8
-from gsrmr_server.mr.blend import mr_image
+from gsrmr_server.compose import MRComposer
 from gsrmr_server.mr.content import AgentsView, load_mr_content
 from gsrmr_server.recording import TOPIC_CAMERA_INFO, RunRecorder
+from gsrmr_server.slot_core import ServerCore, match_frame
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.uplink import SlotUploads, UplinkAssembler
-
-UPLINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-SCHEDULE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
-CAMERA_INFO_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)  # the robot's latched relay
-
 
 # Intrinsics of the start-up warm-up render (compiles the kernels before any camera_info arrives).
 WARM_UP_INTRINSICS = Intrinsics.from_fov(32, 24, 1.2)
@@ -151,6 +145,7 @@ class ServerNode(Node):
         # before the slot clock starts keeps the first slots on time instead of skipping the ones that
         # elapsed meanwhile.
         self.composer.compose(SlotUploads(0), PoseKey(0, 0.0, 0.0, 0.0), 0.0, measure_loss=False)
+        self.core = ServerCore(self.composer, self.jpeg_quality, self.measure_loss)
         self._slot_len_ns = slot_ns(self.slot_s)
         self.uplink = UplinkAssembler()
         self._lock = threading.Lock()
@@ -179,8 +174,8 @@ class ServerNode(Node):
         self._pub_loss = self.create_publisher(Float64MultiArray, "gsrmr/loss_sample", UPLINK_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(Vector3Stamped, "uplink/pose_key", self._on_key, UPLINK_QOS, callback_group=io)
-        self.create_subscription(CompressedImage, "uplink/image_raw/compressed", self._on_image,
-                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE), callback_group=io)
+        self.create_subscription(CompressedImage, "uplink/image_raw/compressed", self._on_image, IMAGE_UPLOAD_QOS,
+                                 callback_group=io)
         self.create_subscription(Float64MultiArray, "gsrmr/schedule", self._on_schedule, SCHEDULE_QOS,
                                  callback_group=io)
         self.create_subscription(Float64MultiArray, "gsrmr/ledger", self._on_ledger, UPLINK_QOS, callback_group=io)
@@ -317,75 +312,39 @@ class ServerNode(Node):
             return self.uplink.complete(slot, None if entry is None else bool(entry[0]))
 
     def process_slot(self, slot: int) -> None:
-        """Compose, publish and record slot ``slot``."""
+        """Compose, publish and record slot ``slot`` (the work is the slot core's; this publishes)."""
         start_ns = slot_start_ns(slot, self._slot_len_ns)
         with self._lock:
             entry = self._schedule.lookup(slot) if self._schedule is not None else None
             uploads = self.uplink.take(slot, image_expected=None if entry is None else bool(entry[0]))
             best = self.uplink.best_pose(slot)
+            ledger = self._ledger.pop(slot, None)
+            frames = list(self._frames) if self.evaluate else []
         time_s = (slot - (self._t0_slot or slot)) * self.slot_s
-        result = self.composer.compose(uploads, best, time_s, measure_loss=self.measure_loss)
+        self.core.jpeg_quality, self.core.measure_loss = self.jpeg_quality, self.measure_loss
+        out = self.core.process(uploads, best, time_s=time_s, stamp_s=start_ns / 1e9, ledger=ledger,
+                                scheduled_x=entry[0] if entry else None)
+        result = out.composed
         for stage, ms in result.timings_ms.items():
             self.stage_ms.setdefault(stage, deque(maxlen=1000)).append(ms)
         for fault in result.faults:
             if fault not in uploads.faults:
                 self.uplink.count(fault)
-        mr_u8 = to_u8(result.mr)
-        self._pub_mr.publish(image_to_msg(mr_u8, start_ns, "camera_optical_frame"))
+        self._pub_mr.publish(image_to_msg(out.mr_u8, start_ns, "camera_optical_frame"))
         latency_ms = (self.get_clock().now().nanoseconds - start_ns) / 1e6
         self.latencies_ms.append(latency_ms)
-        jpeg = encode_jpeg(mr_u8, self.jpeg_quality)
-        self._pub_mr_c.publish(compressed_to_msg(jpeg, start_ns, "camera_optical_frame"))
+        compressed = compressed_to_msg(out.jpeg, start_ns, "camera_optical_frame")
+        self._pub_mr_c.publish(compressed)
         self.slots_done += 1
         self.slots_on_time += int(latency_ms <= 1e3 * self.slot_s)
         self.sources[result.source] = self.sources.get(result.source, 0) + 1
-        if result.gs_loss is not None and result.pose is not None:
-            p = result.pose
-            self._pub_loss.publish(loss_sample_to_msg(LossSample(slot, p.a_m, p.b_m, p.theta_rad, result.gs_loss)))
-        quality = self._evaluate(slot, start_ns, result) if self.evaluate else None
+        if out.loss_sample is not None:
+            self._pub_loss.publish(loss_sample_to_msg(out.loss_sample))
+        if self.evaluate:
+            self.core.score(out, match_frame(frames, ledger, start_ns))
         if self.recorder is not None:
-            self._record(slot, start_ns, result, quality, latency_ms, jpeg, entry)
-
-    def _evaluate(self, slot: int, start_ns: int, result) -> dict | None:
-        """True m_t from the camera frame r_t the robot used for this slot (simulation only).
-
-        The robot's ledger row names that frame's stamp; without it, the newest frame at the slot start.
-        """
-        with self._lock:
-            led = self._ledger.get(slot)
-            frames = list(self._frames)
-        used = led.frame_stamp_s if led else None
-        if used is not None and math.isfinite(used):
-            match = [f for f in frames if abs(f[0] / 1e9 - used) < 1e-3]
-        else:
-            match = [f for f in frames if f[0] <= start_ns + 5_000_000][-1:]
-        if not match:
-            return None
-        frame = match[0][1]
-        if frame.shape[:2] != result.mr.shape[:2]:
-            return None
-        truth = mr_image(frame.astype(np.float32) / 255.0, result.virtual, result.mask)
-        return image_quality(truth, np.asarray(to_u8(result.mr), np.float32) / 255.0)
-
-    def _record(self, slot: int, start_ns: int, result, quality: dict | None, latency_ms: float, jpeg: bytes,
-                entry) -> None:
-        with self._lock:
-            led = self._ledger.pop(slot, None)
-        pose = result.pose
-        row = {"slot": slot, "stamp_s": start_ns / 1e9,
-               "x": led.x if led else (entry[0] if entry else None),
-               "power_w": led.power_w if led else None,
-               "bytes_sent": led.bits_sent // 8 if led else None,
-               "energy_j": led.energy_j if led else None,
-               "loss": quality["loss"] if quality else None,
-               "psnr_db": quality["psnr_db"] if quality else None,
-               "ssim": quality["ssim"] if quality else None,
-               "source": result.source,
-               "pose_a_m": pose.a_m if pose else None, "pose_b_m": pose.b_m if pose else None,
-               "pose_theta_rad": pose.theta_rad if pose else None, "latency_ms": latency_ms,
-               "faults": ";".join(result.faults), "gs_loss": result.gs_loss,
-               "energy_upload_all_j": led.upload_all_energy_j if led else None}
-        self.recorder.write_slot(row, jpeg, self._cmd, stamp_ns=start_ns)
+            self.recorder.write_slot(replace(out.row, latency_ms=latency_ms), compressed, self._cmd,
+                                     stamp_ns=start_ns)
 
     def _publish_diagnostics(self) -> None:
         lat = np.asarray(self.latencies_ms) if self.latencies_ms else np.zeros(1)
@@ -402,13 +361,8 @@ class ServerNode(Node):
             problems.append("waiting for camera_info")
         if info_status.startswith("unusable"):
             problems.append("camera_info refused")
-        level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
-        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: MR composition", hardware_id="gsrmr_server",
-                                  message="; ".join(problems) or "ok",
-                                  values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
-        arr = DiagnosticArray(status=[status])
-        arr.header.stamp = self.get_clock().now().to_msg()
-        self._pub_diag.publish(arr)
+        self._pub_diag.publish(diagnostics_msg(self, name=f"{self.get_name()}: MR composition",
+                                               hardware_id="gsrmr_server", values=values, problems=problems))
 
     def _stage_medians(self) -> dict[str, float]:
         return {k: round(float(np.median(v)), 2) for k, v in self.stage_ms.items() if v}

@@ -303,18 +303,16 @@ class FaultInjector:
 # ------------------------------------------------------------------------------------ ROS node
 
 def _node_class():  # defined lazily: the pure core above imports without rclpy
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import Vector3Stamped
     from rcl_interfaces.msg import SetParametersResult
     from rclpy.node import Node
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import CompressedImage
 
-    from gsrmr_common.ros_node import declare
-    from gsrmr_common.ros_wire import ns_to_stamp, stamp_to_ns
+    from gsrmr_common.ros_node import declare, diagnostics_msg
+    from gsrmr_common.ros_wire import IMAGE_UPLOAD_QOS, UPLINK_QOS, ns_to_stamp, stamp_to_ns
 
-    key_qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-    image_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    key_qos, image_qos = UPLINK_QOS, IMAGE_UPLOAD_QOS  # the robot's and the server's profiles
 
     class FaultRelayNode(Node):
         """Relays the robot's uplink into this node's namespace, injecting faults (see the module doc)."""
@@ -405,12 +403,9 @@ def _node_class():  # defined lazily: the pure core above imports without rclpy
         def _publish_diagnostics(self) -> None:
             s = self.injector.summary()
             values = {**s["injected"], "held": s["held"], "mutation_errors": json.dumps(s["mutation_errors"])}
-            status = DiagnosticStatus(level=DiagnosticStatus.OK, name=f"{self.get_name()}: uplink fault relay",
-                                      hardware_id="gsrmr_uplink_relay", message="injecting faults",
-                                      values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
-            arr = DiagnosticArray(status=[status])
-            arr.header.stamp = self.get_clock().now().to_msg()
-            self._pub_diag.publish(arr)
+            self._pub_diag.publish(diagnostics_msg(self, name=f"{self.get_name()}: uplink fault relay",
+                                                   hardware_id="gsrmr_uplink_relay", values=values,
+                                                   message="injecting faults"))
 
         def on_shutdown(self) -> None:
             """Log and write the JSON summary (called by run_node on exit)."""

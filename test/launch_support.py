@@ -85,14 +85,15 @@ def ros2(*args: str, timeout_s: float = 30.0, env: dict[str, str] | None = None)
         return subprocess.CompletedProcess(late.cmd, -9, out, f"timed out after {timeout_s} s")
 
 
-def ros2_until(*args: str, ok: str, attempts: int = 10, pause_s: float = 1.0,
+def ros2_until(*args: str, ok: str | tuple[str, ...], attempts: int = 10, pause_s: float = 1.0,
                timeout_s: float = 30.0) -> subprocess.CompletedProcess:
-    """Run a ``ros2`` command until its output (stdout or stderr) contains ``ok`` (discovery of a
-    just-started node takes a moment and ``--no-daemon`` CLIs have no discovery cache); return the last
-    result."""
+    """Run a ``ros2`` command until its output (stdout or stderr) contains ``ok`` (or one of them:
+    discovery of a just-started node takes a moment and ``--no-daemon`` CLIs have no discovery cache);
+    return the last result."""
+    wanted = (ok,) if isinstance(ok, str) else ok
     result = ros2(*args, timeout_s=timeout_s)
     for _ in range(attempts - 1):
-        if ok in result.stdout + result.stderr:
+        if any(w in result.stdout + result.stderr for w in wanted):
             break
         time.sleep(pause_s)
         result = ros2(*args, timeout_s=timeout_s)

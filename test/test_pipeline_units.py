@@ -66,6 +66,68 @@ def test_composer_sources_and_faults(composer):
     assert blind.source == "none" and blind.mr.shape == (k.height, k.width, 3)
 
 
+def test_server_core_turns_a_slot_into_its_images_row_and_loss_sample(composer):
+    """The server's slot core: one uint8 image and one JPEG per slot, the ledger's numbers in the row, a loss
+    sample only for an image slot with a key, and the truth's quality only once scored."""
+    from gsrmr_common.jpeg import decode_jpeg
+    from gsrmr_common.wire import LedgerRow, RealSource, UplinkFault
+    from gsrmr_server.slot_core import ServerCore, match_frame
+
+    k = composer.intrinsics
+    core = ServerCore(composer, jpeg_quality=90)
+    frame = np.full((k.height, k.width, 3), 200, np.uint8)
+    key = PoseKey(7, -1.0, 0.0, 0.0)
+    led = LedgerRow(7, 1, 0.02, 8 * 1000 + POSE_KEY_BITS, 1e-6, 0.03, 0.003, 8000, 0.0029, 12.5)
+    out = core.process(SlotUploads(7, key=key, jpeg=encode_jpeg(frame, 90)), None, time_s=0.0, stamp_s=0.7,
+                       ledger=led)
+    assert out.mr_u8.dtype == np.uint8 and out.mr_u8.shape == (k.height, k.width, 3)
+    assert out.jpeg is out.jpeg and decode_jpeg(out.jpeg).shape == out.mr_u8.shape  # encoded once
+    r = out.row
+    assert (r.slot, r.stamp_s, r.x, r.power_w, r.bytes_sent, r.energy_j, r.energy_upload_all_j) == \
+        (7, 0.7, 1, 0.03, (8000 + POSE_KEY_BITS) // 8, 0.003, 0.0029)
+    assert r.source == RealSource.IMAGE and r.pose_a_m == -1.0 and r.loss is None
+    assert out.loss_sample is not None and out.loss_sample.slot == 7 and out.loss_sample.loss == r.gs_loss > 0
+    ServerCore.score(out, frame)
+    assert out.quality is not None and out.row.loss == out.quality["loss"] and out.row.psnr_db > 20
+    lost = core.process(SlotUploads(8, faults=[UplinkFault.MISSING_KEY]), key, time_s=0.1, stamp_s=0.8,
+                        scheduled_x=0)
+    assert lost.row.x == 0 and lost.row.bytes_sent is None and lost.row.source == RealSource.FALLBACK
+    assert lost.loss_sample is None and lost.row.faults == (UplinkFault.MISSING_KEY,)
+    assert ServerCore.score(lost, np.zeros((2, 2, 3), np.uint8)).quality is None  # a frame of another size
+    frames = [(12_500_000_000, frame), (12_600_000_000, frame[::-1])]
+    assert match_frame(frames, led, 0) is frame  # the frame the robot's ledger names
+    assert match_frame(frames, None, 12_600_000_000) is frames[1][1]  # else the newest at the slot start
+    assert match_frame(frames, None, 0) is None
+
+
+def test_uplink_core_decides_each_slot_and_books_it():
+    """The robot's slot core: image only when x = 1 and a frame is fresh, a key whenever there is a pose,
+    the schedule's default when none covers the slot, every slot in the ledger."""
+    from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, odom_to_map
+
+    core = UplinkCore(LinkBudget(), 0.1, jpeg_quality=80, default_upload_image=True)
+    frame = np.random.default_rng(0).integers(0, 255, (24, 32, 3), np.uint8)
+    pose = (1.0, 2.0, 0.5)
+    img = core.run_slot(SlotInputs(10, frame, 5_000_000_000, pose, (1, 0.02)))
+    assert img.jpeg is not None and img.key == PoseKey(10, *pose) and img.scheduled and img.publish_row
+    assert img.row.bits_sent == POSE_KEY_BITS + 8 * len(img.jpeg) and img.row.frame_stamp_s == 5.0
+    key = core.run_slot(SlotInputs(11, frame, 5_100_000_000, pose, (0, 1e-6)))
+    assert key.jpeg is None and key.row.bits_sent == POSE_KEY_BITS and key.row.upload_all_bits > 0
+    default = core.run_slot(SlotInputs(12, frame, 5_200_000_000, pose, None))
+    assert default.jpeg is not None and not default.scheduled and math.isnan(default.row.scheduled_power_w)
+    blind = core.run_slot(SlotInputs(13, None, None, None, (1, 0.02)))
+    assert blind.jpeg is None and blind.key is None and not blind.publish_row
+    assert core.ledger.slots == 4 and core.ledger.images == 2
+
+    history = PoseHistory()
+    assert history.at(5) is None and not history.add(1, (math.nan, 0.0, 0.0))
+    history.add(100, (0.0, 0.0, 0.0))
+    history.add(200, (1.0, 0.0, 0.0))
+    assert history.at(140) == (0.0, 0.0, 0.0) and history.at(160) == (1.0, 0.0, 0.0) and history.at(None)[0] == 1.0
+    a, b, t = odom_to_map((1.0, 2.0, math.pi / 2), 1.0, 0.0, math.pi)
+    assert (a, b) == pytest.approx((1.0, 3.0)) and t == pytest.approx(-math.pi / 2)
+
+
 def test_route_predictor_follows_the_loop():
     scene = load_scene("sandbox")
     pred = RoutePredictor(scene.route.waypoints, scene.route.speed_mps)

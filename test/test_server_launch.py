@@ -12,7 +12,7 @@ from pathlib import Path
 import tempfile
 import unittest
 
-from launch_support import isolate_this_process, launch_file, require_ros_tooling, ros2_until
+from launch_support import isolate_this_process, launch_file, require_ros_tooling, ros2, ros2_until
 import pytest
 
 needs_ros_tooling = require_ros_tooling()
@@ -54,10 +54,19 @@ def generate_test_description():
     return launch.LaunchDescription([server, launch_testing.actions.ReadyToTest()]), {"args": args}
 
 
+ANSWERS = ("value is:", "values are:")
+
+
 def param_get(node: str, name: str) -> str:
     """``ros2 param get --no-daemon /<ns>/<node> <name>``'s answer (retried while discovery settles)."""
-    result = ros2_until("param", "get", "--no-daemon", f"/{NAMESPACE}/{node}", name, ok="value is:", attempts=15)
-    return (result.stdout + result.stderr).strip()
+    # "String value is: …" for a scalar, "Double values are: […]" for an array
+    result = ros2_until("param", "get", "--no-daemon", "--timeout", "10", f"/{NAMESPACE}/{node}", name,
+                        ok=ANSWERS, attempts=6)
+    answer = (result.stdout + result.stderr).strip()
+    if not any(a in answer for a in ANSWERS):  # say what the graph held
+        nodes = ros2("node", "list", "--no-daemon", "--spin-time", "5")
+        answer += f" (ros2 node list: {nodes.stdout.split()} {nodes.stderr.strip()})"
+    return answer
 
 
 class TestServerLaunchArguments(unittest.TestCase):

@@ -255,7 +255,9 @@ def test_robot_node_sends_static_tf_and_resends_on_map_from_odom_change(fake_tf2
         assert edges["base_link", "camera_optical_frame"] == tf_tree.base_from_camera_optical_transform(mount)
 
         assert not node.set_parameters([Parameter("map_from_odom", value=[1.0, 2.0])])[0].successful
+        assert node.params.map_from_odom == (3.0, 4.0, -1.0)  # a refused value changes nothing
         assert node.set_parameters([Parameter("jpeg_quality", value=70)])[0].successful
+        assert node.params.jpeg_quality == node.core.jpeg_quality == 70  # applied after it was accepted
         assert len(static.sent) == 2  # neither a refused value nor another parameter re-sends
     finally:
         node.destroy_node()

@@ -23,7 +23,7 @@ from collections.abc import Callable
 import math
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Quaternion, TransformStamped, Twist
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
@@ -31,7 +31,7 @@ from rclpy.node import Node
 from rclpy.time import Time
 from sensor_msgs.msg import Imu
 
-from gsrmr_common.ros_node import declare, run_node
+from gsrmr_common.ros_node import declare, diagnostics_msg, run_node
 from gsrmr_robot.limo import kinematics as kin
 from gsrmr_robot.limo import protocol as proto
 from gsrmr_robot.limo.driver import DriverSnapshot, ImuSample, LimoDriver
@@ -219,14 +219,10 @@ class LimoBaseNode(Node):
 
     def _publish_diagnostics(self) -> None:
         snap = self.driver.snapshot()
-        status = DiagnosticStatus(name="gsrmr_limo_base: LIMO base", hardware_id=snap.link.port)
         level, problems = diagnose(snap)
-        status.level = level
-        status.message = "; ".join(problems) if problems else "OK"
-        status.values = [KeyValue(key=k, value=v) for k, v in diagnostic_values(snap)]
-        arr = DiagnosticArray(status=[status])
-        arr.header.stamp = self.get_clock().now().to_msg()
-        self._diag_pub.publish(arr)
+        self._diag_pub.publish(diagnostics_msg(self, name="gsrmr_limo_base: LIMO base", hardware_id=snap.link.port,
+                                               values=dict(diagnostic_values(snap)), level=level,
+                                               message="; ".join(problems) if problems else "OK"))
 
     def on_shutdown(self) -> None:
         """Stop the base and the driver threads (called by run_node before destroy_node)."""

@@ -1,0 +1,37 @@
+"""One slot of the server's record (pure, light): the typed row behind ``slots.csv``.
+
+The CSV columns are this dataclass's fields in order (:data:`SLOT_ROW_COLUMNS`); the codec is
+:mod:`gsrmr_server.recording`. Units are in the names: seconds, watts, joules, metres, radians, ms.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+from gsrmr_common.wire import RealSource, UplinkFault
+
+
+@dataclass(frozen=True)
+class SlotRow:
+    """One row of ``slots.csv`` (column order = field order); None = empty cell."""
+
+    slot: int
+    stamp_s: float  # slot start
+    x: int | None = None  # what the robot did (its ledger row), else what the schedule said
+    power_w: float | None = None  # transmit power the robot needed for what it sent
+    bytes_sent: int | None = None
+    energy_j: float | None = None
+    loss: float | None = None  # MR loss of m̂ against the true m (simulation only)
+    psnr_db: float | None = None
+    ssim: float | None = None
+    source: RealSource | None = None  # where r̂ came from
+    pose_a_m: float | None = None  # the pose m̂ was rendered at (map)
+    pose_b_m: float | None = None
+    pose_theta_rad: float | None = None
+    latency_ms: float | None = None  # slot start → m̂ published
+    faults: tuple[UplinkFault, ...] = ()
+    gs_loss: float | None = None  # measured L_t (image slots with a key)
+    energy_upload_all_j: float | None = None  # the same frame uploaded as an image (the RoboMR reference)
+
+
+SLOT_ROW_COLUMNS = tuple(f.name for f in fields(SlotRow))
