@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import os
 from pathlib import Path
@@ -91,7 +92,7 @@ def test_round_trip_csv_and_mcap(tmp_path: Path) -> None:
     assert len(by_topic[rec.TOPIC_MR_IMAGE]) == 11 and len(by_topic[rec.TOPIC_CMD_VEL]) == 11
     for (log_time, msg), row in zip(by_topic[rec.TOPIC_SLOT_LOG], rows, strict=True):
         assert log_time == wire.slot_start_ns(row["slot"], SLOT_NS)
-        assert rec.json.loads(msg.data)["slot"] == row["slot"]
+        assert json.loads(msg.data)["slot"] == row["slot"]
     image_rows = [r for k, r in enumerate(rows) if k != 3]
     for (log_time, msg), row in zip(by_topic[rec.TOPIC_MR_IMAGE], image_rows, strict=True):
         k = row["slot"] - T0_SLOT
@@ -150,7 +151,7 @@ def test_csv_value_rules(tmp_path: Path) -> None:
     assert rows[0]["loss"] is None and rows[0]["psnr_db"] == math.inf and rows[0]["faults"] == "a;b"
     (_, log_time, msg), = read_mcap(tmp_path / "run.mcap")
     assert log_time == 5
-    assert rec.json.loads(msg.data)["psnr_db"] is None and rec.json.loads(msg.data)["faults"] == "a;b"
+    assert json.loads(msg.data)["psnr_db"] is None and json.loads(msg.data)["faults"] == "a;b"
 
 
 def test_extra_topics(tmp_path: Path) -> None:
@@ -196,7 +197,7 @@ def test_recover_after_crash_between_rename_and_delete(tmp_path: Path) -> None:
     rec.merge_segments(tmp_path, delete=False)
     (tmp_path / "spare").rename(tmp_path / "run-0002.mcap")
     assert recover_run(tmp_path) == tmp_path / "run.mcap"
-    logs = [rec.json.loads(m.data)["slot"] for t, _, m in read_mcap(tmp_path / "run.mcap") if t == rec.TOPIC_SLOT_LOG]
+    logs = [json.loads(m.data)["slot"] for t, _, m in read_mcap(tmp_path / "run.mcap") if t == rec.TOPIC_SLOT_LOG]
     assert logs == [T0_SLOT + k for k in range(5)]
     assert sum(t == rec.TOPIC_MR_IMAGE for t, _, _ in read_mcap(tmp_path / "run.mcap")) == 5
 
@@ -283,13 +284,13 @@ def test_kill_9_loses_no_written_slot(tmp_path: Path, stop_after: int, kill_when
     for name in finished:
         for topic, _, msg in read_mcap(tmp_path / name):
             if topic == rec.TOPIC_SLOT_LOG:
-                slots_in_segments.append(rec.json.loads(msg.data)["slot"])
+                slots_in_segments.append(json.loads(msg.data)["slot"])
     assert slots_in_segments == list(range(5 * len(finished)))
     # Recovery merges them plus the complete chunks of the open segment into run.mcap.
     merged = recover_run(tmp_path)
     assert merged == tmp_path / "run.mcap"
     assert not list(tmp_path.glob("run-*"))
-    logs = [rec.json.loads(m.data)["slot"] for t, _, m in read_mcap(merged) if t == rec.TOPIC_SLOT_LOG]
+    logs = [json.loads(m.data)["slot"] for t, _, m in read_mcap(merged) if t == rec.TOPIC_SLOT_LOG]
     images = [m for t, _, m in read_mcap(merged) if t == rec.TOPIC_MR_IMAGE]
     assert logs == list(range(len(logs))) and 5 * len(finished) <= len(logs) <= len(rows)
     assert len(images) >= 5 * len(finished)
@@ -326,5 +327,5 @@ def test_concurrent_writers_keep_rows_whole(tmp_path: Path) -> None:
     expected = sorted(T0_SLOT + k for o in (0, 100) for k in range(o, o + 25))
     assert sorted(r["slot"] for r in rows) == expected
     assert all(r == {**make_row(r["slot"] - T0_SLOT), "faults": r["faults"]} for r in rows)
-    logs = [rec.json.loads(m.data)["slot"] for t, _, m in read_mcap(tmp_path / "run.mcap") if t == rec.TOPIC_SLOT_LOG]
+    logs = [json.loads(m.data)["slot"] for t, _, m in read_mcap(tmp_path / "run.mcap") if t == rec.TOPIC_SLOT_LOG]
     assert sorted(logs) == expected

@@ -16,60 +16,40 @@
 * Initialisation: back-projected depth pixels when the dataset has depth, else random points in the
   cameras' bounding box grown by the extent; scales from the 3-nearest-neighbour distance.
 * Checkpoints (torch.save) hold parameters, Adam moments, statistics, iteration and RNG state.
+
+The pieces live beside this module, split as gsplat splits its strategy from its ops:
+:mod:`~gsrmr_server.splatting.losses`, :mod:`~gsrmr_server.splatting.initialise`,
+:mod:`~gsrmr_server.splatting.optim` (state, Adam, row selection, opacity reset),
+:mod:`~gsrmr_server.splatting.strategy` (density control) and :mod:`~gsrmr_server.splatting.contribution`
+(the numba blending-weight kernel); this module holds the configuration and the loop.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 import math
 from pathlib import Path
 import time
 from typing import NamedTuple
 
-import cv2
-import numba as nb
 import numpy as np
-from scipy.spatial import cKDTree
 import torch
 from tqdm import tqdm
 
-from gsrmr_common.camera import Camera
-from gsrmr_common.metrics import SSIM_C1, SSIM_C2, gaussian_window_1d, psnr
+from gsrmr_common.metrics import psnr
 from gsrmr_common.nerfstudio import DatasetFrame, read_dataset
+from gsrmr_server.splatting.contribution import max_blend_weight
 from gsrmr_server.splatting.diffrender import render_torch
+from gsrmr_server.splatting.initialise import init_points, knn_scales, resize_frames, scene_extent
+from gsrmr_server.splatting.losses import ssim_torch, train_loss
 from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.project import NEAR_M, project_numpy
-from gsrmr_server.splatting.rasterize import TILE, depth_order
+from gsrmr_server.splatting.optim import PARAM_NAMES, TrainState, adam_step, reset_opacity, select_rows
+from gsrmr_server.splatting.project import NEAR_M
 from gsrmr_server.splatting.render import render
+from gsrmr_server.splatting.strategy import densify_and_prune
 
-PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
-
-
-def ssim_torch(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Mean SSIM of two H×W×C images, identical to :func:`gsrmr_common.metrics.ssim` (differentiable)."""
-    g = torch.as_tensor(gaussian_window_1d(), dtype=a.dtype)
-    win = (g[:, None] * g[None, :])[None, None]
-    c = a.shape[2]
-    x = a.permute(2, 0, 1)[None]
-    y = b.permute(2, 0, 1)[None]
-    w = win.expand(c, 1, -1, -1)
-    pad = win.shape[-1] // 2
-
-    def blur(t: torch.Tensor) -> torch.Tensor:
-        return torch.nn.functional.conv2d(t, w, padding=pad, groups=c)
-
-    mu_x, mu_y = blur(x), blur(y)
-    sxx = blur(x * x) - mu_x * mu_x
-    syy = blur(y * y) - mu_y * mu_y
-    sxy = blur(x * y) - mu_x * mu_y
-    num = (2 * mu_x * mu_y + SSIM_C1) * (2 * sxy + SSIM_C2)
-    den = (mu_x * mu_x + mu_y * mu_y + SSIM_C1) * (sxx + syy + SSIM_C2)
-    return (num / den).mean()
-
-
-def train_loss(pred: torch.Tensor, target: torch.Tensor, lam: float = 0.2) -> torch.Tensor:
-    """(1 − λ)·L1 + λ·(1 − SSIM), λ = 0.2 (the 3DGS loss and the paper's MR loss)."""
-    return (1.0 - lam) * (pred - target).abs().mean() + lam * (1.0 - ssim_torch(pred, target))
+__all__ = ["PARAM_NAMES", "HistoryRow", "TrainConfig", "TrainState", "Trainer", "max_blend_weight", "ssim_torch",
+           "train_loss"]
 
 
 @dataclass
@@ -125,141 +105,6 @@ class HistoryRow(NamedTuple):
     num_gaussians: int
 
 
-@dataclass
-class TrainState:
-    """Everything a checkpoint holds besides the config."""
-
-    params: dict[str, torch.Tensor]
-    exp_avg: dict[str, torch.Tensor]
-    exp_avg_sq: dict[str, torch.Tensor]
-    step: int = 0
-    grad_accum: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
-    grad_count: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
-    max_radius: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
-    last_seen: torch.Tensor = field(default_factory=lambda: torch.zeros(0, dtype=torch.long))
-    sh_active: int = 0
-    history: list = field(default_factory=list)
-
-
-def scene_extent(cameras: list[Camera]) -> float:
-    """3DGS ``getNerfppNorm`` radius: 1.1 × the largest camera distance from the cameras' mean (≥ 1e-3 m)."""
-    centers = np.array([c.center_world for c in cameras])
-    return float(max(1.1 * np.linalg.norm(centers - centers.mean(0), axis=1).max(), 1e-3))
-
-
-def _resize_frames(frames: list[DatasetFrame], width: int | None) -> list[DatasetFrame]:
-    if width is None:
-        return frames
-    out = []
-    for f in frames:
-        k = f.camera.intrinsics
-        if k.width == width:
-            out.append(f)
-            continue
-        height = max(1, round(k.height * width / k.width))
-        cam = Camera(k.scaled(width, height), f.camera.world_to_camera)
-        img = cv2.resize(f.image, (width, height), interpolation=cv2.INTER_AREA)
-        depth = None if f.depth_m is None else cv2.resize(f.depth_m, (width, height),
-                                                           interpolation=cv2.INTER_NEAREST)
-        out.append(DatasetFrame(cam, img, depth, f.pose, f.file_path))
-    return out
-
-
-def init_points(frames: list[DatasetFrame], n_points: int, extent: float,
-                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """(N×3 points [m], N×3 colours in [0, 1]) from depth maps if present, else random in a box."""
-    with_depth = [f for f in frames if f.depth_m is not None]
-    if with_depth:
-        pts, cols = [], []
-        per = max(1, n_points // len(with_depth))
-        for f in with_depth:
-            valid = np.argwhere(np.isfinite(f.depth_m) & (f.depth_m > 0))
-            if valid.size == 0:
-                continue
-            pick = valid[rng.choice(len(valid), size=min(per, len(valid)), replace=False)]
-            z = f.depth_m[pick[:, 0], pick[:, 1]].astype(np.float64)
-            k = f.camera.intrinsics
-            x = (pick[:, 1] + 0.5 - k.cx) / k.fx * z
-            y = (pick[:, 0] + 0.5 - k.cy) / k.fy * z
-            c2w = f.camera.camera_to_world
-            pts.append(np.stack([x, y, z], 1) @ c2w[:3, :3].T + c2w[:3, 3])
-            cols.append(f.image[pick[:, 0], pick[:, 1]])
-        if pts:
-            return np.concatenate(pts), np.concatenate(cols).astype(np.float64)
-    centers = np.array([f.camera.center_world for f in frames])
-    lo, hi = centers.min(0) - extent, centers.max(0) + extent
-    return rng.uniform(lo, hi, size=(n_points, 3)), rng.uniform(0.2, 0.8, size=(n_points, 3))
-
-
-def knn_scales(points: np.ndarray) -> np.ndarray:
-    """sqrt(mean squared distance to the 3 nearest neighbours), as 3DGS's distCUDA2 initialisation."""
-    if len(points) < 4:
-        return np.full(len(points), 0.01)
-    d, _ = cKDTree(points).query(points, k=4)
-    return np.sqrt(np.maximum(np.mean(d[:, 1:] ** 2, axis=1), 1e-14))
-
-
-@nb.njit(parallel=True, cache=True)
-def _max_weight_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, n_chunks, out):
-    """Per packed row, the largest blending weight T·α it gets at any pixel (same rules as forward)."""
-    n_tiles = offsets.shape[0] - 1
-    for ch in nb.prange(n_chunks):
-        buf = out[ch]
-        for t in range(ch, n_tiles, n_chunks):
-            ty, tx = t // tiles_x, t % tiles_x
-            x0, y0 = tx * tile, ty * tile
-            x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
-            tw = x1 - x0
-            trans = np.ones(tw * (y1 - y0))
-            done = np.zeros(tw * (y1 - y0), np.bool_)
-            for j in range(offsets[t], offsets[t + 1]):
-                k = lst[j]
-                for v in range(max(box[k, 2], y0), min(box[k, 3] + 1, y1)):
-                    dy = v + 0.5 - packed[k, 1]
-                    if abs(dy) > packed[k, 10]:
-                        continue
-                    for u in range(max(box[k, 0], x0), min(box[k, 1] + 1, x1)):
-                        p = (v - y0) * tw + u - x0
-                        dx = u + 0.5 - packed[k, 0]
-                        if done[p] or abs(dx) > packed[k, 10]:
-                            continue
-                        sig = 0.5 * (packed[k, 2] * dx * dx + packed[k, 4] * dy * dy) + packed[k, 3] * dx * dy
-                        if sig < 0.0 or sig > packed[k, 11]:
-                            continue
-                        alpha = min(0.99, packed[k, 5] * math.exp(-sig))
-                        if alpha < 1.0 / 255.0:
-                            continue
-                        t_next = trans[p] * (1.0 - alpha)
-                        if t_next < 1e-4:
-                            done[p] = True
-                            continue
-                        buf[k] = max(buf[k], alpha * trans[p])
-                        trans[p] = t_next
-
-
-def max_blend_weight(model: GaussianModel, cameras: list[Camera], near_m: float = NEAR_M) -> np.ndarray:
-    """For each Gaussian, its largest blending weight T·α over every pixel of every camera."""
-    from gsrmr_server.splatting.rasterize import bin_kernel, pack
-
-    best = np.zeros(model.num_gaussians)
-    n_chunks = max(1, nb.get_num_threads())
-    for cam in cameras:
-        k = cam.intrinsics
-        geom, box = project_numpy(model.means, model.quats, model.log_scales, model.opacity_logits,
-                                  cam.world_to_camera, (k.fx, k.fy, k.cx, k.cy), k.width, k.height, near_m)
-        vis = np.nonzero((box[:, 0] <= box[:, 1]) & (box[:, 2] <= box[:, 3]))[0]
-        order = vis[depth_order(geom[vis, 6])]
-        g = geom[order]
-        packed = pack(g[:, 0:2], g[:, 2:5], g[:, 5], np.zeros((len(order), 3)), g[:, 6], g[:, 7])
-        b = np.ascontiguousarray(box[order], np.int64)
-        tiles_x, tiles_y = (k.width + TILE - 1) // TILE, (k.height + TILE - 1) // TILE
-        offsets, lst = bin_kernel(b, TILE, tiles_x, tiles_y)
-        out = np.zeros((n_chunks, len(order)))
-        _max_weight_kernel(packed, b, offsets, lst, k.width, k.height, TILE, tiles_x, n_chunks, out)
-        np.maximum.at(best, order, out.max(axis=0))
-    return best
-
-
 class Trainer:
     """Optimises a Gaussian model on a list of training frames (see the module docstring)."""
 
@@ -272,8 +117,8 @@ class Trainer:
             torch.set_num_threads(cfg.torch_threads)
         if not frames:
             raise ValueError("Trainer: no training frames")
-        self.frames = _resize_frames(frames, cfg.resolution)
-        self.test_frames = _resize_frames(test_frames or [], cfg.resolution)
+        self.frames = resize_frames(frames, cfg.resolution)
+        self.test_frames = resize_frames(test_frames or [], cfg.resolution)
         self.targets = [torch.from_numpy(np.ascontiguousarray(f.image, np.float32)) for f in self.frames]
         self.extent = scene_extent([f.camera for f in self.frames])
         self.rng = np.random.default_rng(cfg.seed)
@@ -375,93 +220,20 @@ class Trainer:
             self.reset_opacity()
         return float(loss.detach()), -10.0 * math.log10(max(mse, 1e-10))
 
-    def _adam(self, it: int, beta1: float = 0.9, beta2: float = 0.999, eps: float = 1e-15) -> None:
-        st = self.state
-        for name, v in st.params.items():
-            if v.grad is None:
-                continue
-            g = v.grad
-            m, s = st.exp_avg[name], st.exp_avg_sq[name]
-            m.mul_(beta1).add_(g, alpha=1 - beta1)
-            s.mul_(beta2).addcmul_(g, g, value=1 - beta2)
-            bc1, bc2 = 1 - beta1**it, 1 - beta2**it
-            v.requires_grad_(False)
-            v.addcdiv_(m, (s / bc2).sqrt_().add_(eps), value=-self.lr(name, it) / bc1)
-            v.grad = None
+    def _adam(self, it: int) -> None:
+        adam_step(self.state, self.lr, it)
 
     # ------------------------------------------------------------------ density control
     def _apply(self, keep: torch.Tensor, new: dict[str, torch.Tensor] | None = None) -> None:
-        """Keep rows ``keep`` of every per-Gaussian tensor and append ``new`` rows (zero optimiser state)."""
-        st = self.state
-        for name in PARAM_NAMES:
-            parts = [st.params[name][keep].detach()]
-            m_parts, s_parts = [st.exp_avg[name][keep]], [st.exp_avg_sq[name][keep]]
-            if new is not None:
-                parts.append(new[name])
-                m_parts.append(torch.zeros_like(new[name]))
-                s_parts.append(torch.zeros_like(new[name]))
-            st.params[name] = torch.cat(parts).contiguous()
-            st.exp_avg[name] = torch.cat(m_parts).contiguous()
-            st.exp_avg_sq[name] = torch.cat(s_parts).contiguous()
-        n_new = 0 if new is None else new["means"].shape[0]
-        st.grad_accum = torch.cat([st.grad_accum[keep], torch.zeros(n_new)])
-        st.grad_count = torch.cat([st.grad_count[keep], torch.zeros(n_new)])
-        st.max_radius = torch.cat([st.max_radius[keep], torch.zeros(n_new)])
-        st.last_seen = torch.cat([st.last_seen[keep], torch.full((n_new,), st.step, dtype=torch.long)])
+        select_rows(self.state, keep, new)
 
     def densify_and_prune(self, it: int) -> None:
-        """Clone, split and prune (3DGS adaptive density control) under the Gaussian budget."""
-        cfg, st = self.config, self.state
-        p = {k: v.detach() for k, v in st.params.items()}
-        n = p["means"].shape[0]
-        grads = st.grad_accum / st.grad_count.clamp_min(1)
-        scale_max = p["log_scales"].exp().max(dim=1).values
-        candidates = grads >= cfg.grad_threshold
-        room = max(cfg.budget - n, 0)
-        is_split = candidates & (scale_max > cfg.percent_dense * self.extent)
-        # a split adds one net Gaussian, a clone adds one: rank by gradient and keep what fits
-        cand_idx = torch.nonzero(candidates).flatten()
-        if len(cand_idx) > room:
-            cand_idx = cand_idx[torch.argsort(grads[cand_idx], descending=True)[:room]]
-        chosen = torch.zeros(n, dtype=torch.bool)
-        chosen[cand_idx] = True
-        clone = chosen & ~is_split
-        split = chosen & is_split
-        new: dict[str, list[torch.Tensor]] = {k: [] for k in PARAM_NAMES}
-        for k in PARAM_NAMES:
-            new[k].append(p[k][clone])
-        if split.any():
-            sidx = torch.nonzero(split).flatten()
-            std = p["log_scales"][sidx].exp()
-            from gsrmr_server.splatting.diffrender import quat_to_rotmat_torch
-
-            rot = quat_to_rotmat_torch(p["quats"][sidx])
-            for _ in range(2):
-                sample = torch.randn(std.shape, generator=self.torch_gen, dtype=std.dtype) * std
-                new["means"].append(p["means"][sidx] + (rot @ sample[:, :, None])[:, :, 0])
-                new["log_scales"].append(p["log_scales"][sidx] - math.log(1.6))
-                for k in ("quats", "opacity_logits", "sh_dc", "sh_rest"):
-                    new[k].append(p[k][sidx])
-        new_t = {k: torch.cat(v) for k, v in new.items()}
-        opac = torch.sigmoid(p["opacity_logits"])
-        prune = (opac < cfg.prune_opacity) | split
-        if it > cfg.opacity_reset_interval:
-            prune |= (st.max_radius > cfg.max_screen_px) | (scale_max > 0.1 * self.extent)
-        unused_after = 2 * len(self.frames)
-        if it > unused_after:
-            prune |= st.last_seen < it - unused_after
-        self._apply(~prune, new_t)
-        st.grad_accum.zero_()
-        st.grad_count.zero_()
-        st.max_radius.zero_()
+        """Clone, split and prune (:func:`gsrmr_server.splatting.strategy.densify_and_prune`)."""
+        densify_and_prune(self.state, self.config, self.extent, len(self.frames), it, self.torch_gen)
 
     def reset_opacity(self) -> None:
-        """3DGS opacity reset: opacity ← min(opacity, 0.01), with its Adam moments cleared."""
-        st = self.state
-        logit_001 = math.log(0.01 / 0.99)
-        st.params["opacity_logits"] = torch.clamp_max(st.params["opacity_logits"].detach(), logit_001)
-        st.exp_avg["opacity_logits"].zero_()
-        st.exp_avg_sq["opacity_logits"].zero_()
+        """3DGS opacity reset (:func:`gsrmr_server.splatting.optim.reset_opacity`)."""
+        reset_opacity(self.state)
 
     def prune_unused(self) -> int:
         """Remove Gaussians that change no training pixel (max blending weight < 1/255); returns count."""
