@@ -27,8 +27,6 @@ import math
 import os
 from pathlib import Path
 import random
-import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -111,11 +109,11 @@ def run_servers(args: argparse.Namespace, model_path: Path) -> dict:
     from rclpy.parameter import Parameter
 
     from gsrmr_server.server_node import ServerNode
+    from gsrmr_sim.supervisor import ProcessStack
 
-    robots = subprocess.Popen([sys.executable, __file__, "--role", "robots", "--robots", str(args.robots),
-                               "--width", str(args.width), "--height", str(args.height)],
-                              env=os.environ.copy(), start_new_session=True,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    robots = ProcessStack(os.environ.copy(), Path(tempfile.mkdtemp(prefix="gsrmr-load-logs-")))
+    robots.start("robots", [sys.executable, __file__, "--role", "robots", "--robots", str(args.robots),
+                            "--width", str(args.width), "--height", str(args.height)])
     rclpy.init()
     from gsrmr_common.camera import Intrinsics
     from gsrmr_common.ros_wire import camera_info_from_intrinsics
@@ -150,18 +148,14 @@ def run_servers(args: argparse.Namespace, model_path: Path) -> dict:
                     for s in servers]
     finally:
         ex.shutdown(timeout_sec=5)
-        robots.send_signal(signal.SIGINT)
-        try:
-            robots.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            os.killpg(robots.pid, signal.SIGKILL)
+        robots.stop()
     lat = np.concatenate([np.asarray(snap[0]) for snap in snapshot])
     faults: dict[str, int] = {}
     for snap in snapshot:
         for k, v in snap[1].items():
             faults[k] = faults.get(k, 0) + v
     slots = sum(snap[2] for snap in snapshot)
-    sources = {k: sum(snap[4].get(k, 0) for snap in snapshot) for k in ("image", "render", "fallback")}
+    sources = {k: sum(snap[4].get(k, 0) for snap in snapshot) for k in ("image", "render", "fallback", "none")}
     expected = int(args.robots * wall / args.slot_s)
     dropped_keys = faults.get("missing_key", 0)
     result = {"robots": args.robots, "wall_s": round(wall, 1), "slots": slots, "slots_expected": expected,

@@ -13,14 +13,19 @@ import math
 
 import numpy as np
 
+# The paper's channel statistics (Section V): the defaults of every model of the uplink channel.
+PATHLOSS_DB_AT_1M = -30.0  # ρ0
+PATHLOSS_EXPONENT = 3.0  # α
+RICIAN_K = 1.0  # K (LoS/NLoS power)
+
 
 @dataclass
 class ChannelModel:
     """Rician fading with distance path loss; ``seed`` makes every draw reproducible."""
 
-    rho0_db: float = -30.0
-    alpha: float = 3.0
-    k_factor: float = 1.0
+    rho0_db: float = PATHLOSS_DB_AT_1M
+    alpha: float = PATHLOSS_EXPONENT
+    k_factor: float = RICIAN_K
     seed: int | None = 0
     rng: np.random.Generator = field(init=False, repr=False)
 

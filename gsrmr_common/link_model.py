@@ -25,7 +25,16 @@ import math
 
 import numpy as np
 
-from gsrmr_common.channel import ChannelModel
+from gsrmr_common.channel import PATHLOSS_DB_AT_1M, PATHLOSS_EXPONENT, RICIAN_K, ChannelModel
+from gsrmr_common.wire import POSE_KEY_BITS
+
+# The paper's link (Section V), in SI units: the defaults of the robot's ledger (LinkBudget), the
+# scheduler's plan (its parameters) and every scheduling problem (gsrmr_server.scheduling.Problem).
+SLOT_S = 0.1  # τ
+IMAGE_BITS = 67_200.0  # I: the image size the plan assumes (8.4 kB)
+KEY_BITS = float(POSE_KEY_BITS)  # S: the pose key, 3 × float64
+BANDWIDTH_HZ = 1e6  # B
+NOISE_W = 1e-9  # σ² = −60 dBm
 
 LN2 = math.log(2.0)
 #: ln of the largest float64 kept as a finite power/energy (leaves headroom for sums and products).
@@ -112,11 +121,11 @@ def slot_bits(power_w: ArrayLike, gain: ArrayLike, slot_s: float, bandwidth_hz: 
 class LinkBudget:
     """Uplink parameters in SI units (distances in metres in ``map``)."""
 
-    bandwidth_hz: float = 1e6
-    noise_w: float = 1e-9  # −60 dBm
-    pathloss_db_at_1m: float = -30.0
-    pathloss_exponent: float = 3.0
-    rician_k: float = 1.0
+    bandwidth_hz: float = BANDWIDTH_HZ
+    noise_w: float = NOISE_W
+    pathloss_db_at_1m: float = PATHLOSS_DB_AT_1M
+    pathloss_exponent: float = PATHLOSS_EXPONENT
+    rician_k: float = RICIAN_K
     server_position_m: tuple[float, float] = (10.0, 0.0)
     channel_seed: int = 7
     min_distance_m: float = 1.0

@@ -51,6 +51,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray
 
+from gsrmr_common.link_model import SLOT_S
 from gsrmr_common.ros_node import declare, declare_camera_mount, declare_link_budget, diagnostics_msg, run_node
 from gsrmr_common.ros_wire import (
     CAMERA_INFO_QOS,
@@ -145,7 +146,7 @@ class RobotNode(Node):
 
     def __init__(self, **node_kwargs) -> None:
         super().__init__("gsrmr_robot", **node_kwargs)
-        self.slot_s = declare(self, "slot_s", 0.1, "Slot length τ [s]; must equal the server's", min_value=0.01,
+        self.slot_s = declare(self, "slot_s", SLOT_S, "Slot length τ [s]; must equal the server's", min_value=0.01,
                               max_value=10.0, read_only=True)
         d = RobotParameters()
         self.params = RobotParameters(

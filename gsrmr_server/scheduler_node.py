@@ -26,6 +26,7 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
+from gsrmr_common.link_model import IMAGE_BITS, KEY_BITS, SLOT_S
 from gsrmr_common.ros_node import declare, declare_link_budget, diagnostics_msg, run_node
 from gsrmr_common.ros_wire import SCHEDULE_QOS, UPLINK_QOS, loss_sample_from_msg, pose_key_from_msg, schedule_to_msg
 from gsrmr_common.wire import ScheduleMsg, slot_ns
@@ -50,7 +51,7 @@ class SchedulerNode(Node):
 
     def __init__(self, **node_kwargs) -> None:
         super().__init__("gsrmr_scheduler", **node_kwargs)
-        self.slot_s = declare(self, "slot_s", 0.1, "Slot length τ [s]", min_value=0.01, max_value=10.0,
+        self.slot_s = declare(self, "slot_s", SLOT_S, "Slot length τ [s]", min_value=0.01, max_value=10.0,
                               read_only=True)
         self.loss_threshold = declare(self, "loss_threshold", 0.03, "Average MR-loss budget L_th",
                                       min_value=0.0, max_value=1.0)
@@ -59,9 +60,9 @@ class SchedulerNode(Node):
                               constraints=f"one of {list(METHODS)}")
         self.solver_options = declare(self, "solver_options", "{}", "JSON object of options passed to the "
                                       "solver (e.g. {\"time_limit_s\": 0.05} or {\"iterations\": 10})")
-        self.image_bits = declare(self, "image_bits", 67200.0, "Image size I assumed by the plan [bit]",
+        self.image_bits = declare(self, "image_bits", IMAGE_BITS, "Image size I assumed by the plan [bit]",
                                   min_value=1.0, max_value=1e9)
-        self.pose_bits = declare(self, "pose_bits", 192.0, "Pose-key size S [bit]", min_value=1.0, max_value=1e6)
+        self.pose_bits = declare(self, "pose_bits", KEY_BITS, "Pose-key size S [bit]", min_value=1.0, max_value=1e6)
         self.replan_period_s = declare(self, "replan_period_s", 2.0, "Replan this often [s]", min_value=0.1,
                                        max_value=3600.0)
         self.drift_threshold = declare(self, "drift_threshold", 0.02, "Replan when the mean |measured − "

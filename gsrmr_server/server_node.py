@@ -47,6 +47,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray
 
 from gsrmr_common.camera import Intrinsics
+from gsrmr_common.link_model import SLOT_S
 from gsrmr_common.ros_node import declare, declare_camera_mount, diagnostics_msg, run_node
 from gsrmr_common.ros_wire import (
     CAMERA_INFO_QOS,
@@ -103,7 +104,7 @@ class ServerNode(Node):
 
     def __init__(self, **node_kwargs) -> None:
         super().__init__("gsrmr_server", **node_kwargs)
-        self.slot_s = declare(self, "slot_s", 0.1, "Slot length τ [s]; must equal the robot's", min_value=0.01,
+        self.slot_s = declare(self, "slot_s", SLOT_S, "Slot length τ [s]; must equal the robot's", min_value=0.01,
                               max_value=10.0, read_only=True)
         self.process_delay_s = declare(self, "process_delay_s", 0.03, "Compose slot k at the latest this "
                                        "long after its start [s], earlier once its uploads are complete "

@@ -18,18 +18,19 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
-import hashlib
 import json
 import math
 import os
 from pathlib import Path
 import random
-import signal
-import subprocess
 import sys
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from gsrmr_sim.models import BuiltModel
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -38,45 +39,16 @@ def _log(msg: str) -> None:
     print(f"[demo {time.strftime('%H:%M:%S')}] {msg}", flush=True)
 
 
-def scene_key(scene_name: str, settings: dict) -> str:
-    """Cache key of a scene + build settings."""
-    from gsrmr_sim.world.scene import resolve_scene_path
-
-    text = resolve_scene_path(scene_name).read_text() + json.dumps(settings, sort_keys=True)
-    return hashlib.sha256(text.encode()).hexdigest()[:12]
-
-
 def ensure_model(scene_name: str, cache: Path, *, frames: int, train_seconds: float, width: int,
-                 budget: int = 100_000) -> Path:
-    """Round-1 dataset → trained GS model (.ply), built once per scene/settings."""
-    from gsrmr_server.splatting.train import TrainConfig, Trainer
-    from gsrmr_sim.world.recorder import record_round1
-    from gsrmr_sim.world.scene import load_scene
+                 budget: int = 100_000) -> BuiltModel:
+    """Round-1 dataset → trained GS model (.ply), built once per scene/settings (:mod:`gsrmr_sim.models`)."""
+    from gsrmr_server.splatting.train import TrainConfig
+    from gsrmr_sim.models import ModelRecipe, build_model
 
-    settings = {"frames": frames, "train_seconds": train_seconds, "width": width, "budget": budget, "v": 1}
-    folder = cache / f"{scene_name}-{scene_key(scene_name, settings)}"
-    model_path = folder / "model.ply"
-    if model_path.exists():
-        _log(f"GS model cached: {model_path}")
-        return model_path
-    scene = load_scene(scene_name)
-    t0 = time.perf_counter()
-    dataset = record_round1(scene, folder / "round1", frames=frames)
-    _log(f"round 1 recorded: {frames} frames in {time.perf_counter() - t0:.1f} s → {dataset}")
-    t0 = time.perf_counter()
-    trainer = Trainer.from_dataset(dataset, TrainConfig(resolution=width, sh_degree=0, budget=budget), holdout_every=8)
-    model = trainer.train(iterations=100_000, time_budget_s=train_seconds, progress=False)
-    history = trainer.state.history[-1]
-    _log(f"GS model trained: {model.num_gaussians} Gaussians, {history.iteration} iterations, held-out PSNR "
-         f"{history.test_psnr_db:.2f} dB in {time.perf_counter() - t0:.1f} s")
-    folder.mkdir(parents=True, exist_ok=True)
-    tmp = folder / "model.tmp.ply"
-    model.save_ply(tmp)
-    tmp.replace(model_path)
-    (folder / "train.json").write_text(json.dumps({"iterations": history.iteration, "seconds": history.wall_s,
-                                                   "cpu_s": history.cpu_s, "heldout_psnr_db": history.test_psnr_db,
-                                                   "gaussians": history.num_gaussians}))
-    return model_path
+    recipe = ModelRecipe(scene=scene_name, frames=frames, config=TrainConfig(resolution=width, sh_degree=0,
+                                                                            budget=budget),
+                         iterations=100_000, time_budget_s=train_seconds, holdout_every=8)
+    return build_model(recipe, cache=cache, log=_log)
 
 
 def ensure_survey(scene_name: str, model_path: Path, slots: int) -> Path:
@@ -105,26 +77,17 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
               slots: int, method: str, timeout_s: float) -> tuple[list[dict], int]:
     """Start every node as a process over DDS; stop after ``slots`` composed slots; return the rows."""
     from gsrmr_server.recording import read_slots_csv
-    from gsrmr_sim.sim_stack import command_line, environment, sim_stack
+    from gsrmr_sim.sim_stack import environment, sim_stack
+    from gsrmr_sim.supervisor import ProcessStack
 
     domain = random.Random(os.getpid() ^ time.time_ns()).randrange(1, 101)
     link = f"/tmp/gsrmr_limo_{os.getpid()}"
     specs = sim_stack(scene=scene, model_path=str(model_path), record_dir=str(run_dir / "recording"),
                       loss_threshold=loss_threshold, link_path=link, laps=1, method=method,
                       loss_map_file=str(loss_map), state_dir=str(run_dir / "scheduler_state"))
-    env = environment(domain)
-    logs = run_dir / "logs"
-    logs.mkdir(parents=True, exist_ok=True)
-    procs: list[tuple[str, subprocess.Popen]] = []
+    stack = ProcessStack(environment(domain), run_dir / "logs", params_dir=run_dir / "params")
     _log(f"starting {len(specs)} processes in ROS domain {domain}")
     csv_path = run_dir / "recording" / "slots.csv"
-
-    def start(spec) -> None:
-        argv = command_line(spec, None, run_dir / "params")
-        out = (logs / f"{spec.name}.log").open("w")
-        procs.append((spec.name, subprocess.Popen(argv, env=env, stdout=out, stderr=subprocess.STDOUT,
-                                                  start_new_session=True)))
-
     try:
         # The route follower (which sets the robot in motion) starts last, once the server composes:
         # round 2 then begins with every node up and warm, as a run on the real system would; the mock
@@ -133,24 +96,21 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
         last = ("gsrmr-route-follower",)
         for spec in specs:
             if spec.executable not in last:
-                start(spec)
-            if spec.executable == "gsrmr-mock-limo":
-                time.sleep(1.0)  # the pty must exist before the driver opens it
+                # the pty must exist before the driver opens it
+                stack.start(spec.name, spec, wait_for_path=link if spec.executable == "gsrmr-mock-limo" else None)
         warm = time.monotonic() + 60
         while time.monotonic() < warm and len(read_slots_csv(csv_path) if csv_path.exists() else []) < 10:
             time.sleep(0.2)
         for spec in specs:
             if spec.executable in last:
-                start(spec)
+                stack.start(spec.name, spec)
         deadline = time.monotonic() + timeout_s
         first_moving: int | None = None
         rows: list[dict] = []
         last_report = 0.0
         while time.monotonic() < deadline:
             time.sleep(0.5)
-            for name, p in procs:
-                if p.poll() is not None:
-                    raise RuntimeError(f"{name} exited with {p.returncode}; see {logs / (name + '.log')}")
+            stack.check()
             if not csv_path.exists():
                 continue
             rows = read_slots_csv(csv_path)
@@ -165,15 +125,9 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
         else:
             raise TimeoutError(f"round 2 did not produce {slots} slots in {timeout_s:.0f} s")
     finally:
-        for _, p in reversed(procs):
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        for name, p in procs:
-            try:
-                p.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                _log(f"{name} ignored SIGINT; killing it")
-                p.kill()
+        for name, took in stack.stop().items():
+            if took >= stack.stop_timeout_s:
+                _log(f"{name} ignored SIGINT for {stack.stop_timeout_s:.0f} s; killed")
         if os.path.islink(link):
             os.unlink(link)
     rows = read_slots_csv(csv_path)
@@ -284,8 +238,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = Path(args.out or REPO / "reports" / f"demo-{time.strftime('%Y%m%d-%H%M%S')}")
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
-    model = ensure_model(args.scene, Path(args.cache), frames=args.frames or scene.frames,
+    built = ensure_model(args.scene, Path(args.cache), frames=args.frames or scene.frames,
                          train_seconds=args.train_seconds, width=args.train_width, budget=args.budget)
+    model = built.path
     seed = ensure_survey(args.scene, model, slots)
     _log(f"round 2: {slots} slots in real time ({slots * scene.slot_s:.1f} s) over DDS, L_th = {args.loss_threshold}")
     rows, _ = run_stack(scene=args.scene, model_path=model, loss_map=seed, run_dir=out,
@@ -296,6 +251,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if (recording / name).exists():
             (out / name).write_bytes((recording / name).read_bytes())
     summary = {"scene": args.scene, "loss_threshold": args.loss_threshold, **summarise(rows, scene.slot_s),
+               "model_gaussians": built.model.num_gaussians, "model_heldout_psnr_db": built.heldout_psnr_db,
                "report_dir": str(out)}
     write_report(out, rows, summary)
     print(f"\ngsrmr demo — scene {args.scene}, L_th {args.loss_threshold}, {summary['slots']} slots "

@@ -12,7 +12,6 @@ from collections.abc import Iterator
 import contextlib
 import os
 from pathlib import Path
-import signal
 import subprocess
 import time
 
@@ -23,16 +22,12 @@ WIDTH, HEIGHT = 160, 120
 
 def make_small_model(folder: Path, width: int = WIDTH, height: int = HEIGHT) -> Path:
     """A GS model of the sandbox from 12 round-1 frames (depth-initialised, briefly trained)."""
-    from gsrmr_server.splatting.train import TrainConfig, Trainer
-    from gsrmr_sim.world.recorder import record_round1, with_resolution
-    from gsrmr_sim.world.scene import load_scene
+    from gsrmr_server.splatting.train import TrainConfig
+    from gsrmr_sim.models import ModelRecipe, build_model
 
-    scene = with_resolution(load_scene("sandbox"), width, height)
-    dataset = record_round1(scene, folder / "round1", frames=12)
-    trainer = Trainer.from_dataset(dataset, TrainConfig(init_points=6000, sh_degree=0, iterations=60,
-                                                        densify_from=10_000))
-    model = trainer.train(progress=False)
-    return model.save_ply(folder / "model.ply")
+    recipe = ModelRecipe("sandbox", frames=12, width=width, height=height, holdout_every=0,
+                         config=TrainConfig(init_points=6000, sh_degree=0, iterations=60, densify_from=10_000))
+    return build_model(recipe, folder=folder, log=lambda _msg: None).path
 
 
 def make_point_model(folder: Path, n: int = 2000, seed: int = 0) -> Path:
@@ -46,7 +41,7 @@ def make_point_model(folder: Path, n: int = 2000, seed: int = 0) -> Path:
 
 
 class Stack:
-    """The simulated system as processes in one isolated ROS domain.
+    """The simulated system as processes in one isolated ROS domain (a :class:`~gsrmr_sim.supervisor.ProcessStack`).
 
     ``overrides`` are merged into the node suite's defaults (per node name); ``remappings`` are added
     to the named node's spec; ``extra`` specs (e.g. a relay) are started after the others.
@@ -55,8 +50,9 @@ class Stack:
     def __init__(self, tmp: Path, model: Path, env: dict[str, str], *, overrides: dict[str, dict] | None = None,
                  remappings: dict[str, list[tuple[str, str]]] | None = None, extra: tuple = ()) -> None:
         from gsrmr_sim.sim_stack import environment, sim_stack
+        from gsrmr_sim.supervisor import ProcessStack
 
-        self.tmp, self.env = tmp, environment(base=env, kill_safe=True)  # tests kill nodes with -9
+        self.tmp = tmp
         self.link = str(tmp / "limo_pty")
         size = {"width": WIDTH, "height": HEIGHT}
         over: dict[str, dict] = {"gsrmr_mock_camera": dict(size),  # the server renders at its camera_info
@@ -70,50 +66,29 @@ class Stack:
             self.specs[name].remappings.extend(remaps)
         for spec in extra:
             self.specs[spec.name] = spec
-        self.procs: dict[str, subprocess.Popen] = {}
+        # tests kill nodes with -9: environment(kill_safe=True)
+        self.processes = ProcessStack(environment(base=env, kill_safe=True), tmp, params_dir=tmp / "params")
+        self.env = self.processes.env
+        self.procs = self.processes.procs
 
     def start(self, name: str) -> subprocess.Popen:
-        from gsrmr_sim.sim_stack import command_line
-
-        argv = command_line(self.specs[name], None, self.tmp / "params")
-        log = (self.tmp / f"{name}.log").open("a")
-        proc = subprocess.Popen(argv, env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-        self.procs[name] = proc
-        return proc
+        return self.processes.start(name, self.specs[name],
+                                    wait_for_path=self.link if name == "gsrmr_mock_limo" else None)
 
     def start_all(self) -> None:
         for name in self.specs:
             self.start(name)
-            if name == "gsrmr_mock_limo":
-                deadline = time.monotonic() + 10
-                while not os.path.exists(self.link) and time.monotonic() < deadline:
-                    time.sleep(0.05)
-                assert os.path.exists(self.link), self.log(name)[-2000:]
 
     def log(self, name: str) -> str:
-        return (self.tmp / f"{name}.log").read_text()
+        return self.processes.log(name)
 
     def kill9(self, name: str) -> None:
         """SIGKILL a node's process group and reap it."""
-        proc = self.procs[name]
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=10)
+        self.processes.kill9(name)
 
     def stop(self) -> dict[str, float]:
         """SIGINT every process; seconds each took to exit."""
-        took = {}
-        for proc in self.procs.values():
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-        for name, proc in self.procs.items():
-            t0 = time.monotonic()
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-            took[name] = time.monotonic() - t0
-        return took
+        return self.processes.stop()
 
 
 @contextlib.contextmanager

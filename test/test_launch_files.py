@@ -114,3 +114,27 @@ def test_generated_override_file_is_keyed_wildcard(tmp_path):
     assert files[:-1] == spec.param_files
     data = yaml.safe_load(Path(files[-1]).read_text())
     assert list(data) == ["/**"] and data["/**"]["ros__parameters"]["model_path"] == "/m.ply"
+
+
+def test_shipped_link_and_plan_constants_are_the_link_models():
+    """config/link.yaml and config/scheduler.yaml ship the paper's link: the constants of
+    gsrmr_common.link_model / channel that LinkBudget, Problem and the node parameters default to."""
+    import math
+
+    import yaml
+
+    from gsrmr_common import channel, link_model
+    from gsrmr_server.scheduling.problem import Problem
+
+    link = yaml.safe_load((REPO / "config" / "link.yaml").read_text())["/**"]["ros__parameters"]
+    plan = yaml.safe_load((REPO / "config" / "scheduler.yaml").read_text())["/**"]["ros__parameters"]
+    assert link["slot_s"] == link_model.SLOT_S and link["bandwidth_hz"] == link_model.BANDWIDTH_HZ
+    assert 10 ** (link["noise_dbm"] / 10) / 1e3 == pytest.approx(link_model.NOISE_W, rel=1e-12)
+    assert (link["pathloss_db_at_1m"], link["pathloss_exponent"], link["rician_k"]) == \
+        (channel.PATHLOSS_DB_AT_1M, channel.PATHLOSS_EXPONENT, channel.RICIAN_K)
+    assert (plan["image_bits"], plan["pose_bits"]) == (link_model.IMAGE_BITS, link_model.KEY_BITS)
+    budget, problem = link_model.LinkBudget(), Problem([1.0, 1.0], [0.1, 0.1], 0.1)
+    assert (budget.bandwidth_hz, budget.noise_w, budget.rician_k) == \
+        (problem.bandwidth_hz, problem.noise_w, channel.RICIAN_K)
+    assert (problem.image_bits, problem.pose_bits, problem.slot_s) == (67_200.0, 192.0, 0.1)
+    assert math.isclose(10 * math.log10(budget.noise_w * 1e3), -60.0)

@@ -64,11 +64,11 @@ class Problem:
     channel_gain: np.ndarray
     gs_loss: np.ndarray
     loss_threshold: float
-    slot_s: float = 0.1
-    image_bits: float = 67_200.0
-    pose_bits: float = 192.0
-    bandwidth_hz: float = 1e6
-    noise_w: float = 1e-9
+    slot_s: float = link.SLOT_S
+    image_bits: float = link.IMAGE_BITS
+    pose_bits: float = link.KEY_BITS
+    bandwidth_hz: float = link.BANDWIDTH_HZ
+    noise_w: float = link.NOISE_W
     energy_budget_j: float | None = None
 
     def __post_init__(self) -> None:

@@ -1,0 +1,125 @@
+"""Building a scene's Gaussian-splatting model: one pipeline for the demo, the experiments and the tests.
+
+A :class:`ModelRecipe` says how: the scene, the mapping-round recording (frames, image size, seed) and
+the training (a :class:`~gsrmr_server.splatting.train.TrainConfig`, an optional wall-time budget, the
+held-out split). :func:`build_model` records round 1 as a nerfstudio dataset, trains, and writes
+
+    <folder>/round1/            the dataset (transforms.json + images)
+    <folder>/model.ply          the 3DGS model
+    <folder>/train.json         what the training did (recipe, config, history, wall time, held-out PSNR)
+
+With ``cache`` the folder is ``<cache>/<scene>-<key>``, the key a hash of the scene file, the recipe
+and :data:`CACHE_VERSION`: a second call with the same recipe loads the model instead of training it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+import hashlib
+import json
+from pathlib import Path
+import shutil
+import time
+
+from gsrmr_server.splatting.model import GaussianModel
+from gsrmr_server.splatting.train import HistoryRow, TrainConfig
+from gsrmr_sim.world.scene import Scene, load_scene, resolve_scene_path
+
+CACHE_VERSION = 1  # bump when the pipeline changes what a recipe builds
+
+
+@dataclass(frozen=True)
+class ModelRecipe:
+    """How to build one scene's model (image sizes in pixels, times in seconds)."""
+
+    scene: str = "sandbox"
+    frames: int = 144  # H, mapping-round frames
+    width: int | None = None  # recording size (None: the scene's camera)
+    height: int | None = None
+    seed: int = 0  # recording jitter seed (the trainer's seed is config.seed)
+    config: TrainConfig = field(default_factory=TrainConfig)
+    iterations: int | None = None  # training steps (None: config.iterations, which also sets the lr decay)
+    time_budget_s: float | None = None  # stop training at this wall time (whichever comes first)
+    holdout_every: int = 8  # every n-th frame is held out for the PSNR (0: none)
+    eval_every: int = 0  # held-out PSNR every n iterations (0: at the end only)
+
+    def key(self) -> str:
+        """Cache key: the scene file's text, this recipe and :data:`CACHE_VERSION`, hashed."""
+        recipe = asdict(self)
+        recipe["config"] = self.config.to_dict()
+        blob = resolve_scene_path(self.scene).read_text() + json.dumps(recipe, sort_keys=True, default=str)
+        return hashlib.sha256(f"{blob}v{CACHE_VERSION}".encode()).hexdigest()[:12]
+
+    def recorded_scene(self) -> Scene:
+        """The scene at the recording size."""
+        from gsrmr_sim.world.recorder import with_resolution
+
+        return with_resolution(load_scene(self.scene), self.width, self.height)
+
+
+@dataclass
+class BuiltModel:
+    """A built (or cached) model and where it lives."""
+
+    model: GaussianModel
+    folder: Path
+    info: dict  # train.json
+
+    @property
+    def path(self) -> Path:
+        """The model's ``.ply``."""
+        return self.folder / "model.ply"
+
+    @property
+    def heldout_psnr_db(self) -> float:
+        """Held-out PSNR at the end of training (NaN without a held-out split)."""
+        return float(self.info.get("heldout_psnr_db", float("nan")))
+
+
+def history_rows(history: list) -> list[dict]:
+    """Trainer history as dicts: iteration, elapsed_s (wall), cpu_s, train_loss, heldout_psnr_db, gaussians."""
+    return [{"iteration": int(h.iteration), "elapsed_s": float(h.wall_s), "cpu_s": float(h.cpu_s),
+             "train_loss": float(h.loss), "heldout_psnr_db": float(h.test_psnr_db),
+             "gaussians": int(h.num_gaussians)} for h in history if isinstance(h, HistoryRow)]
+
+
+def build_model(recipe: ModelRecipe, *, cache: str | Path | None = None, folder: str | Path | None = None,
+                log: Callable[[str], None] = print) -> BuiltModel:
+    """Record round 1 and train (or load the cached result); exactly one of ``cache`` and ``folder``."""
+    from gsrmr_server.splatting.train import Trainer
+    from gsrmr_sim.world.recorder import record_round1
+
+    if (cache is None) == (folder is None):
+        raise ValueError("build_model: give either cache (reused by key) or folder (always built)")
+    out = Path(folder) if folder is not None else Path(cache) / f"{recipe.scene}-{recipe.key()}"  # type: ignore[arg-type]
+    model_path, info_path = out / "model.ply", out / "train.json"
+    if cache is not None and model_path.exists() and info_path.exists():
+        log(f"{recipe.scene}: GS model cached: {model_path}")
+        return BuiltModel(GaussianModel.load_ply(model_path), out, json.loads(info_path.read_text()))
+    r1 = out / "round1"
+    if r1.exists():
+        shutil.rmtree(r1)
+    t0 = time.perf_counter()
+    dataset = record_round1(recipe.recorded_scene(), r1, frames=recipe.frames, seed=recipe.seed)
+    log(f"{recipe.scene}: round 1 recorded: {recipe.frames} frames in {time.perf_counter() - t0:.1f} s → {dataset}")
+    t0 = time.perf_counter()
+    trainer = Trainer.from_dataset(dataset, recipe.config, holdout_every=recipe.holdout_every)
+    initial_psnr = trainer.evaluate()
+    model = trainer.train(recipe.iterations, eval_every=recipe.eval_every, progress=False,
+                          time_budget_s=recipe.time_budget_s)
+    wall = time.perf_counter() - t0
+    hist = history_rows(trainer.state.history)
+    last = hist[-1] if hist else {}
+    info = {"recipe": {**asdict(recipe), "config": recipe.config.to_dict()}, "config": recipe.config.to_dict(),
+            "initial_heldout_psnr_db": initial_psnr, "history": hist, "wall_s": wall,
+            "iterations": last.get("iteration"), "cpu_s": last.get("cpu_s"),
+            "heldout_psnr_db": last.get("heldout_psnr_db"), "train_frames": len(trainer.frames),
+            "heldout_frames": len(trainer.test_frames), "gaussians": model.num_gaussians}
+    log(f"{recipe.scene}: GS model trained: {model.num_gaussians} Gaussians, {last.get('iteration')} iterations, "
+        f"held-out PSNR {last.get('heldout_psnr_db', float('nan')):.2f} dB in {wall:.1f} s")
+    out.mkdir(parents=True, exist_ok=True)
+    model.save_ply(out / "model.tmp.ply")
+    (out / "model.tmp.ply").replace(model_path)
+    info_path.write_text(json.dumps(info, indent=1, default=str))
+    return BuiltModel(model, out, info)

@@ -1,0 +1,98 @@
+"""Supervising a stack of processes: one implementation for the demo, the test stacks and the benches.
+
+:class:`ProcessStack` starts each process in its own session (so a signal reaches its whole group),
+logs its output to ``<log_dir>/<name>.log``, reports one that died, and stops them all the way a
+terminal's Ctrl-C would: SIGINT to every process (newest first), then SIGKILL to the group of any that
+is still running after ``stop_timeout_s``. A process is a :class:`~gsrmr_sim.sim_stack.ProcessSpec`
+(turned into a command line with its parameter file) or a plain argv.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+import os
+from pathlib import Path
+import signal
+import subprocess
+import time
+from types import TracebackType
+
+from gsrmr_sim.sim_stack import ProcessSpec, command_line
+
+
+class ProcessDiedError(RuntimeError):
+    """A supervised process exited while it was meant to run."""
+
+
+class ProcessStack:
+    """Processes started, watched and stopped together (see the module docstring)."""
+
+    def __init__(self, env: dict[str, str], log_dir: str | Path, *, params_dir: str | Path | None = None,
+                 stop_timeout_s: float = 15.0) -> None:
+        self.env = env
+        self.log_dir = Path(log_dir)
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.params_dir = Path(params_dir) if params_dir is not None else self.log_dir / "params"
+        self.stop_timeout_s = stop_timeout_s
+        self.procs: dict[str, subprocess.Popen] = {}
+
+    def start(self, name: str, what: ProcessSpec | Sequence[str], *, wait_for_path: str | None = None,
+              wait_s: float = 10.0) -> subprocess.Popen:
+        """Start ``what`` as ``name`` (output appended to its log); with ``wait_for_path``, return once that
+        path exists (e.g. the mock LIMO's pty) or raise :class:`ProcessDiedError` / TimeoutError."""
+        argv = command_line(what, None, self.params_dir) if isinstance(what, ProcessSpec) else list(what)
+        log = (self.log_dir / f"{name}.log").open("a")
+        proc = subprocess.Popen(argv, env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        log.close()  # the child holds its own descriptor
+        self.procs[name] = proc
+        if wait_for_path is not None:
+            deadline = time.monotonic() + wait_s
+            while not os.path.exists(wait_for_path):
+                self.check(name)
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"{name}: {wait_for_path} did not appear in {wait_s} s\n"
+                                       f"{self.log(name)[-2000:]}")
+                time.sleep(0.05)
+        return proc
+
+    def log(self, name: str) -> str:
+        """Everything ``name`` printed so far."""
+        path = self.log_dir / f"{name}.log"
+        return path.read_text(errors="replace") if path.exists() else ""
+
+    def check(self, *names: str) -> None:
+        """Raise :class:`ProcessDiedError` if any of ``names`` (default: all) has exited."""
+        for name in names or tuple(self.procs):
+            proc = self.procs[name]
+            if proc.poll() is not None:
+                raise ProcessDiedError(f"{name} exited with {proc.returncode}; see {self.log_dir / (name + '.log')}")
+
+    def kill9(self, name: str) -> None:
+        """SIGKILL a process's group and reap it."""
+        proc = self.procs[name]
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+
+    def stop(self) -> dict[str, float]:
+        """SIGINT every running process (newest first), SIGKILL the group of those still running after
+        ``stop_timeout_s``; returns the seconds each took to exit."""
+        for proc in reversed(list(self.procs.values())):
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+        took = {}
+        for name, proc in self.procs.items():
+            t0 = time.monotonic()
+            try:
+                proc.wait(timeout=self.stop_timeout_s)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+            took[name] = time.monotonic() - t0
+        return took
+
+    def __enter__(self) -> ProcessStack:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.stop()
