@@ -27,6 +27,7 @@ CONSOLE_SCRIPTS = [
     # Gaussian-splatting engine
     "gsrmr-train = gsrmr_server.splatting.cli:train_main",
     "gsrmr-render = gsrmr_server.splatting.cli:render_main",
+    "gsrmr-compact = gsrmr_server.splatting.cli:compact_main",
     # LIMO base: driver node and byte-exact mock base
     "gsrmr-limo-base = gsrmr_common.interrupts:limo_base",
     "gsrmr-mock-limo = gsrmr_sim.entries:mock_limo",

@@ -1,6 +1,7 @@
-"""How much each Gaussian contributes to a set of views: the maximum blending weight α·T it reaches in
-any pixel (numba tile kernel over the renderer's packed layout). Used to prune Gaussians that change no
-pixel.
+"""How much each Gaussian contributes to a set of views: the largest blending weight α·T it reaches in
+any pixel and the sum of its weights over every pixel (numba tile kernel over the renderer's packed
+layout, the forward pass's rules). The maximum prunes Gaussians that change no pixel; the sum ranks them
+for compaction (:mod:`gsrmr_server.splatting.compact`).
 """
 
 from __future__ import annotations
@@ -17,11 +18,13 @@ from gsrmr_server.splatting.rasterize import TILE, depth_order
 
 
 @nb.njit(parallel=True, cache=True)
-def _max_weight_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, n_chunks, out):
-    """Per packed row, the largest blending weight T·α it gets at any pixel (same rules as forward)."""
+def _weight_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, n_chunks, out, total):
+    """Per packed row, the largest blending weight T·α it gets at any pixel (``out``) and their sum over
+    the pixels (``total``); same rules as forward."""
     n_tiles = offsets.shape[0] - 1
     for ch in nb.prange(n_chunks):
         buf = out[ch]
+        acc = total[ch]
         for t in range(ch, n_tiles, n_chunks):
             ty, tx = t // tiles_x, t % tiles_x
             x0, y0 = tx * tile, ty * tile
@@ -50,15 +53,19 @@ def _max_weight_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, 
                         if t_next < 1e-4:
                             done[p] = True
                             continue
-                        buf[k] = max(buf[k], alpha * trans[p])
+                        w = alpha * trans[p]
+                        buf[k] = max(buf[k], w)
+                        acc[k] += w
                         trans[p] = t_next
 
 
-def max_blend_weight(model: GaussianModel, cameras: list[Camera], near_m: float = NEAR_M) -> np.ndarray:
-    """For each Gaussian, its largest blending weight T·α over every pixel of every camera."""
+def blend_weights(model: GaussianModel, cameras: list[Camera], near_m: float = NEAR_M) -> tuple[np.ndarray, np.ndarray]:
+    """For each Gaussian, (the sum of its blending weights T·α over every pixel of every camera, the
+    largest one): its accumulated contribution to those views and whether it changes any pixel at all."""
     from gsrmr_server.splatting.rasterize import bin_kernel, pack
 
     best = np.zeros(model.num_gaussians)
+    acc = np.zeros(model.num_gaussians)
     n_chunks = max(1, nb.get_num_threads())
     for cam in cameras:
         k = cam.intrinsics
@@ -72,6 +79,13 @@ def max_blend_weight(model: GaussianModel, cameras: list[Camera], near_m: float 
         tiles_x, tiles_y = (k.width + TILE - 1) // TILE, (k.height + TILE - 1) // TILE
         offsets, lst = bin_kernel(b, TILE, tiles_x, tiles_y)
         out = np.zeros((n_chunks, len(order)))
-        _max_weight_kernel(packed, b, offsets, lst, k.width, k.height, TILE, tiles_x, n_chunks, out)
+        total = np.zeros((n_chunks, len(order)))
+        _weight_kernel(packed, b, offsets, lst, k.width, k.height, TILE, tiles_x, n_chunks, out, total)
         np.maximum.at(best, order, out.max(axis=0))
-    return best
+        np.add.at(acc, order, total.sum(axis=0))
+    return acc, best
+
+
+def max_blend_weight(model: GaussianModel, cameras: list[Camera], near_m: float = NEAR_M) -> np.ndarray:
+    """For each Gaussian, its largest blending weight T·α over every pixel of every camera."""
+    return blend_weights(model, cameras, near_m)[1]

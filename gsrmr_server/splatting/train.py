@@ -105,11 +105,22 @@ class HistoryRow(NamedTuple):
     num_gaussians: int
 
 
+def holdout_split(frames: list[DatasetFrame], every: int) -> tuple[list[DatasetFrame], list[DatasetFrame]]:
+    """(training, held-out) frames: every ``every``-th frame (the last of each group of ``every``) is held
+    out; ``every`` ≤ 0 holds out none. The split of ``gsrmr-train --holdout-every`` and ``gsrmr-compact``."""
+    if every <= 0:
+        return list(frames), []
+    return ([f for i, f in enumerate(frames) if i % every != every - 1],
+            [f for i, f in enumerate(frames) if i % every == every - 1])
+
+
 class Trainer:
     """Optimises a Gaussian model on a list of training frames (see the module docstring)."""
 
     def __init__(self, frames: list[DatasetFrame], config: TrainConfig | None = None,
-                 test_frames: list[DatasetFrame] | None = None) -> None:
+                 test_frames: list[DatasetFrame] | None = None, initial_model: GaussianModel | None = None) -> None:
+        """``initial_model`` (e.g. to fine-tune a trained model) replaces the point initialisation; its SH
+        degree is the active one from the start."""
         self.config = config or TrainConfig()
         cfg = self.config
         if cfg.torch_threads:
@@ -123,19 +134,20 @@ class Trainer:
         self.extent = scene_extent([f.camera for f in self.frames])
         self.rng = np.random.default_rng(cfg.seed)
         self.torch_gen = torch.Generator().manual_seed(cfg.seed)
-        self.state = self._initial_state()
+        if initial_model is None:
+            self.state = self._initial_state()
+        else:
+            self.state = self._state_from_model(initial_model.with_degree(min(initial_model.sh_degree,
+                                                                               cfg.sh_degree)))
+            self.state.sh_active = min(initial_model.sh_degree, cfg.sh_degree)
         self._perm: list[int] = []
 
     @classmethod
     def from_dataset(cls, path: str | Path, config: TrainConfig | None = None,
                      holdout_every: int = 0) -> Trainer:
         """Read a nerfstudio dataset; every ``holdout_every``-th frame (if > 0) becomes a test view."""
-        frames = read_dataset(path)
-        if holdout_every > 0:
-            test = [f for i, f in enumerate(frames) if i % holdout_every == holdout_every - 1]
-            train = [f for i, f in enumerate(frames) if i % holdout_every != holdout_every - 1]
-            return cls(train, config, test)
-        return cls(frames, config)
+        train, test = holdout_split(read_dataset(path), holdout_every)
+        return cls(train, config, test)
 
     # ------------------------------------------------------------------ state
     def _initial_state(self) -> TrainState:
