@@ -4,9 +4,10 @@ After training, every Gaussian is ranked by its contribution over the training v
 blending weight Σ α·T over every pixel of every view (LightGaussian's global significance, Mini-Splatting's
 importance; :func:`~gsrmr_server.splatting.contribution.blend_weights`). Rounds then prune the least
 contributing ``prune_fraction`` of what is left and fine-tune briefly (Adam on every parameter, no
-densification, a small position rate), measuring the held-out PSNR after each; compaction stops at the
-first round that drops more than ``max_psnr_drop_db`` below the uncompacted model and keeps the round
-before it. Then the SH degree is lowered one step at a time (fine-tuned the same way) while the
+densification, a small position rate), measuring the held-out PSNR after each; a round that drops more
+than ``max_psnr_drop_db`` below the uncompacted model is discarded and retried with half the share,
+until the share falls below ``min_prune_fraction``; the last round within the tolerance is kept. Then
+the SH degree is lowered one step at a time (fine-tuned the same way) while the
 view-dependent colour does not pay for itself within the same tolerance.
 
 The held-out PSNR is measured as ``gsrmr-train`` measures it (:meth:`Trainer.evaluate`: the mean PSNR of
@@ -33,6 +34,7 @@ class CompactConfig:
 
     max_psnr_drop_db: float = 0.3  # tolerance below the uncompacted model's held-out PSNR
     prune_fraction: float = 0.25  # share of the remaining Gaussians pruned per round
+    min_prune_fraction: float = 0.06  # a round over the tolerance is retried with half the share, down to this
     finetune_iterations: int = 300  # fine-tuning steps after each pruning round and SH step
     max_rounds: int = 12
     min_gaussians: int = 500
@@ -41,8 +43,8 @@ class CompactConfig:
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_psnr_drop_db) and self.max_psnr_drop_db >= 0):
             raise ValueError("max_psnr_drop_db must be a finite number ≥ 0")
-        if not 0.0 < self.prune_fraction < 1.0:
-            raise ValueError("prune_fraction must be in (0, 1)")
+        if not 0.0 < self.min_prune_fraction <= self.prune_fraction < 1.0:
+            raise ValueError("need 0 < min_prune_fraction ≤ prune_fraction < 1")
         if self.finetune_iterations < 0 or self.max_rounds < 0 or self.min_gaussians < 1:
             raise ValueError("finetune_iterations, max_rounds ≥ 0 and min_gaussians ≥ 1")
 
@@ -126,9 +128,10 @@ class Compactor:
         best, best_psnr = model, before
         steps: list[CompactStep] = []
         cameras = [f.camera for f in self.train_frames]
+        fraction = cfg.prune_fraction
         for _ in range(cfg.max_rounds):
             n = best.num_gaussians
-            n_keep = max(cfg.min_gaussians, int(round(n * (1.0 - cfg.prune_fraction))))
+            n_keep = max(cfg.min_gaussians, int(round(n * (1.0 - fraction))))
             if n_keep >= n:
                 break
             t0 = time.perf_counter()
@@ -139,7 +142,10 @@ class Compactor:
             steps.append(CompactStep("prune", cand.num_gaussians, cand.sh_degree, psnr_db, ok,
                                      time.perf_counter() - t0))
             if not ok:
-                break
+                fraction /= 2.0
+                if fraction < cfg.min_prune_fraction:
+                    break
+                continue
             best, best_psnr = cand, psnr_db
         while cfg.lower_sh and best.sh_degree > 0:
             t0 = time.perf_counter()
