@@ -40,15 +40,19 @@ def _log(msg: str) -> None:
 
 
 def ensure_model(scene_name: str, cache: Path, *, frames: int, train_seconds: float, width: int,
-                 budget: int = 100_000) -> BuiltModel:
-    """Round-1 dataset → trained GS model (.ply), built once per scene/settings (:mod:`gsrmr_sim.models`)."""
+                 budget: int = 100_000, max_psnr_drop_db: float | None = None) -> BuiltModel:
+    """Round-1 dataset → trained GS model (.ply), built once per scene/settings (:mod:`gsrmr_sim.models`);
+    with ``max_psnr_drop_db``, compacted to the smallest model within that held-out PSNR loss (cached too)."""
     from gsrmr_server.splatting.train import TrainConfig
-    from gsrmr_sim.models import ModelRecipe, build_model
+    from gsrmr_sim.models import ModelRecipe, build_model, compact_built
 
     recipe = ModelRecipe(scene=scene_name, frames=frames, config=TrainConfig(resolution=width, sh_degree=0,
                                                                             budget=budget),
                          iterations=100_000, time_budget_s=train_seconds, holdout_every=8)
-    return build_model(recipe, cache=cache, log=_log)
+    built = build_model(recipe, cache=cache, log=_log)
+    if max_psnr_drop_db is None:
+        return built
+    return compact_built(built, recipe, max_psnr_drop_db, log=_log)
 
 
 def ensure_survey(scene_name: str, model_path: Path, slots: int) -> Path:
@@ -58,7 +62,7 @@ def ensure_survey(scene_name: str, model_path: Path, slots: int) -> Path:
     from gsrmr_sim.world.recorder import Round2Record, record_round2
     from gsrmr_sim.world.scene import load_scene
 
-    out = model_path.parent / f"loss_map_{slots}.json"
+    out = model_path.parent / f"loss_map_{model_path.stem}_{slots}.json"  # L_t depends on the model
     if out.exists():
         _log(f"loss-map seed cached: {out}")
         return out
@@ -229,6 +233,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--budget", type=int, default=100_000,
                     help="Gaussian budget of the trained model: render time per slot grows with it (sandbox, "
                          "75 s of training: 100k → 37.3 dB held out, 30 ms/render; 200k → 36.8 dB, 44 ms)")
+    ap.add_argument("--max-psnr-drop-db", type=float, default=0.3,
+                    help="compact the trained model to the smallest one within this held-out PSNR loss "
+                         "(gsrmr-compact; bench/compact.py: sandbox 97k → 17k Gaussians at −0.21 dB)")
+    ap.add_argument("--no-compact", action="store_true", help="run on the trained (uncompacted) model")
     args = ap.parse_args(argv)
 
     from gsrmr_sim.world.scene import load_scene
@@ -239,7 +247,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     built = ensure_model(args.scene, Path(args.cache), frames=args.frames or scene.frames,
-                         train_seconds=args.train_seconds, width=args.train_width, budget=args.budget)
+                         train_seconds=args.train_seconds, width=args.train_width, budget=args.budget,
+                         max_psnr_drop_db=None if args.no_compact else args.max_psnr_drop_db)
     model = built.path
     seed = ensure_survey(args.scene, model, slots)
     _log(f"round 2: {slots} slots in real time ({slots * scene.slot_s:.1f} s) over DDS, L_th = {args.loss_threshold}")
@@ -252,6 +261,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             (out / name).write_bytes((recording / name).read_bytes())
     summary = {"scene": args.scene, "loss_threshold": args.loss_threshold, **summarise(rows, scene.slot_s),
                "model_gaussians": built.model.num_gaussians, "model_heldout_psnr_db": built.heldout_psnr_db,
+               "model_compacted": not args.no_compact,
                "report_dir": str(out)}
     write_report(out, rows, summary)
     print(f"\ngsrmr demo — scene {args.scene}, L_th {args.loss_threshold}, {summary['slots']} slots "

@@ -15,7 +15,7 @@ and :data:`CACHE_VERSION`: a second call with the same recipe loads the model in
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 import hashlib
 import json
 from pathlib import Path
@@ -64,12 +64,13 @@ class BuiltModel:
 
     model: GaussianModel
     folder: Path
-    info: dict  # train.json
+    info: dict  # train.json (compact-<tol>.json for a compacted model)
+    ply_name: str = "model.ply"
 
     @property
     def path(self) -> Path:
         """The model's ``.ply``."""
-        return self.folder / "model.ply"
+        return self.folder / self.ply_name
 
     @property
     def heldout_psnr_db(self) -> float:
@@ -123,3 +124,36 @@ def build_model(recipe: ModelRecipe, *, cache: str | Path | None = None, folder:
     (out / "model.tmp.ply").replace(model_path)
     info_path.write_text(json.dumps(info, indent=1, default=str))
     return BuiltModel(model, out, info)
+
+
+def compact_built(built: BuiltModel, recipe: ModelRecipe, max_psnr_drop_db: float,
+                  log: Callable[[str], None] = print) -> BuiltModel:
+    """The built model compacted to the smallest one within ``max_psnr_drop_db`` of its held-out PSNR
+    (:mod:`gsrmr_server.splatting.compact`), cached beside it as ``model-compact-<tol>.ply`` +
+    ``compact-<tol>.json``. The info also holds both models' held-out PSNR at the dataset's own (full)
+    resolution, which is the live image size."""
+    from gsrmr_common.nerfstudio import read_dataset
+    from gsrmr_server.splatting.compact import CompactConfig, Compactor
+    from gsrmr_server.splatting.train import holdout_split
+
+    tag = f"{max_psnr_drop_db:g}"
+    path, info_path = built.folder / f"model-compact-{tag}.ply", built.folder / f"compact-{tag}.json"
+    if path.exists() and info_path.exists():
+        log(f"{recipe.scene}: compacted GS model cached: {path}")
+        return BuiltModel(GaussianModel.load_ply(path), built.folder, json.loads(info_path.read_text()))
+    train, test = holdout_split(read_dataset(built.folder / "round1"), recipe.holdout_every)
+    result = Compactor(train, test, recipe.config, CompactConfig(max_psnr_drop_db=max_psnr_drop_db)).run(built.model)
+    full_res = Compactor(train, test, replace(recipe.config, resolution=None))
+    info = {**result.summary(), "max_psnr_drop_db": max_psnr_drop_db,
+            "heldout_psnr_db": result.heldout_psnr_after_db,
+            "heldout_psnr_full_res_before_db": full_res.evaluate(built.model),
+            "heldout_psnr_full_res_after_db": full_res.evaluate(result.model),
+            "full_res_width": test[0].camera.width if test else None}
+    log(f"{recipe.scene}: GS model compacted: {result.gaussians_before} → {result.gaussians_after} Gaussians, "
+        f"held-out PSNR {result.heldout_psnr_before_db:.2f} → {result.heldout_psnr_after_db:.2f} dB "
+        f"(at {info['full_res_width']} px: {info['heldout_psnr_full_res_before_db']:.2f} → "
+        f"{info['heldout_psnr_full_res_after_db']:.2f} dB) in {result.wall_s:.0f} s")
+    result.model.save_ply(built.folder / f"model-compact-{tag}.tmp.ply")
+    (built.folder / f"model-compact-{tag}.tmp.ply").replace(path)
+    info_path.write_text(json.dumps(info, indent=1))
+    return BuiltModel(result.model, built.folder, info, path.name)
