@@ -325,3 +325,48 @@ def test_garden_model_is_reproducible_and_renders_the_real_view():
     out = render(model, cam)
     _finite(out)
     assert out.alpha.mean() > 0.5 and out.num_visible > 10_000
+
+
+def test_stability_at_the_extremes_of_scale_shape_position_and_count(tmp_path):
+    """No NaN or inf reaches a pixel: scales 1e-6 m … 1e3 m, near-degenerate and needle covariances, a camera
+    inside a Gaussian and one exactly at the near plane, opacities 0 and 1, 10^6 Gaussians in one tile."""
+    from gsrmr_server.splatting.model import PlyFormatError
+    from gsrmr_server.splatting.project import NEAR_M
+
+    cam = front_camera(64, 48)
+    bg = (0.2, 0.3, 0.4)
+
+    def one(mean, scales, opacity_logit=0.0):
+        return GaussianModel(np.array([mean], float), np.array([[1.0, 0.0, 0.0, 0.0]]), np.log([scales]),
+                             np.array([opacity_logit]), np.full((1, 1, 3), 1.0))
+
+    for s in (1e-6, 1e-3, 1.0, 1e3):
+        _finite(render(one((0.0, 0.0, 2.0), (s, s, s)), cam, bg))
+    for scales in ((1e-9, 0.5, 0.5), (1e-7, 1e-7, 2.0), (1e3, 1e-6, 1e3)):  # flat disc, needle, wall
+        _finite(render(one((0.0, 0.0, 2.0), scales), cam, bg))
+    inside = render(one((0.0, 0.0, 0.0), (1.0, 1.0, 1.0)), cam, bg)  # the camera centre inside it
+    _finite(inside)
+    _finite(render(one((0.0, 0.0, NEAR_M), (0.1, 0.1, 0.1)), cam, bg))  # centre exactly on the near plane
+    for logit in (-60.0, 60.0):  # opacity 0 and 1
+        out = render(one((0.0, 0.0, 2.0), (0.2, 0.2, 0.2), logit), cam, bg)
+        _finite(out)
+        assert (out.alpha.max() < 1e-6) if logit < 0 else (out.alpha.max() <= 0.99 + 1e-6)
+    n = 1_000_000  # all in the one 16×16 tile around the image centre
+    rng = np.random.default_rng(0)
+    crowd = GaussianModel.from_points(np.column_stack([rng.uniform(-0.01, 0.01, (n, 2)), np.full(n, 2.0)]),
+                                      rng.uniform(0, 1, (n, 3)), scales_m=0.003, opacities=0.5)
+    out = render(crowd, cam, bg)
+    _finite(out)
+    assert out.alpha[24, 32] > 0.99  # saturated where they pile up, early termination or not
+
+    good = GaussianModel.from_points(np.array([[0.0, 0.0, 2.0], [0.1, 0.0, 2.0]]), np.full((2, 3), 0.5),
+                                     scales_m=0.1, opacities=0.5, degree=1)
+    good.save_ply(tmp_path / "good.ply")
+    from plyfile import PlyData, PlyElement
+
+    for prop in ("x", "scale_0", "opacity", "rot_2", "f_dc_1", "f_rest_4"):
+        data = PlyData.read(str(tmp_path / "good.ply"))["vertex"].data.copy()
+        data[prop][1] = np.inf if prop == "opacity" else np.nan
+        PlyData([PlyElement.describe(data, "vertex")]).write(str(tmp_path / "bad.ply"))
+        with pytest.raises(PlyFormatError, match=rf"'{prop}' holds NaN/inf \(first at vertex 1\)"):
+            GaussianModel.load_ply(tmp_path / "bad.ply")

@@ -188,6 +188,11 @@ class GaussianModel:
         except ValueError as exc:
             raise PlyFormatError(f"{path}: {exc}") from exc
         n = len(v)
+        for name in [*required, *rest]:  # name the property and the vertex, not just the array
+            bad = ~np.isfinite(np.asarray(v[name], dtype=np.float64))
+            if bad.any():
+                raise PlyFormatError(f"{path}: vertex property '{name}' holds NaN/inf (first at vertex "
+                                     f"{int(np.argmax(bad))})")
 
         def col(name: str) -> np.ndarray:
             return np.asarray(v[name], dtype=np.float32)
