@@ -66,6 +66,12 @@ class InterruptPolicy:
     def _handle(self, signum: int, frame: FrameType | None) -> None:
         self.received += 1
         if self.phase == START:
+            if _in_finalizer(frame):
+                # Raised inside a __del__, the KeyboardInterrupt is swallowed ("Exception ignored") and the
+                # object's clean-up is cut short: an rclpy logger finalised that way crashed the LIMO base
+                # node with −11 in a clean-clone CI run. Defer: run_node never starts spinning.
+                self.stop_requested = True
+                return
             raise KeyboardInterrupt
         if self.phase == RUNNING:
             self.stop_requested = True
@@ -73,6 +79,15 @@ class InterruptPolicy:
             self._cleanup_received += 1
             if self._cleanup_received > CLEANUP_PATIENCE:
                 raise KeyboardInterrupt
+
+
+def _in_finalizer(frame: FrameType | None) -> bool:
+    """Whether the interrupted code runs inside a ``__del__`` (anywhere up the stack)."""
+    while frame is not None:
+        if frame.f_code.co_name == "__del__":
+            return True
+        frame = frame.f_back
+    return False
 
 
 POLICY = InterruptPolicy()
@@ -91,6 +106,8 @@ def node_entry(target: str) -> Callable[[], int]:
         POLICY.enter(START)
         try:
             function = getattr(importlib.import_module(module_name), function_name)
+            if POLICY.stop_requested:  # a signal deferred during the import (see InterruptPolicy._handle)
+                return 0
             return int(function() or 0)
         except KeyboardInterrupt:
             return 0

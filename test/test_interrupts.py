@@ -112,3 +112,29 @@ def test_policy_phases():
         policy._handle(signal.SIGINT, None)
     with pytest.raises(ValueError):
         policy.enter("later")
+
+
+def test_start_up_signal_inside_a_finalizer_is_deferred_not_raised():
+    """A KeyboardInterrupt raised inside __del__ is swallowed by Python and cuts the object's clean-up short
+    (an rclpy logger finalised that way crashed a node with −11): during start-up such a signal only asks
+    for the stop, which run_node honours before spinning."""
+    import sys
+
+    policy = InterruptPolicy()
+    policy.enter(START)
+    seen = {}
+
+    class Finalised:
+        def __del__(self):
+            frame = sys._getframe()
+            try:
+                policy._handle(signal.SIGINT, frame)
+                seen["raised"] = False
+            except KeyboardInterrupt:
+                seen["raised"] = True
+
+    obj = Finalised()
+    del obj
+    assert seen == {"raised": False} and policy.stop_requested and policy.received == 1
+    with pytest.raises(KeyboardInterrupt):  # anywhere else during start-up it still raises
+        policy._handle(signal.SIGINT, sys._getframe())
