@@ -6,6 +6,8 @@ degree 0 drawn at random so the SH path really runs). Each figure is the median 
 renders per camera, over the 3 cameras. Also reports the numba first-call time with a cold cache
 (compile) and a warm cache (load), each in a fresh subprocess.
 
+Also the stage split of one frame (projection, sort, gather, binning, compositing), 1 and 2 threads.
+
 Usage: .venv/bin/python bench/render.py [--repeats 7] [--threads N]
 """
 
@@ -22,7 +24,10 @@ import numba
 import numpy as np
 
 from gsrmr_common.camera import Camera
+from gsrmr_server.splatting.display_raster import TILE, display_kernel
 from gsrmr_server.splatting.model import GaussianModel, garden_model, load_garden
+from gsrmr_server.splatting.project import NEAR_M, project_numpy
+from gsrmr_server.splatting.rasterize import PACK_WIDTH, bin_kernel, depth_order, gather_pack_kernel
 from gsrmr_server.splatting.render import render
 
 FIRST_CALL = ("import time; t0 = time.perf_counter();"
@@ -60,6 +65,38 @@ def with_random_sh(model: GaussianModel, degree: int, seed: int = 0) -> Gaussian
     rng = np.random.default_rng(seed)
     m.sh[:, 1:] = rng.normal(0.0, 0.1, m.sh[:, 1:].shape).astype(np.float32)
     return m
+
+
+def stage_split_ms(model: GaussianModel, cams: list[Camera], repeats: int) -> dict[str, float]:
+    """Median wall ms of each stage of render() (SH degree 0), over cameras × repeats."""
+    stages: dict[str, list[float]] = {}
+    sh0 = np.ascontiguousarray(model.sh[:, 0, :])
+    for cam in cams:
+        k, w, h = cam.intrinsics, cam.width, cam.height
+        for rep in range(repeats + 1):
+            t = [time.perf_counter()]
+            geom, box = project_numpy(model.means, model.quats, model.log_scales, model.opacity_logits,
+                                      cam.world_to_camera, (k.fx, k.fy, k.cx, k.cy), w, h, NEAR_M)
+            t.append(time.perf_counter())
+            visible = np.nonzero((box[:, 0] <= box[:, 1]) & (box[:, 2] <= box[:, 3]))[0]
+            order = visible[depth_order(geom[visible, 6])]
+            t.append(time.perf_counter())
+            packed = np.empty((order.shape[0], PACK_WIDTH), np.float32)
+            pbox = np.empty((order.shape[0], 4), np.int64)
+            gather_pack_kernel(geom, box, order, np.zeros((0, 3)), sh0, packed, pbox)
+            t.append(time.perf_counter())
+            tiles_x, tiles_y = (w + TILE - 1) // TILE, (h + TILE - 1) // TILE
+            offsets, lst = bin_kernel(pbox, TILE, tiles_x, tiles_y)
+            t.append(time.perf_counter())
+            rgb, alpha, depth = (np.empty((h, w, 3), np.float32), np.empty((h, w), np.float32),
+                                 np.empty((h, w), np.float32))
+            display_kernel(packed, pbox, offsets, lst, w, h, tiles_x, np.zeros(3, np.float32), rgb, alpha, depth)
+            t.append(time.perf_counter())
+            if rep:  # the first is a warm-up
+                for name, a, b in zip(("projection", "sort", "gather", "binning", "compositing"), t[:-1], t[1:],
+                                      strict=True):
+                    stages.setdefault(name, []).append(1000 * (b - a))
+    return {name: float(np.median(v)) for name, v in stages.items()}
 
 
 def first_call_times() -> list[str]:
@@ -122,6 +159,14 @@ def main() -> None:
         c1 = float(np.median(CPU_MS))
         t2, _ = time_renders(model, cams, args.repeats)
         print(f"| {threads} | {t1 * 1000:.1f} | {c1:.1f} | {t2 * 1000:.1f} | {np.median(CPU_MS):.1f} |", flush=True)
+    print("\n## stage split (wall ms, median; SH 0, all Gaussians)\n")
+    names = ("projection", "sort", "gather", "binning", "compositing")
+    print("| threads | resolution | " + " | ".join(names) + " |\n|---|---|" + "---|" * len(names))
+    for threads in (1, 2):
+        numba.set_num_threads(threads)
+        for w, h in [(320, 240), (648, 420)]:
+            split = stage_split_ms(model, scaled(cams, w, h), args.repeats)
+            print(f"| {threads} | {w}×{h} | " + " | ".join(f"{split[n]:.1f}" for n in names) + " |", flush=True)
     print(f"\n# load average after the run: {os.getloadavg()[0]:.1f}")
     if not args.skip_compile:
         print("\n## first call in a fresh process (648×420)\n")

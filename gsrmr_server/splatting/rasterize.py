@@ -11,9 +11,12 @@ stops *before* blending that Gaussian; otherwise C += T·α·c, T ← T·(1 − 
 C += T·background, alpha = 1 − T, depth = Σ T·α·z / alpha (0 where alpha is 0).
 
 Tiles are :data:`TILE`×:data:`TILE` pixels; a Gaussian is listed in every tile its opacity-limited box
-(from :mod:`~gsrmr_server.splatting.project`) touches. Tiles run in parallel (``prange``); the backward
-pass gives every thread its own gradient buffer, so it is race-free and deterministic for a given
-thread count.
+(from :mod:`~gsrmr_server.splatting.project`) touches. Tiles run in parallel (``prange``), dealt interleaved
+(chunk c takes tiles c, c + :data:`N_CHUNKS`, …) so that a static split still gives each thread a mix
+of cheap and expensive image regions; the backward pass gives every thread its own gradient buffer,
+so it is race-free and deterministic for a given thread count. This float64 path is what training
+uses; :mod:`~gsrmr_server.splatting.display_raster` is the faster float32 forward-only path of
+:func:`~gsrmr_server.splatting.render.render`.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ ALPHA_MIN = 1.0 / 255.0
 T_MIN = 1e-4
 PACK_WIDTH = 12
 SPAN_MARGIN_PX = 1e-3
+N_CHUNKS = 64  # interleaved work units of the forward prange
 
 
 @nb.njit(cache=True)
@@ -67,88 +71,89 @@ def forward_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, bg, 
     every pixel has reached T < 1e-4.
     """
     n_tiles = offsets.shape[0] - 1
-    for t in nb.prange(n_tiles):
-        ty, tx = t // tiles_x, t % tiles_x
-        x0, y0 = tx * tile, ty * tile
-        x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
-        tw = x1 - x0
-        npix = tw * (y1 - y0)
-        start, end = offsets[t], offsets[t + 1]
-        trans = np.ones(npix)
-        col = np.zeros((npix, 4))
-        last = np.full(npix, start)
-        done = np.zeros(npix, np.bool_)
-        row_left = np.full(y1 - y0, tw)  # pixels of each tile row still compositing
-        n_done = 0
-        for j in range(start, end):
-            k = lst[j]
-            mx, my = packed[k, 0], packed[k, 1]
-            ca, cb, cc = packed[k, 2], packed[k, 3], packed[k, 4]
-            opac, rad, cut = packed[k, 5], packed[k, 10], packed[k, 11]
-            ua, ub = max(box[k, 0], x0), min(box[k, 1] + 1, x1)
-            for v in range(max(box[k, 2], y0), min(box[k, 3] + 1, y1)):
-                dy = v + 0.5 - my
-                if abs(dy) > rad or row_left[v - y0] == 0:
-                    continue
-                # exact span of this row where σ ≤ cut (½a·dx² + b·dy·dx + ½c·dy² − cut ≤ 0), widened
-                # by SPAN_MARGIN_PX so rounding never drops a pixel; each pixel is still tested below
-                disc = (cb * dy) * (cb * dy) - ca * (cc * dy * dy - 2.0 * cut)
-                if disc < 0.0:
-                    continue
-                root = math.sqrt(disc)
-                lo = mx - 0.5 + (-cb * dy - root) / ca - SPAN_MARGIN_PX
-                hi = mx - 0.5 + (-cb * dy + root) / ca + SPAN_MARGIN_PX
-                u_lo = max(ua, int(math.ceil(lo)))
-                u_hi = min(ub, int(math.floor(hi)) + 1)
-                if u_lo >= u_hi:
-                    continue
-                row = (v - y0) * tw - x0
-                # exp(−σ) along the row by recurrence: σ(dx + 1) − σ(dx) = a·dx + a/2 + b·dy, whose
-                # increments grow by a per pixel, so two multiplications replace one exp per pixel
-                dx0 = u_lo + 0.5 - mx
-                gauss = math.exp(-(0.5 * (ca * dx0 * dx0 + cc * dy * dy) + cb * dx0 * dy))
-                ratio = math.exp(-(ca * dx0 + 0.5 * ca + cb * dy))
-                ratio_step = math.exp(-ca)
-                for u in range(u_lo, u_hi):
-                    g_u = gauss
-                    gauss *= ratio
-                    ratio *= ratio_step
-                    p = row + u
-                    if done[p]:
+    for chunk in nb.prange(N_CHUNKS):  # interleaved tiles: balanced threads (see module docstring)
+        for t in range(chunk, n_tiles, N_CHUNKS):
+            ty, tx = t // tiles_x, t % tiles_x
+            x0, y0 = tx * tile, ty * tile
+            x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
+            tw = x1 - x0
+            npix = tw * (y1 - y0)
+            start, end = offsets[t], offsets[t + 1]
+            trans = np.ones(npix)
+            col = np.zeros((npix, 4))
+            last = np.full(npix, start)
+            done = np.zeros(npix, np.bool_)
+            row_left = np.full(y1 - y0, tw)  # pixels of each tile row still compositing
+            n_done = 0
+            for j in range(start, end):
+                k = lst[j]
+                mx, my = packed[k, 0], packed[k, 1]
+                ca, cb, cc = packed[k, 2], packed[k, 3], packed[k, 4]
+                opac, rad, cut = packed[k, 5], packed[k, 10], packed[k, 11]
+                ua, ub = max(box[k, 0], x0), min(box[k, 1] + 1, x1)
+                for v in range(max(box[k, 2], y0), min(box[k, 3] + 1, y1)):
+                    dy = v + 0.5 - my
+                    if abs(dy) > rad or row_left[v - y0] == 0:
                         continue
-                    if abs(u + 0.5 - mx) > rad:
+                    # exact span of this row where σ ≤ cut (½a·dx² + b·dy·dx + ½c·dy² − cut ≤ 0), widened
+                    # by SPAN_MARGIN_PX so rounding never drops a pixel; each pixel is still tested below
+                    disc = (cb * dy) * (cb * dy) - ca * (cc * dy * dy - 2.0 * cut)
+                    if disc < 0.0:
                         continue
-                    alpha = min(ALPHA_MAX, opac * g_u)
-                    if alpha < ALPHA_MIN:
+                    root = math.sqrt(disc)
+                    lo = mx - 0.5 + (-cb * dy - root) / ca - SPAN_MARGIN_PX
+                    hi = mx - 0.5 + (-cb * dy + root) / ca + SPAN_MARGIN_PX
+                    u_lo = max(ua, int(math.ceil(lo)))
+                    u_hi = min(ub, int(math.floor(hi)) + 1)
+                    if u_lo >= u_hi:
                         continue
+                    row = (v - y0) * tw - x0
+                    # exp(−σ) along the row by recurrence: σ(dx + 1) − σ(dx) = a·dx + a/2 + b·dy, whose
+                    # increments grow by a per pixel, so two multiplications replace one exp per pixel
+                    dx0 = u_lo + 0.5 - mx
+                    gauss = math.exp(-(0.5 * (ca * dx0 * dx0 + cc * dy * dy) + cb * dx0 * dy))
+                    ratio = math.exp(-(ca * dx0 + 0.5 * ca + cb * dy))
+                    ratio_step = math.exp(-ca)
+                    for u in range(u_lo, u_hi):
+                        g_u = gauss
+                        gauss *= ratio
+                        ratio *= ratio_step
+                        p = row + u
+                        if done[p]:
+                            continue
+                        if abs(u + 0.5 - mx) > rad:
+                            continue
+                        alpha = min(ALPHA_MAX, opac * g_u)
+                        if alpha < ALPHA_MIN:
+                            continue
+                        tp = trans[p]
+                        t_next = tp * (1.0 - alpha)
+                        if t_next < T_MIN:
+                            done[p] = True
+                            n_done += 1
+                            row_left[v - y0] -= 1
+                            continue
+                        w = alpha * tp
+                        col[p, 0] += w * packed[k, 6]
+                        col[p, 1] += w * packed[k, 7]
+                        col[p, 2] += w * packed[k, 8]
+                        col[p, 3] += w * packed[k, 9]
+                        trans[p] = t_next
+                        last[p] = j + 1
+                if n_done == npix:
+                    break
+            for v in range(y0, y1):
+                for u in range(x0, x1):
+                    p = (v - y0) * tw + (u - x0)
                     tp = trans[p]
-                    t_next = tp * (1.0 - alpha)
-                    if t_next < T_MIN:
-                        done[p] = True
-                        n_done += 1
-                        row_left[v - y0] -= 1
-                        continue
-                    w = alpha * tp
-                    col[p, 0] += w * packed[k, 6]
-                    col[p, 1] += w * packed[k, 7]
-                    col[p, 2] += w * packed[k, 8]
-                    col[p, 3] += w * packed[k, 9]
-                    trans[p] = t_next
-                    last[p] = j + 1
-            if n_done == npix:
-                break
-        for v in range(y0, y1):
-            for u in range(x0, x1):
-                p = (v - y0) * tw + (u - x0)
-                tp = trans[p]
-                out_rgb[v, u, 0] = col[p, 0] + tp * bg[0]
-                out_rgb[v, u, 1] = col[p, 1] + tp * bg[1]
-                out_rgb[v, u, 2] = col[p, 2] + tp * bg[2]
-                a = 1.0 - tp
-                out_alpha[v, u] = a
-                out_depth[v, u] = col[p, 3] / a if a > 1e-8 else 0.0
-                out_t[v, u] = tp
-                out_last[v, u] = last[p]
+                    out_rgb[v, u, 0] = col[p, 0] + tp * bg[0]
+                    out_rgb[v, u, 1] = col[p, 1] + tp * bg[1]
+                    out_rgb[v, u, 2] = col[p, 2] + tp * bg[2]
+                    a = 1.0 - tp
+                    out_alpha[v, u] = a
+                    out_depth[v, u] = col[p, 3] / a if a > 1e-8 else 0.0
+                    out_t[v, u] = tp
+                    out_last[v, u] = last[p]
 
 
 @nb.njit(parallel=True, cache=True, fastmath=True)

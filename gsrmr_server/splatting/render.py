@@ -3,7 +3,8 @@
 Camera: :class:`gsrmr_common.camera.Camera` (OpenCV axes, world→camera 4×4, pixel centres at +0.5).
 Pipeline: numba projection and culling (near plane :data:`~gsrmr_server.splatting.project.NEAR_M`) →
 uint64 depth/index key sort → SH colour of the visible Gaussians → numba tile binning → parallel
-numba compositing. Conventions are listed in :mod:`~gsrmr_server.splatting.project` and
+float32 compositing (:mod:`~gsrmr_server.splatting.display_raster`; another ``tile`` size takes the
+float64 training kernel, for tests). Conventions are listed in :mod:`~gsrmr_server.splatting.project` and
 :mod:`~gsrmr_server.splatting.rasterize`.
 """
 
@@ -15,6 +16,8 @@ import numba
 import numpy as np
 
 from gsrmr_common.camera import Camera
+from gsrmr_server.splatting.display_raster import TILE as DISPLAY_TILE
+from gsrmr_server.splatting.display_raster import rasterize_display
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.splatting.project import NEAR_M, project_numpy
 from gsrmr_server.splatting.rasterize import (
@@ -94,12 +97,16 @@ def render(model: GaussianModel, camera: Camera, background=(0.0, 0.0, 0.0), *, 
         bad = ~np.all(np.isfinite(colors), axis=1)
         if bad.any():  # NaN SH: drop those Gaussians instead of painting NaN
             order, colors = order[~bad], colors[~bad]
-    packed = np.empty((order.shape[0], PACK_WIDTH), np.float64)
+    fast = tile == DISPLAY_TILE
+    packed = np.empty((order.shape[0], PACK_WIDTH), np.float32 if fast else np.float64)
     pbox = np.empty((order.shape[0], 4), np.int64)
     gather_pack_kernel(geom, box, order, colors, np.ascontiguousarray(model.sh[:, 0, :]), packed, pbox)
     if degree == 0 and not np.all(np.isfinite(packed[:, 6:9])):
         ok = np.all(np.isfinite(packed[:, 6:9]), axis=1)
         packed, pbox = np.ascontiguousarray(packed[ok]), np.ascontiguousarray(pbox[ok])
-    rgb, alpha, depth, _, _, _ = rasterize_packed(packed, pbox, width, height, bg, tile)
+    if fast:
+        rgb, alpha, depth = rasterize_display(packed, pbox, width, height, bg)
+    else:
+        rgb, alpha, depth, _, _, _ = rasterize_packed(packed, pbox, width, height, bg, tile)
     np.clip(rgb, 0.0, 1.0, out=rgb)
     return RenderOutput(rgb, alpha, depth, int(packed.shape[0]))
