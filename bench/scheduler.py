@@ -25,7 +25,7 @@ import numpy as np
 from gsrmr_server.scheduling import METHODS, solve
 from gsrmr_server.scheduling.cli import make_problem
 
-ORDER = ["exact", "apo", "ranking", "rounding", "search", "maxrate", "fairness", "robomr", "robogs"]
+ORDER = ["exact", "apo", "ranking", "rounding", "search", "exchange", "maxrate", "fairness", "robomr", "robogs"]
 
 
 def timed(problem, method, repeats, **opts):
@@ -71,13 +71,15 @@ def table_sizes(quick: bool) -> None:
             else:
                 reps = 5 if T < 100_000 else 3
                 opts = {"energy_budget_j": ex.energy_j} if m in ("maxrate", "fairness") else {}
-                if m == "search":
+                if m in ("search", "exchange"):
                     opts["time_limit_s"] = 60.0
                 t, s = timed(p, m, reps, **opts)
             gap = s.energy_j / ex.energy_j - 1
             extra = f" (certified gap {s.optimality_gap})" if m == "exact" else ""
-            if m in ("apo", "search"):
+            if m in ("apo", "exchange"):
                 extra = f" ({s.iterations} iterations)"
+            elif m == "search":
+                extra = f" ({s.iterations} of {s.extras['proposals']} random moves accepted)"
             print(f"{T:>7} {m:>9} {reps:>7} {t:>10.4f} {s.energy_j:>12.5g} {gap:>13.4%} {s.feasible!s:>8} "
                   f"{s.mean_loss:>9.4f}{extra}")
     print(f"exact, T = 1e5, fresh process: {rss_exact_1e5()}")

@@ -15,7 +15,7 @@ from gsrmr_sim.experiments.report import PAPER_CLAIMS
 
 SCENES = ("sandbox", "garden")
 LTH = ("0.02", "0.025", "0.03", "0.035", "0.04")
-METHODS = {"robomr", "ranking", "rounding", "search", "maxrate", "fairness", "robogs", "apo", "exact"}
+METHODS = {"robomr", "ranking", "rounding", "search", "exchange", "maxrate", "fairness", "robogs", "apo", "exact"}
 
 
 @pytest.fixture(scope="module")

@@ -13,8 +13,10 @@ started from the ranking solution. Conditioning: p is substituted by ``p_t = (σ
 divided by their largest magnitude. A solve that fails or is "inaccurate" is retried rescaled and then
 with the next solver (CLARABEL → SCS); what happened is recorded per iteration.
 
-At the end x is rounded at 0.5, repaired to meet the loss budget (least efficient keys back to images),
-and p is recomputed in closed form; both the relaxed and the binary results are reported.
+At the end x is rounded at 0.5 — the paper's APO stops here, and that result is reported first
+(``extras["paper"]``: energy, mean loss, images, whether it meets the budget). Ours adds one named,
+optional post-step, ``repair`` (on by default): if the rounding broke the loss budget, the keys with the
+lowest saving per unit loss turn back into images. p is recomputed in closed form.
 """
 
 from __future__ import annotations
@@ -111,18 +113,23 @@ class _DcProblem:
 
 
 def solve_apo(problem: Problem, *, beta: float | None = None, iterations: int = 10, tol: float = 1e-3,
-              init: str = "ranking", solvers: Any = DEFAULT_SOLVERS, time_limit_s: float | None = None) -> Schedule:
+              init: str = "ranking", solvers: Any = DEFAULT_SOLVERS, time_limit_s: float | None = None,
+              repair_budget: bool = True) -> Schedule:
     """APO as in the paper: DC iterations on the penalised relaxation from the ranking initialisation.
 
     Args:
         beta: penalty parameter β > 0 (φ = (1/β)Σx(1−x) in joules). Default ``30/mean(E_img − E_key)``: a
-            fully fractional slot is charged 1/30 of a typical saving (the paper does not state β).
+            fully fractional slot (x(1−x) = ¼) is charged 1/120 of a typical saving (the paper does not
+            state β).
         iterations: N, the maximum number of DC iterations (paper: 10).
         tol: stop when ‖x^[n] − x^[n−1]‖₂ < tol.
         init: ``"ranking"`` (paper) or ``"ones"`` (all images, the naive start).
         solvers: CVXPY solver names tried in order (each also once rescaled).
         time_limit_s: stop iterating when exceeded (the current iterate is rounded); the remaining time is
             also passed to CLARABEL (``time_limit``) and SCS (``time_limit_secs``).
+        repair_budget: our post-step (not the paper's): when the rounding at 0.5 breaks the loss budget,
+            turn the least efficient keys back into images. False returns the paper's rounding as is
+            (``feasible`` False if it breaks the budget).
 
     History entries: ``iteration``, ``dx_norm``, ``phi`` ((1/T)Σx(1−x)), ``objective_j`` (τΣp + φ(x) at the
     iterate with tight p), ``energy_relaxed_j``, ``solver``.
@@ -191,11 +198,17 @@ def solve_apo(problem: Problem, *, beta: float | None = None, iterations: int = 
     obj, e_rel = objective_j(x_full)
     xb = np.where(x_full >= 0.5, 1, 0).astype(np.int8)
     xb[forced] = 0
-    xb, flips = repair(problem, xb)
+    paper = schedule_from_x(problem, xb, "apo")
+    flips = 0
+    if repair_budget:
+        xb, flips = repair(problem, xb)
     if flips:
-        notes.append(f"apo: rounding broke the loss budget; {flips} key(s) turned back into images")
+        notes.append(f"apo: rounding broke the loss budget; repair turned {flips} key(s) back into images")
     s = schedule_from_x(problem, xb, "apo", notes=notes, iterations=n_done, history=history)
     s.extras.update({"beta": beta, "relaxed_energy_j": e_rel, "relaxed_objective_j": obj, "relaxed_phi": _phi(x_full),
-                     "relaxed_x": [float(v) for v in x_full]})
+                     "relaxed_x": [float(v) for v in x_full],
+                     "paper": {"energy_j": paper.energy_j, "mean_loss": paper.mean_loss, "images": int(paper.x.sum()),
+                               "feasible": paper.feasible},
+                     "repair_flips": flips})
     s.solve_time_s = time.perf_counter() - t0
     return s

@@ -20,6 +20,7 @@ METHODS: dict[str, Callable[..., Schedule]] = {
     "ranking": baselines.solve_ranking,
     "rounding": baselines.solve_rounding,
     "search": baselines.solve_search,
+    "exchange": baselines.solve_exchange,
     "maxrate": baselines.solve_maxrate,
     "fairness": baselines.solve_fairness,
     "robomr": baselines.solve_robomr,
@@ -37,8 +38,9 @@ def method_options(method: str) -> list[str]:
 def solve(problem: Problem, method: str, **options: Any) -> Schedule:
     """Solve P_GS with ``method`` (a key of :data:`METHODS`).
 
-    ``time_limit_s`` is honoured by ``exact`` (returns a certified gap), ``apo`` (stops iterating) and
-    ``search``; the closed-form methods ignore it. Raises ``ValueError`` for an unknown method or option.
+    ``time_limit_s`` is honoured by ``exact`` (returns a certified gap), ``apo`` (stops iterating),
+    ``search`` and ``exchange``; the closed-form methods ignore it. Raises ``ValueError`` for an unknown
+    method or option.
     The result is checked: no NaN/inf, no negative power, and ``feasible`` only if the loss budget holds.
     """
     if method not in METHODS:

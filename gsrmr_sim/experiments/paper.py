@@ -21,7 +21,7 @@ from gsrmr_sim.experiments.data import SceneData
 from gsrmr_sim.experiments.plots import plt, save_fig, write_csv
 
 #: Fig. 4b order (the paper's baselines, then ours).
-FIG4B_METHODS = ("robomr", "ranking", "rounding", "search", "maxrate", "fairness", "robogs", "apo", "exact")
+FIG4B_METHODS = ("robomr", "ranking", "rounding", "search", "exchange", "maxrate", "fairness", "robogs", "apo", "exact")
 TABLE1_METHODS = ("fairness", "maxrate", "apo", "exact")
 PAPER_LTH = (0.02, 0.025, 0.03, 0.035, 0.04)
 TABLE1_LTH = (0.02, 0.025, 0.03, 0.035)
@@ -102,7 +102,7 @@ def fig4b(data: SceneData, sols: dict[float, dict[str, Schedule]], cfg: PaperCon
                          "optimality_gap": "" if s.optimality_gap is None else s.optimality_gap})
     write_csv(out / f"fig4b_energy_{data.settings.scene}.csv", rows)
     fig, ax = plt.subplots(figsize=(6, 4))
-    markers = dict(zip(FIG4B_METHODS, "o^v<>sdPX", strict=True))
+    markers = dict(zip(FIG4B_METHODS, "o^v<>*sdPX", strict=True))
     for m in FIG4B_METHODS:
         xs = list(cfg.thresholds)
         es = [sols[lth][m].energy_j for lth in xs]

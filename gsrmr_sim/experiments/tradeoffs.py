@@ -33,7 +33,7 @@ class TradeoffConfig:
     loss_threshold: float = 0.03
     apo_ns: tuple[int, ...] = (1, 2, 3, 5, 10, 20, 30)
     horizons: tuple[int, ...] = (72, 144, 288, 576)
-    horizon_methods: tuple[str, ...] = ("ranking", "rounding", "search", "apo", "exact")
+    horizon_methods: tuple[str, ...] = ("ranking", "rounding", "search", "exchange", "apo", "exact")
     render_slots: int = 6
     render_repeats: int = 5
     scales: tuple[float, ...] = (0.5, 0.75, 1.0, 1.5)
