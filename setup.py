@@ -35,6 +35,7 @@ CONSOLE_SCRIPTS = [
     "gsrmr-sim = gsrmr_sim.world.cli:main",
     "gsrmr-mock-camera = gsrmr_sim.entries:mock_camera",
     "gsrmr-route-follower = gsrmr_sim.entries:route_follower",
+    "gsrmr-sim-channel = gsrmr_sim.entries:sim_channel",
     # node suite, experiments and the main job
     "gsrmr-robot = gsrmr_common.interrupts:robot",
     "gsrmr-server = gsrmr_common.interrupts:server",

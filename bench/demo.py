@@ -2,8 +2,11 @@
 
 Usage: ``.venv/bin/python bench/demo.py [--runs 6] [-- DEMO_ARGS...]``. Each run is a full round 2 over
 DDS (~40 s with the model cached; the first run trains it). Prints, per run and as the median: slots
-on time (MR image ≤ τ after the slot start), images sent, uplink energy ratio upload-all / ours, mean
-MR loss, PSNR and SSIM measured on the MR images the server produced.
+on time (MR image ≤ τ after the slot start), images sent, uplink energy ratio upload-all / ours, the
+upload-all energy itself (equal across runs with one ``--channel-seed``), mean MR loss, PSNR and SSIM
+measured on the MR images the server produced, and the regret against the hindsight optimum (computed
+after each run) with the images that optimum sends. Pass ``-- --channel-seed N`` to vary the channel, or
+``--seeds`` to give run k the seed ``base + k``.
 """
 
 from __future__ import annotations
@@ -17,7 +20,8 @@ import subprocess
 import sys
 import time
 
-COLUMNS = ("slots", "slots_on_time", "images_sent", "energy_ratio_vs_upload_all", "mean_loss", "psnr_db", "ssim")
+COLUMNS = ("slots", "slots_on_time", "images_sent", "energy_ratio_vs_upload_all", "energy_upload_all_j", "mean_loss",
+           "psnr_db", "ssim", "regret", "hindsight_images")
 
 
 def run_once(demo_args: list[str]) -> dict:
@@ -33,6 +37,8 @@ def run_once(demo_args: list[str]) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=6)
+    ap.add_argument("--seeds", type=int, default=None, metavar="BASE",
+                    help="run k uses --channel-seed BASE + k (default: every run the demo's seed)")
     ap.add_argument("demo_args", nargs="*", help="passed to gsrmr-demo (after --)")
     args = ap.parse_args()
     print(f"# bench/demo.py: {args.runs} × gsrmr-demo {' '.join(args.demo_args)} ({os.cpu_count()} CPUs, "
@@ -41,13 +47,14 @@ def main() -> int:
     print("|" + "---|" * (len(COLUMNS) + 2))
     rows = []
     for k in range(args.runs):
-        s = run_once(args.demo_args)
+        seed = [] if args.seeds is None else ["--channel-seed", str(args.seeds + k)]
+        s = run_once([*args.demo_args, *seed])
         rows.append(s)
         print(f"| {k + 1} | " + " | ".join(f"{s[c]:.4g}" if isinstance(s[c], float) else str(s[c])
                                          for c in COLUMNS) + f" | {s['wall_s']:.0f} |", flush=True)
     print("| **median** | " + " | ".join(f"{statistics.median(r[c] for r in rows):.4g}" for c in COLUMNS)
           + f" | {statistics.median(r['wall_s'] for r in rows):.0f} |")
-    lower_is_better = ("images_sent", "mean_loss")
+    lower_is_better = ("images_sent", "mean_loss", "regret")
     print("| **worst** | " + " | ".join(
         f"{(max if c in lower_is_better else min)(r[c] for r in rows):.4g}" for c in COLUMNS) + " | |")
     return 0

@@ -138,8 +138,17 @@ class LinkBudget:
         dy = float(position_xy[1]) - self.server_position_m[1]
         return max(self.min_distance_m, math.hypot(dx, dy))
 
+    def mean_gain(self, position_xy: np.ndarray | tuple[float, float] | None) -> float:
+        """Expected gain E|h|² = ρ0·d^−α at ``position_xy`` (the Rician small-scale power has mean 1)."""
+        model = ChannelModel(self.pathloss_db_at_1m, self.pathloss_exponent, self.rician_k, seed=None)
+        return float(model.pathloss(np.array([self.distance_m(position_xy)]))[0])
+
     def gain(self, slot: int, position_xy: np.ndarray | tuple[float, float] | None) -> float:
-        """Channel power gain g = |h|² of absolute slot ``slot`` at ``position_xy`` (robot x, y in map)."""
+        """Channel power gain g = |h|² of slot index ``slot`` (≥ 0) at ``position_xy`` (robot x, y in map).
+
+        The fading draw is seeded by (``channel_seed``, ``slot``): the simulator passes the index since
+        the round started, so every run with one seed sees the same small-scale fading.
+        """
         model = ChannelModel(self.pathloss_db_at_1m, self.pathloss_exponent, self.rician_k,
                              seed=[self.channel_seed, int(slot)])  # type: ignore[arg-type]
         return float(model.gains(np.array([self.distance_m(position_xy)]))[0])

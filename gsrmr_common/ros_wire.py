@@ -6,9 +6,10 @@ module only maps fields:
 
 * pose key ↔ ``geometry_msgs/Vector3Stamped``: ``vector = (a_m, b_m, theta_rad)`` in ``map``,
   ``header.stamp`` = start of the key's slot.
-* schedule ↔ ``std_msgs/Float64MultiArray``: ``layout.dim = [meta(4), x(n), power_w(n)]``.
-* ledger row and loss sample ↔ ``std_msgs/Float64MultiArray``: ``layout.dim = [ledger(10)]`` /
-  ``[loss_sample(5)]`` (an empty layout is accepted too).
+* schedule ↔ ``std_msgs/Float64MultiArray``: ``layout.dim = [meta(4), x(n), power_w(n)]``, plus
+  ``gain_threshold(n)`` when it carries the in-slot rule (+inf sent as −1).
+* ledger row, loss sample and channel sample ↔ ``std_msgs/Float64MultiArray``: ``layout.dim =
+  [ledger(10)]`` / ``[loss_sample(5)]`` / ``[channel_sample(3)]`` (an empty layout is accepted too).
 * raw image ↔ ``sensor_msgs/Image``: our in-process images are H×W×3 ``uint8`` RGB; the pixel work
   is :mod:`gsrmr_common.image_bridge` (``cv_bridge`` where a ROS install has it, else the project's
   own conversion with the same semantics). ``image_from_msg`` accepts ``rgb8``, ``bgr8``, ``rgba8``,
@@ -39,7 +40,7 @@ from gsrmr_common.jpeg import ImageRejected, decode_jpeg
 
 NS_PER_S = 1_000_000_000
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
-SCHEDULE_LABELS = ("meta", "x", "power_w")
+SCHEDULE_LABELS = ("meta", "x", "power_w")  # + "gain_threshold" when the schedule has an in-slot rule
 # the encodings image_bridge converts to rgb8; image_from_msg has always matched their names
 # case-insensitively (image_bridge, like ROS, is case-sensitive)
 _RGB_SOURCE_ENCODINGS = frozenset({"rgb8", "bgr8", "rgba8", "bgra8", "mono8", "mono16"})
@@ -100,10 +101,10 @@ def pose_key_from_msg(msg: Vector3Stamped, slot_len_ns: int) -> wire.PoseKey:
 def schedule_to_msg(schedule: wire.ScheduleMsg) -> Float64MultiArray:
     """Schedule → ``Float64MultiArray`` with ``layout.dim`` = meta(4), x(n), power_w(n)."""
     data = schedule.to_data()
-    n = len(schedule.x)
     msg = Float64MultiArray()
+    labels, sizes = _schedule_layout(schedule)
     msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=size)
-                      for label, size in zip(SCHEDULE_LABELS, (len(wire.SCHEDULE_META), n, n), strict=True)]
+                      for label, size in zip(labels, sizes, strict=True)]
     msg.layout.data_offset = 0
     msg.data = data
     return msg
@@ -117,10 +118,18 @@ def schedule_from_msg(msg: Float64MultiArray) -> wire.ScheduleMsg:
     n = len(schedule.x)
     labels = tuple(d.label for d in msg.layout.dim)
     sizes = tuple(int(d.size) for d in msg.layout.dim)
-    if labels != SCHEDULE_LABELS or sizes != (len(wire.SCHEDULE_META), n, n):
+    if (labels, sizes) != _schedule_layout(schedule):
         raise ValueError(f"schedule: layout {list(zip(labels, sizes, strict=True))} does not match "
-                         f"meta(4), x({n}), power_w({n})")
+                         f"meta(4), x({n}), power_w({n})" + (f", gain_threshold({n})"
+                                                             if schedule.gain_threshold is not None else ""))
     return schedule
+
+
+def _schedule_layout(schedule: wire.ScheduleMsg) -> tuple[tuple[str, ...], tuple[int, ...]]:
+    n = len(schedule.x)
+    if schedule.gain_threshold is None:
+        return SCHEDULE_LABELS, (len(wire.SCHEDULE_META), n, n)
+    return (*SCHEDULE_LABELS, "gain_threshold"), (len(wire.SCHEDULE_META), n, n, n)
 
 
 # ------------------------------------------------------------------------------------------ images
@@ -160,6 +169,17 @@ def loss_sample_from_msg(msg: Float64MultiArray) -> wire.LossSample:
     """``Float64MultiArray`` → loss sample; ValueError if it does not parse."""
     _check_flat_layout(msg, "loss_sample")
     return wire.LossSample.from_data(np.asarray(msg.data, dtype=np.float64))
+
+
+def channel_sample_to_msg(sample: wire.ChannelSample) -> Float64MultiArray:
+    """Channel sample → ``Float64MultiArray`` (``layout.dim = [channel_sample(3)]``: slot, round_slot, gain)."""
+    return _flat_record_msg("channel_sample", sample.to_data())
+
+
+def channel_sample_from_msg(msg: Float64MultiArray) -> wire.ChannelSample:
+    """``Float64MultiArray`` → channel sample; ValueError if it does not parse."""
+    _check_flat_layout(msg, "channel_sample")
+    return wire.ChannelSample.from_data(np.asarray(msg.data, dtype=np.float64))
 
 
 def image_to_msg(rgb: np.ndarray, stamp_ns: int, frame_id: str) -> Image:

@@ -91,8 +91,11 @@ class ScheduleMsg:
     first_slot: int
     slot_s: float
     seq: int
-    x: np.ndarray  # int8, 1 = image, 0 = pose key
+    x: np.ndarray  # int8, 1 = image, 0 = pose key (the plan at the expected channel gain)
     power_w: np.ndarray  # float64, watts
+    # optional in-slot rule: send an image iff the radio's measured gain g_t ≥ gain_threshold_t
+    # (dimensionless |h|²; +inf = always a key, 0 = always an image); None = follow x
+    gain_threshold: np.ndarray | None = None
 
     def lookup(self, slot: int) -> tuple[int, float] | None:
         """(x, power_w) for an absolute slot, or None when the schedule does not cover it."""
@@ -101,13 +104,26 @@ class ScheduleMsg:
             return int(self.x[i]), float(self.power_w[i])
         return None
 
+    def threshold(self, slot: int) -> float | None:
+        """The gain threshold of an absolute slot (None without an in-slot rule or outside the schedule)."""
+        i = slot - self.first_slot
+        if self.gain_threshold is not None and 0 <= i < len(self.x):
+            return float(self.gain_threshold[i])
+        return None
+
     def to_data(self) -> list[float]:
-        """Flat float64 list for ``Float64MultiArray.data``."""
+        """Flat float64 list for ``Float64MultiArray.data`` (+inf thresholds are sent as −1)."""
         n = len(self.x)
         if len(self.power_w) != n:
             raise ValueError("schedule: x and power_w differ in length")
-        return [float(self.first_slot), float(self.slot_s), float(self.seq), float(n),
+        data = [float(self.first_slot), float(self.slot_s), float(self.seq), float(n),
                 *np.asarray(self.x, dtype=np.float64).tolist(), *np.asarray(self.power_w, np.float64).tolist()]
+        if self.gain_threshold is not None:
+            g = np.asarray(self.gain_threshold, np.float64)
+            if g.shape != (n,) or np.any(np.isnan(g)) or np.any(g < 0):
+                raise ValueError("schedule: gain_threshold must hold n values ≥ 0 (or +inf)")
+            data += np.where(np.isinf(g), -1.0, g).tolist()
+        return data
 
     @classmethod
     def from_data(cls, data: list[float] | np.ndarray) -> ScheduleMsg:
@@ -116,17 +132,23 @@ class ScheduleMsg:
         if arr.size < 4 or not np.all(np.isfinite(arr)):
             raise ValueError("schedule: data must hold 4 finite meta values")
         n = int(arr[3])
-        if arr[3] != n or n < 0 or arr.size != 4 + 2 * n:
+        if arr[3] != n or n < 0 or arr.size not in (4 + 2 * n, 4 + 3 * n) or (n == 0 and arr.size != 4):
             raise ValueError(f"schedule: data has {arr.size} values, meta says {arr[3]} slots")
         x = arr[4:4 + n]
-        power = arr[4 + n:]
+        power = arr[4 + n:4 + 2 * n]
+        threshold = None
+        if arr.size == 4 + 3 * n and n:
+            raw = arr[4 + 2 * n:]
+            if np.any((raw < 0) & (raw != -1.0)):
+                raise ValueError("schedule: gain_threshold must be ≥ 0 (or −1 for +inf)")
+            threshold = np.where(raw == -1.0, np.inf, raw)
         if not np.all((x == 0) | (x == 1)):
             raise ValueError("schedule: x must be 0 or 1")
         if np.any(power < 0):
             raise ValueError("schedule: power_w must be >= 0")
         if not arr[1] > 0:
             raise ValueError("schedule: slot_s must be > 0")
-        return cls(int(arr[0]), float(arr[1]), int(arr[2]), x.astype(np.int8), power.copy())
+        return cls(int(arr[0]), float(arr[1]), int(arr[2]), x.astype(np.int8), power.copy(), threshold)
 
 
 @dataclass(frozen=True)
@@ -176,6 +198,39 @@ class LossSample:
             raise ValueError(f"loss sample: expected {len(LOSS_SAMPLE_FIELDS)} finite values {LOSS_SAMPLE_FIELDS} "
                              "with loss ≥ 0")
         return cls(int(arr[0]), float(arr[1]), float(arr[2]), float(arr[3]), float(arr[4]))
+
+
+CHANNEL_SAMPLE_FIELDS = ("slot", "round_slot", "gain")
+#: Topic (relative, so it lands in the robot's namespace) of the radio's per-slot channel measurement.
+CHANNEL_TOPIC = "radio/channel_gain"
+
+
+@dataclass(frozen=True)
+class ChannelSample:
+    """The uplink channel power gain g = |h|² (dimensionless) measured for absolute slot ``slot``.
+
+    On the robot this comes from the radio (a driver publishing on :data:`CHANNEL_TOPIC` at the start
+    of each slot, e.g. from the pilot or ACK of the link layer); in simulation from ``gsrmr-sim-channel``,
+    which owns the true channel. ``round_slot`` is the slot's index since the round started (−1 before it;
+    the simulator seeds the fading by it, so runs with one ``channel_seed`` see the same channel).
+    """
+
+    slot: int
+    round_slot: int
+    gain: float
+
+    def to_data(self) -> list[float]:
+        """Flat float64 list for ``Float64MultiArray.data`` (:data:`CHANNEL_SAMPLE_FIELDS` order)."""
+        return [float(self.slot), float(self.round_slot), float(self.gain)]
+
+    @classmethod
+    def from_data(cls, data: list[float] | np.ndarray) -> ChannelSample:
+        """Parse ``Float64MultiArray.data``; ValueError unless 3 finite values with a gain > 0."""
+        arr = np.asarray(data, dtype=np.float64)
+        if arr.shape != (len(CHANNEL_SAMPLE_FIELDS),) or not np.all(np.isfinite(arr)) or not arr[2] > 0:
+            raise ValueError(f"channel sample: expected {len(CHANNEL_SAMPLE_FIELDS)} finite values "
+                             f"{CHANNEL_SAMPLE_FIELDS} with gain > 0")
+        return cls(int(arr[0]), int(arr[1]), float(arr[2]))
 
 
 def ledger_row_to_data(row: LedgerRow) -> list[float]:

@@ -58,6 +58,7 @@ from gsrmr_common.ros_wire import (
     IMAGE_UPLOAD_QOS,
     SCHEDULE_QOS,
     UPLINK_QOS,
+    channel_sample_from_msg,
     compressed_to_msg,
     image_from_msg,
     ledger_to_msg,
@@ -74,7 +75,7 @@ from gsrmr_common.tf_tree import (
     base_from_camera_optical_transform,
     map_from_odom_transform,
 )
-from gsrmr_common.wire import ScheduleMsg, slot_ns, slot_start_ns
+from gsrmr_common.wire import CHANNEL_TOPIC, ScheduleMsg, slot_ns, slot_start_ns
 from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, odom_to_map
 
 
@@ -196,6 +197,9 @@ class RobotNode(Node):
         self.create_subscription(CameraInfo, "camera/camera_info", self._on_camera_info, qos_profile_sensor_data)
         self.create_subscription(Odometry, "odom", self._on_odom, 20)
         self.create_subscription(Float64MultiArray, "gsrmr/schedule", self._on_schedule, SCHEDULE_QOS)
+        self.create_subscription(Float64MultiArray, CHANNEL_TOPIC, self._on_channel, 10)
+        self._gains: dict[int, float] = {}  # slot → the radio's measured gain
+        self.channel_unmeasured = 0
         # 5 ms tick: slot starts are detected with ≤ 5 ms jitter without a drifting periodic timer.
         self.create_timer(0.005, self._tick)
         self.create_timer(1.0, self._publish_diagnostics)
@@ -276,6 +280,18 @@ class RobotNode(Node):
             self._poses.add(stamp_ns, odom_to_map(self.params.map_from_odom, p.position.x, p.position.y,
                                                   yaw_of(p.orientation)))
 
+    def _on_channel(self, msg: Float64MultiArray) -> None:
+        try:
+            sample = channel_sample_from_msg(msg)
+        except ValueError as err:
+            self.get_logger().warning(f"channel sample refused: {err}", throttle_duration_sec=5.0)
+            return
+        with self._lock:
+            self._gains[sample.slot] = sample.gain
+            if len(self._gains) > 64:
+                for old in sorted(self._gains)[:-32]:
+                    del self._gains[old]
+
     def _on_schedule(self, msg: Float64MultiArray) -> None:
         try:
             sched = schedule_from_msg(msg)
@@ -312,8 +328,11 @@ class RobotNode(Node):
             pose = self._poses.at(frame_stamp_ns)
             sched = self._schedule
             frame_id = self.params.camera_frame_id
+            gain = self._gains.get(slot)
             decision = self.core.run_slot(SlotInputs(slot, frame, frame_stamp_ns, pose,
-                                                     sched.lookup(slot) if sched is not None else None))
+                                                     sched.lookup(slot) if sched is not None else None, gain,
+                                                     sched.threshold(slot) if sched is not None else None))
+        self.channel_unmeasured += int(gain is None)
         self.schedule_misses += int(not decision.scheduled)
         self.no_frame += int(frame is None)
         self.no_pose += int(decision.key is None)
@@ -329,6 +348,7 @@ class RobotNode(Node):
         totals = self.ledger.totals()
         extra = {"schedule_misses": self.schedule_misses, "no_frame": self.no_frame, "no_pose": self.no_pose,
                  "schedule_seq": self._schedule.seq if self._schedule else -1,
+                 "channel_unmeasured": self.channel_unmeasured,
                  "camera_info_changes": self.camera_info_changes, "tf_published": self._tf_static is not None}
         self._pub_diag.publish(diagnostics_msg(
             self, name=f"{self.get_name()}: uplink energy ledger", hardware_id="gsrmr_robot",

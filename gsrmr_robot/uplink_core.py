@@ -3,7 +3,9 @@
 :meth:`UplinkCore.run_slot` takes what the robot knows at the start of slot k — the newest camera frame
 (if fresh), the odometry pose at that frame's capture time, the schedule's ``(x_k, p_k)`` — and returns a
 :class:`SlotDecision`: the pose key to send, the JPEG to send when ``x_k = 1``, and the energy-ledger row.
-The node (:mod:`gsrmr_robot.robot_node`) only gathers the inputs and publishes the decision;
+The channel gain of the slot is the radio's measurement (``radio/channel_gain``; the simulator's
+``gsrmr-sim-channel`` in simulation); without one the ledger books the expected gain ρ0·d^−α at the
+odometry position. The node (:mod:`gsrmr_robot.robot_node`) only gathers the inputs and publishes the decision;
 ``bench/soak.py``-style drivers and tests call the core directly.
 
 Frames and units: poses are ``base_link`` in ``map`` — ``(a_m, b_m, theta_rad)``, REP-103 (x forward,
@@ -64,6 +66,8 @@ class SlotInputs:
     frame_stamp_ns: int | None  # its capture stamp
     pose: Pose | None  # at the frame's capture time (the latest pose when there is no frame)
     entry: tuple[int, float] | None  # (x, power_w) of the schedule, None when no schedule covers the slot
+    measured_gain: float | None = None  # the radio's channel gain g = |h|² for this slot (None: not measured)
+    gain_threshold: float | None = None  # the schedule's in-slot rule: image iff measured_gain ≥ this
 
 
 @dataclass(frozen=True)
@@ -95,13 +99,19 @@ class UplinkCore:
             x, power_w = int(self.default_upload_image), float("nan")
         else:
             x, power_w = inputs.entry
+        g = inputs.measured_gain
+        if inputs.entry is not None and inputs.gain_threshold is not None and g is not None and math.isfinite(g):
+            x = int(g >= inputs.gain_threshold)  # decided in the slot, at the gain just measured
         frame = inputs.frame
         # Encoded in key slots too: the ledger books what an image would have cost (upload-all baseline).
         jpeg = encode_jpeg(frame, self.jpeg_quality) if frame is not None else None
         upload = jpeg if x == 1 else None
         pose = inputs.pose
         key = PoseKey(inputs.slot, *pose) if pose is not None else None
-        gain = self.link.gain(inputs.slot, pose[:2] if pose is not None else None)
+        # the radio's measurement of this slot; without one, the expected gain at the odometry position
+        gain = inputs.measured_gain
+        if gain is None or not (math.isfinite(gain) and gain > 0):
+            gain = self.link.mean_gain(pose[:2] if pose is not None else None)
         stamp_s = inputs.frame_stamp_ns / 1e9 if inputs.frame_stamp_ns is not None and frame is not None \
             else float("nan")
         row = self.ledger.record(inputs.slot, x, power_w, len(upload) if upload is not None else None, gain,

@@ -44,6 +44,7 @@ class ComposedSlot:
     gs_loss: float | None = None  # measured L_t (image slots only)
     faults: list[UplinkFault] = field(default_factory=list)
     timings_ms: dict[str, float] = field(default_factory=dict)
+    gs_mr: np.ndarray | None = None  # the composite from the GS render (= mr in render/fallback slots)
 
 
 class MRComposer:
@@ -106,7 +107,7 @@ class MRComposer:
                    "render_cpu": render_cpu_ms, "virtual": 1e3 * (t_virtual - t_render),
                    "loss": 1e3 * (t_end - t_virtual),
                    "total": 1e3 * (t_end - t0)}
-        return ComposedSlot(uploads.slot, mr, r_hat, v, d, source, pose, gs_loss, faults, timings)
+        return ComposedSlot(uploads.slot, mr, r_hat, v, d, source, pose, gs_loss, faults, timings, gs_mr)
 
 
 def refusal_fault(jpeg: bytes, width_px: int, height_px: int) -> UplinkFault:

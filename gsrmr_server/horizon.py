@@ -5,8 +5,11 @@ The scheduler node calls :meth:`OnlinePlanner.plan` at every replan. The planner
 1. predicts the robot's poses for the next ``horizon`` slots by advancing along the scene's route loop
    at the nominal speed from the point nearest to the current pose (:class:`RoutePredictor`);
 2. predicts L_t at those poses from the :class:`~gsrmr_server.loss_map.LossMap`;
-3. takes g_t from the link model (:class:`~gsrmr_common.link_model.LinkBudget`: the seeded channel
-   realisation of each absolute slot at the predicted robot–server distance);
+3. takes g_t from the channel's statistics: the expected gain ρ0·d^−α at the predicted robot–server
+   distance (:meth:`~gsrmr_common.link_model.LinkBudget.mean_gain`) — what a deployment knows. With
+   ``oracle_channel`` it takes the simulator's future realisation instead (the fading of each slot's
+   index since the round started, which it learns from the radio's samples): an upper bound for
+   comparison, not deployable;
 4. sets the horizon's loss budget so that the *run's* mean loss meets L_th:
    ``budget = (L_th · (1 − margin) · (n_done + H) − loss_spent) / H``, clipped to ≥ 0, where ``loss_spent``
    is the loss of the key slots already executed — the loss map's prediction at the pose the robot
@@ -16,7 +19,11 @@ The scheduler node calls :meth:`OnlinePlanner.plan` at every replan. The planner
    from the truth by its JPEG compression (≈ 0.007 per image slot at quality 80 in the sandbox), and
    L_t is a prediction — in the sandbox demo the key slots' measured loss ran 10–20 % above the seed
    map's prediction at the reported pose (odometry pose error, change events off the survey's timing);
-5. solves with :func:`gsrmr_server.scheduling.solve` and returns the schedule for the wire.
+5. solves with :func:`gsrmr_server.scheduling.solve` and returns the schedule for the wire;
+6. with ``in_slot_decision`` (and no oracle), adds per-slot gain thresholds
+   (:mod:`gsrmr_server.slot_price`): the robot then sends an image only when the gain it measures in
+   the slot is at least the threshold, the price chosen so that the expected loss meets the same budget.
+   Key slots are charged by what the robot actually did (its ledger, :meth:`OnlinePlanner.record_action`).
 
 It also watches drift: every measured loss is compared with what the planner predicted for that
 slot; when the mean absolute error of the last ``drift_window`` samples exceeds ``drift_threshold`` a
@@ -35,6 +42,7 @@ import numpy as np
 from gsrmr_common.route import LoopPath
 from gsrmr_common.wire import ScheduleMsg
 from gsrmr_server.loss_map import LossMap
+from gsrmr_server.slot_price import gain_thresholds, rician_power_samples, saving_coefficient_j
 
 
 class RoutePredictor:
@@ -85,8 +93,15 @@ class OnlinePlanner:
     def __init__(self, predictor: RoutePredictor, loss_map: LossMap, link, *, slot_s: float, image_bits: float,
                  pose_bits: float, loss_threshold: float, horizon: int, method: str = "exact",
                  options: dict | None = None, drift_threshold: float = 0.02, drift_window: int = 5,
-                 loss_margin: float = 0.0) -> None:
+                 loss_margin: float = 0.0, oracle_channel: bool = False, in_slot_decision: bool = False,
+                 rician_k: float = 1.0) -> None:
         self.predictor, self.loss_map, self.link = predictor, loss_map, link
+        self.oracle_channel = bool(oracle_channel)
+        self.round_start_slot: int | None = None  # learnt from the radio's samples (oracle only)
+        self.in_slot_decision = bool(in_slot_decision)
+        self._fading = rician_power_samples(rician_k)
+        self._actual_x: dict[int, int] = {}  # slot → what the robot did (its ledger)
+        self.last_price: float | None = None  # λ of the last plan (J per unit of loss)
         self.slot_s, self.image_bits, self.pose_bits = slot_s, image_bits, pose_bits
         self.loss_threshold, self.horizon, self.method = loss_threshold, horizon, method
         self.options = dict(options or {})
@@ -112,13 +127,19 @@ class OnlinePlanner:
             if entry is None:
                 continue
             self.slots_done += 1
-            if entry[0] == 0:
+            if self._actual_x.pop(k, entry[0]) == 0:
                 pose = self._reported.pop(k, None)
                 self.loss_spent += (self.loss_map.predict(*pose) if pose is not None
                                     else self._predicted.get(k, self.loss_map.prior))
             self._accounted_up_to = k
         for old in [k for k in self._reported if k < slot - 1000]:
             del self._reported[old]
+
+    def record_action(self, slot: int, x: int) -> None:
+        """What the robot did in ``slot`` (1 = image), from its ledger: key slots are charged by it."""
+        self._actual_x[slot] = int(x)
+        for old in [k for k in self._actual_x if k < slot - 1000]:
+            del self._actual_x[old]
 
     def record_pose(self, slot: int, a_m: float, b_m: float, theta_rad: float) -> None:
         """The pose the robot reported for ``slot`` (its pose key): key slots are charged at it."""
@@ -132,7 +153,7 @@ class OnlinePlanner:
         first = now_slot + 1
         poses = self.predictor.predict(pose, self.horizon, self.slot_s)
         losses = self.loss_map.predict_many(poses)
-        gains = np.array([self.link.gain(first + i, poses[i, :2]) for i in range(self.horizon)])
+        gains = self.gains(first, poses)
         target = self.loss_threshold * (1.0 - self.loss_margin)
         total = target * (self.slots_done + self.horizon) - self.loss_spent
         budget = max(0.0, total / self.horizon)
@@ -145,8 +166,14 @@ class OnlinePlanner:
         notes = list(getattr(result, "notes", []) or [])
         x = np.asarray(result.x, dtype=np.int8)
         power = np.nan_to_num(np.asarray(result.power_w, dtype=np.float64), nan=0.0, posinf=0.0)
+        thresholds = None
+        if self.in_slot_decision and not self.oracle_channel:
+            coeff = saving_coefficient_j(self.image_bits, self.pose_bits, self.slot_s, self.link.bandwidth_hz,
+                                         self.link.noise_w)
+            thresholds, self.last_price, _ = gain_thresholds(gains, losses, budget * self.horizon, coeff,
+                                                             self._fading)
         self.seq += 1
-        schedule = ScheduleMsg(first, self.slot_s, self.seq, x, power)
+        schedule = ScheduleMsg(first, self.slot_s, self.seq, x, power, thresholds)
         for i in range(self.horizon):
             self._predicted[first + i] = float(losses[i])
         for old in [k for k in self._predicted if k < now_slot - 1000]:
@@ -155,6 +182,16 @@ class OnlinePlanner:
         self._accounted_up_to = now_slot
         return PlanResult(schedule, self.method, int(x.sum()), float(result.energy_j),
                           float(np.mean(losses * (1 - x))), budget, bool(result.feasible), solve_time, losses, notes)
+
+    def gains(self, first: int, poses: np.ndarray) -> np.ndarray:
+        """g_t for slots ``first …`` at the predicted ``poses`` (see the module docstring, step 3)."""
+        if not self.oracle_channel or self.round_start_slot is None:
+            return np.array([self.link.mean_gain(poses[i, :2]) for i in range(len(poses))])
+        out = []
+        for i in range(len(poses)):
+            k = first + i - self.round_start_slot
+            out.append(self.link.gain(k if k >= 0 else first + i, poses[i, :2]))
+        return np.array(out)
 
     def observe(self, slot: int, a_m: float, b_m: float, theta_rad: float, loss: float) -> bool:
         """Add a measured loss to the map; True when the prediction error says a replan is due."""

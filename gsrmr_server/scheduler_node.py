@@ -28,8 +28,16 @@ from std_srvs.srv import Trigger
 
 from gsrmr_common.link_model import IMAGE_BITS, KEY_BITS, SLOT_S
 from gsrmr_common.ros_node import declare, declare_link_budget, diagnostics_msg, run_node
-from gsrmr_common.ros_wire import SCHEDULE_QOS, UPLINK_QOS, loss_sample_from_msg, pose_key_from_msg, schedule_to_msg
-from gsrmr_common.wire import ScheduleMsg, slot_ns
+from gsrmr_common.ros_wire import (
+    SCHEDULE_QOS,
+    UPLINK_QOS,
+    channel_sample_from_msg,
+    ledger_from_msg,
+    loss_sample_from_msg,
+    pose_key_from_msg,
+    schedule_to_msg,
+)
+from gsrmr_common.wire import CHANNEL_TOPIC, ScheduleMsg, slot_ns
 from gsrmr_server.horizon import OnlinePlanner, PlanResult, RoutePredictor
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.scheduling import METHODS
@@ -86,9 +94,21 @@ class SchedulerNode(Node):
         self.state_dir = declare(self, "state_dir", "", "Save/restore the last schedule and loss map here",
                                  read_only=True)
         self.link = declare_link_budget(self)
+        self.in_slot_decision = declare(self, "in_slot_decision", True, "Add per-slot gain thresholds to the "
+                                        "schedule: the robot sends an image only if the gain it measures in the "
+                                        "slot reaches it (a price on the loss budget; off with oracle_channel)",
+                                        read_only=True)
+        self.oracle_channel = declare(self, "oracle_channel", False, "Plan with the simulator's future channel "
+                                      "realisation (learnt from radio/channel_gain; simulation only, an upper "
+                                      "bound — a deployment plans with the channel's statistics)", read_only=True)
         self._check_options(self.solver_options)
 
         self._slot_len_ns = slot_ns(self.slot_s)
+        # Load the compiled knapsack kernel now (1–2 s from the numba cache, ~8 s cold) rather than in the
+        # first replan, so the first schedule follows start-up at once.
+        from gsrmr_server.scheduling import exact
+
+        self.get_logger().info(f"knapsack kernel ready in {exact.warm_up():.2f} s")
         loss_map = LossMap(prior=prior)
         for candidate in (Path(self.state_dir, "loss_map.json") if self.state_dir else None,
                           Path(loss_map_file) if loss_map_file else None):
@@ -102,7 +122,8 @@ class SchedulerNode(Node):
                                      horizon=self.horizon, method=self.method,
                                      options=json.loads(self.solver_options),
                                      drift_threshold=self.drift_threshold, drift_window=self.drift_window,
-                                     loss_margin=self.loss_margin)
+                                     loss_margin=self.loss_margin, oracle_channel=self.oracle_channel,
+                                     in_slot_decision=self.in_slot_decision, rician_k=self.link.rician_k)
         self._lock = threading.RLock()
         self._pose: tuple[float, float, float] | None = None
         self._replan_reason: str | None = "start"
@@ -112,6 +133,9 @@ class SchedulerNode(Node):
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(Vector3Stamped, "uplink/pose_key", self._on_key, UPLINK_QOS)
         self.create_subscription(Float64MultiArray, "gsrmr/loss_sample", self._on_loss, UPLINK_QOS)
+        if self.oracle_channel:
+            self.create_subscription(Float64MultiArray, CHANNEL_TOPIC, self._on_channel, 10)
+        self.create_subscription(Float64MultiArray, "gsrmr/ledger", self._on_ledger, UPLINK_QOS)
         self.create_service(Trigger, "gsrmr/replan", self._on_replan)
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._apply)
@@ -119,6 +143,26 @@ class SchedulerNode(Node):
         self.create_timer(self.replan_period_s, lambda: self._request("period"))
         self.create_timer(0.02, self._tick)
         self.create_timer(1.0, self._publish_diagnostics)
+
+    def _on_ledger(self, msg: Float64MultiArray) -> None:
+        """What the robot did in a slot (an in-slot decision may differ from the plan's x)."""
+        try:
+            row = ledger_from_msg(msg)
+        except ValueError:
+            return
+        with self._lock:
+            self.planner.record_action(row.slot, row.x)
+
+    def _on_channel(self, msg: Float64MultiArray) -> None:
+        """Oracle only: learn when the simulator's round (and its fading index) started."""
+        try:
+            sample = channel_sample_from_msg(msg)
+        except ValueError:
+            return
+        if sample.round_slot >= 0 and self.planner.round_start_slot is None:
+            with self._lock:
+                self.planner.round_start_slot = sample.slot - sample.round_slot
+            self._request("channel round start")
 
     # ---------------------------------------------------------------- parameters
     @staticmethod

@@ -48,7 +48,7 @@ from std_msgs.msg import Float64MultiArray
 
 from gsrmr_common.camera import Intrinsics
 from gsrmr_common.link_model import SLOT_S
-from gsrmr_common.ros_node import declare, declare_camera_mount, diagnostics_msg, run_node
+from gsrmr_common.ros_node import declare, declare_camera_mount, declare_link_budget, diagnostics_msg, run_node
 from gsrmr_common.ros_wire import (
     CAMERA_INFO_QOS,
     IMAGE_UPLOAD_QOS,
@@ -121,6 +121,11 @@ class ServerNode(Node):
                                     "the measured GS loss")
         self.evaluate = declare(self, "evaluate_ground_truth", False, "Simulation only: compare m̂_t with the "
                                 "true m_t built from camera/image_raw", read_only=True)
+        hindsight_q = declare(self, "hindsight_jpeg_quality", 0, "Simulation only, with evaluate_ground_truth: "
+                              "also measure what the other choice would have given in each slot (GS render, "
+                              "and the true frame as a JPEG of this quality = the robot's) for the hindsight "
+                              "optimum; 0 = off", min_value=0, max_value=100, read_only=True)
+        self.link = declare_link_budget(self)
         record_dir = declare(self, "record_dir", "", "Write slots.csv and MCAP here ('' = off)", read_only=True)
         self.jpeg_quality = declare(self, "jpeg_quality", 85, "JPEG quality of mr/image/compressed",
                                     min_value=1, max_value=100)
@@ -146,7 +151,9 @@ class ServerNode(Node):
         # before the slot clock starts keeps the first slots on time instead of skipping the ones that
         # elapsed meanwhile.
         self.composer.compose(SlotUploads(0), PoseKey(0, 0.0, 0.0, 0.0), 0.0, measure_loss=False)
-        self.core = ServerCore(self.composer, self.jpeg_quality, self.measure_loss)
+        self.core = ServerCore(self.composer, self.jpeg_quality, self.measure_loss, slot_s=self.slot_s,
+                               bandwidth_hz=self.link.bandwidth_hz, noise_w=self.link.noise_w,
+                               hindsight_jpeg_quality=hindsight_q or None)
         self._slot_len_ns = slot_ns(self.slot_s)
         self.uplink = UplinkAssembler()
         self._lock = threading.Lock()

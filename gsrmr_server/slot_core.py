@@ -19,9 +19,10 @@ import math
 
 import numpy as np
 
-from gsrmr_common.jpeg import encode_jpeg
+from gsrmr_common.jpeg import decode_jpeg, encode_jpeg
+from gsrmr_common.link_model import BANDWIDTH_HZ, NOISE_W, SLOT_S, required_power_w
 from gsrmr_common.metrics import image_quality
-from gsrmr_common.wire import LedgerRow, LossSample, PoseKey
+from gsrmr_common.wire import POSE_KEY_BITS, LedgerRow, LossSample, PoseKey
 from gsrmr_server.compose import ComposedSlot, MRComposer, to_u8
 from gsrmr_server.mr.blend import mr_image
 from gsrmr_server.slot_row import SlotRow
@@ -51,10 +52,22 @@ class SlotOutcome:
 class ServerCore:
     """Composes, encodes and scores one slot at a time (see the module docstring)."""
 
-    def __init__(self, composer: MRComposer, jpeg_quality: int = 85, measure_loss: bool = True) -> None:
+    def __init__(self, composer: MRComposer, jpeg_quality: int = 85, measure_loss: bool = True, *,
+                 slot_s: float = SLOT_S, bandwidth_hz: float = BANDWIDTH_HZ, noise_w: float = NOISE_W,
+                 hindsight_jpeg_quality: int | None = None) -> None:
+        """``hindsight_jpeg_quality``: when set (simulation), :meth:`score` also measures what the other
+        choice would have given in each slot (the robot's JPEG quality of the true frame, and the GS render)."""
         self.composer = composer
         self.jpeg_quality = int(jpeg_quality)
         self.measure_loss = bool(measure_loss)
+        self.slot_s, self.bandwidth_hz, self.noise_w = float(slot_s), float(bandwidth_hz), float(noise_w)
+        self.hindsight_jpeg_quality = hindsight_jpeg_quality
+
+    def _energy_j(self, bits: float, gain: float) -> float | None:
+        if not (gain > 0 and math.isfinite(gain)):
+            return None
+        e = self.slot_s * required_power_w(bits, gain, self.slot_s, self.bandwidth_hz, self.noise_w)
+        return e if math.isfinite(e) else None
 
     def process(self, uploads: SlotUploads, best_pose: PoseKey | None, *, time_s: float, stamp_s: float,
                 ledger: LedgerRow | None = None, scheduled_x: int | None = None) -> SlotOutcome:
@@ -77,18 +90,38 @@ class ServerCore:
             pose_a_m=pose.a_m if pose else None, pose_b_m=pose.b_m if pose else None,
             pose_theta_rad=pose.theta_rad if pose else None,
             faults=tuple(result.faults), gs_loss=result.gs_loss,
-            energy_upload_all_j=ledger.upload_all_energy_j if ledger else None)
+            energy_upload_all_j=ledger.upload_all_energy_j if ledger else None,
+            channel_gain=ledger.gain if ledger else None,
+            energy_image_j=(self._energy_j(ledger.upload_all_bits + POSE_KEY_BITS, ledger.gain)
+                            if ledger and ledger.upload_all_bits > 0 else None),
+            energy_key_j=self._energy_j(POSE_KEY_BITS, ledger.gain) if ledger else None)
         return SlotOutcome(result, to_u8(result.mr), row, sample, self.jpeg_quality)
 
-    @staticmethod
-    def score(outcome: SlotOutcome, truth_frame: np.ndarray | None) -> SlotOutcome:
+    def score(self, outcome: SlotOutcome, truth_frame: np.ndarray | None) -> SlotOutcome:
         """Add the quality of the published m̂ against the truth built from ``truth_frame`` (the true camera
-        image r_k, H×W×3 uint8; simulation only) to the outcome and its row; None leaves them empty."""
+        image r_k, H×W×3 uint8; simulation only) to the outcome and its row; None leaves them empty.
+
+        With ``hindsight_jpeg_quality`` set, also the loss either choice would have had in this slot:
+        ``gs_truth_loss`` (the composite from the GS render at the slot's pose) and ``image_truth_loss``
+        (from the true frame's JPEG at that quality; in an image slot, the published m̂ itself)."""
         quality = truth_quality(outcome.composed, outcome.mr_u8, truth_frame) if truth_frame is not None else None
         outcome.quality = quality
-        if quality is not None:
-            outcome.row = replace(outcome.row, loss=quality["loss"], psnr_db=quality["psnr_db"],
-                                  ssim=quality["ssim"])
+        if quality is None:
+            return outcome
+        extra: dict[str, float] = {}
+        c = outcome.composed
+        if self.hindsight_jpeg_quality is not None and c.gs_mr is not None:
+            truth = mr_image(truth_frame.astype(np.float32) / 255.0, c.virtual, c.mask)
+            gs_u8 = outcome.mr_u8 if c.source != "image" else to_u8(c.gs_mr)
+            extra["gs_truth_loss"] = image_quality(truth, gs_u8.astype(np.float32) / 255.0)["loss"]
+            if c.source == "image":
+                extra["image_truth_loss"] = quality["loss"]
+            else:
+                jpeg = decode_jpeg(encode_jpeg(truth_frame, self.hindsight_jpeg_quality))
+                img_u8 = to_u8(mr_image(jpeg.astype(np.float32) / 255.0, c.virtual, c.mask))
+                extra["image_truth_loss"] = image_quality(truth, img_u8.astype(np.float32) / 255.0)["loss"]
+        outcome.row = replace(outcome.row, loss=quality["loss"], psnr_db=quality["psnr_db"], ssim=quality["ssim"],
+                              **extra)
         return outcome
 
 

@@ -32,6 +32,13 @@ class SlotRow:
     faults: tuple[UplinkFault, ...] = ()
     gs_loss: float | None = None  # measured L_t (image slots with a key)
     energy_upload_all_j: float | None = None  # the same frame uploaded as an image (the RoboMR reference)
+    channel_gain: float | None = None  # g = |h|² the robot's ledger booked the slot at (the radio's measurement)
+    # hindsight (what either choice would have given in this slot; evaluate_hindsight, simulation only):
+    energy_image_j: float | None = None  # this slot's JPEG + key at channel_gain
+    energy_key_j: float | None = None  # the key alone at channel_gain
+    gs_truth_loss: float | None = None  # MR loss vs the truth of the composite from the GS render
+    image_truth_loss: float | None = None  # … and of the composite from the decoded JPEG of the true frame
+    scored: int | None = None  # 1 = a slot of the scored round (set by the demo's report), 0 = outside it
 
 
 SLOT_ROW_COLUMNS = tuple(f.name for f in fields(SlotRow))

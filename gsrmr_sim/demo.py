@@ -2,16 +2,20 @@
 
 1. Build the scene's GS model from round 1 (the robot's mapping lap, recorded by the world simulator,
    trained with the CPU engine) — cached under ``--cache`` keyed by the scene file and settings.
-2. Survey the operating round headless (world simulator, round 2) to seed the scheduler's loss map
-   with L_t — the losses the paper's optimisation assumes known; the running system keeps correcting
-   the map online from the losses it measures in image slots (cached too).
+2. Seed the scheduler's loss map with L_t of the model along the route's slot poses, against the
+   *mapping round's* world (what exists before round 2; no change events) — the running system keeps
+   correcting the map online from the losses it measures in image slots (cached). ``--oracle`` seeds it
+   from a headless rehearsal of round 2 itself instead and lets the scheduler plan with the simulator's
+   future channel: the paper's assumptions, reported as the upper bound they are.
 3. Run round 2 in real time over DDS, every node a separate process (the list of
    :func:`gsrmr_sim.sim_stack.sim_stack`, the same as ``sim.launch.py``): mock LIMO on a pty, LIMO
-   driver, mock camera, route follower, robot, server, scheduler.
+   driver, mock camera, simulated radio (the true channel, seeded by ``--channel-seed`` and the slot's
+   index in the round), route follower, robot, server, scheduler.
 4. Summarise from the server's per-slot log (loss/PSNR/SSIM of the MR images actually produced against
-   the simulator's ground truth, energy from the robot's ledger) and write the report folder: MR image
-   strip, x/p profile plot, ``slots.csv``, ``run.mcap``, ``summary.json``. The last stdout line is the
-   summary as one JSON object.
+   the simulator's ground truth, energy from the robot's ledger) and, after the run, the hindsight
+   optimum over what either choice would have cost and given in each slot (``regret`` = energy /
+   hindsight energy); write the report folder: MR image strip, x/p profile plot, ``slots.csv`` (with
+   ``scored``), ``run.mcap``, ``summary.json``. The last stdout line is the summary as one JSON object.
 """
 
 from __future__ import annotations
@@ -55,30 +59,34 @@ def ensure_model(scene_name: str, cache: Path, *, frames: int, train_seconds: fl
     return compact_built(built, recipe, max_psnr_drop_db, log=_log)
 
 
-def ensure_survey(scene_name: str, model_path: Path, slots: int) -> Path:
-    """Round-2 rehearsal → seed loss map JSON (cached beside the model)."""
+def ensure_survey(scene_name: str, model_path: Path, slots: int, round_index: int = 1) -> Path:
+    """Seed loss map JSON (cached beside the model): L_t of the model along the route's slot poses against
+    the world of round ``round_index`` — 1, the mapping round (what exists before round 2: its frames and
+    the model; the default), or 2, a rehearsal of the very round being scored (the ``--oracle`` mode)."""
     from gsrmr_server.splatting.model import GaussianModel
     from gsrmr_sim.survey import gs_losses, loss_map_from
     from gsrmr_sim.world.recorder import Round2Record, record_round2
     from gsrmr_sim.world.scene import load_scene
 
-    out = model_path.parent / f"loss_map_{model_path.stem}_{slots}.json"  # L_t depends on the model
+    out = model_path.parent / f"loss_map_{model_path.stem}_{slots}_round{round_index}.json"  # L_t depends on the model
     if out.exists():
         _log(f"loss-map seed cached: {out}")
         return out
     scene = load_scene(scene_name)
     t0 = time.perf_counter()
-    rec_dir = record_round2(scene, model_path.parent / f"round2_{slots}", slots=slots)
+    rec_dir = record_round2(scene, model_path.parent / f"survey_round{round_index}_{slots}", slots=slots,
+                            round_index=round_index)
     losses = gs_losses(Round2Record(rec_dir), GaussianModel.load_ply(model_path), scene.background)
     loss_map_from(losses).save(out)
     values = np.array([s.loss for s in losses])
-    _log(f"round-2 survey: {slots} slots, GS loss mean {values.mean():.4f}, max {values.max():.4f} "
+    _log(f"round-{round_index} survey: {slots} slots, GS loss mean {values.mean():.4f}, max {values.max():.4f} "
          f"({time.perf_counter() - t0:.1f} s)")
     return out
 
 
 def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, loss_threshold: float,
-              slots: int, method: str, timeout_s: float) -> tuple[list[dict], int]:
+              slots: int, method: str, timeout_s: float, channel_seed: int | None = None,
+              oracle_channel: bool = False) -> tuple[list[dict], int]:
     """Start every node as a process over DDS; stop after ``slots`` composed slots; return the rows."""
     from gsrmr_server.recording import read_slots_csv
     from gsrmr_sim.sim_stack import environment, sim_stack
@@ -88,7 +96,8 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
     link = f"/tmp/gsrmr_limo_{os.getpid()}"
     specs = sim_stack(scene=scene, model_path=str(model_path), record_dir=str(run_dir / "recording"),
                       loss_threshold=loss_threshold, link_path=link, laps=1, method=method,
-                      loss_map_file=str(loss_map), state_dir=str(run_dir / "scheduler_state"))
+                      loss_map_file=str(loss_map), state_dir=str(run_dir / "scheduler_state"),
+                      channel_seed=channel_seed, oracle_channel=oracle_channel)
     stack = ProcessStack(environment(domain), run_dir / "logs", params_dir=run_dir / "params")
     _log(f"starting {len(specs)} processes in ROS domain {domain}")
     csv_path = run_dir / "recording" / "slots.csv"
@@ -237,6 +246,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="compact the trained model to the smallest one within this held-out PSNR loss "
                          "(gsrmr-compact; bench/compact.py: sandbox 97k → 17k Gaussians at −0.21 dB)")
     ap.add_argument("--no-compact", action="store_true", help="run on the trained (uncompacted) model")
+    ap.add_argument("--channel-seed", type=int, default=7,
+                    help="seed of the simulated channel: the fading of the k-th slot of round 2 depends only "
+                         "on (seed, k), so two runs with one seed see the same channel")
+    ap.add_argument("--oracle", action="store_true",
+                    help="the oracle-fed upper bound: the scheduler plans with the simulator's future channel "
+                         "realisation and a loss map surveyed on the very round being scored (by default it "
+                         "plans with the channel's statistics and a map of the mapping round)"),
     args = ap.parse_args(argv)
 
     from gsrmr_sim.world.scene import load_scene
@@ -250,24 +266,36 @@ def main(argv: Sequence[str] | None = None) -> int:
                          train_seconds=args.train_seconds, width=args.train_width, budget=args.budget,
                          max_psnr_drop_db=None if args.no_compact else args.max_psnr_drop_db)
     model = built.path
-    seed = ensure_survey(args.scene, model, slots)
+    seed = ensure_survey(args.scene, model, slots, round_index=2 if args.oracle else 1)
     _log(f"round 2: {slots} slots in real time ({slots * scene.slot_s:.1f} s) over DDS, L_th = {args.loss_threshold}")
-    rows, _ = run_stack(scene=args.scene, model_path=model, loss_map=seed, run_dir=out,
+    rows, first_moving = run_stack(scene=args.scene, model_path=model, loss_map=seed, run_dir=out,
                         loss_threshold=args.loss_threshold, slots=slots, method=args.method,
-                        timeout_s=slots * scene.slot_s + 120.0)
+                        timeout_s=slots * scene.slot_s + 120.0, channel_seed=args.channel_seed,
+                        oracle_channel=args.oracle)
     recording = out / "recording"
-    for name in ("slots.csv", "run.mcap"):
-        if (recording / name).exists():
-            (out / name).write_bytes((recording / name).read_bytes())
+    if (recording / "run.mcap").exists():
+        (out / "run.mcap").write_bytes((recording / "run.mcap").read_bytes())
+    if (recording / "slots.csv").exists():  # the report's copy marks the scored round
+        from gsrmr_server.recording import read_slots_csv, write_slots_csv
+
+        every = read_slots_csv(recording / "slots.csv")
+        for i, row in enumerate(every):
+            row["scored"] = int(first_moving <= i < first_moving + len(rows))
+        write_slots_csv(out / "slots.csv", every)
+    from gsrmr_sim.hindsight import hindsight_summary
     summary = {"scene": args.scene, "loss_threshold": args.loss_threshold, **summarise(rows, scene.slot_s),
                "model_gaussians": built.model.num_gaussians, "model_heldout_psnr_db": built.heldout_psnr_db,
-               "model_compacted": not args.no_compact,
+               "model_compacted": not args.no_compact, "channel_seed": args.channel_seed, "oracle": args.oracle,
+               "method": args.method, "loss_map_seed": "round-2 survey (oracle)" if args.oracle else "mapping round",
+               **hindsight_summary(rows, args.loss_threshold),
                "report_dir": str(out)}
     write_report(out, rows, summary)
     print(f"\ngsrmr demo — scene {args.scene}, L_th {args.loss_threshold}, {summary['slots']} slots "
           f"({time.perf_counter() - t_start:.0f} s in all)")
     print(f"  images sent {summary['images_sent']}/{summary['slots']}, uplink energy {summary['energy_j']:.4g} J "
           f"vs upload-all {summary['energy_upload_all_j']:.4g} J ({summary['energy_ratio_vs_upload_all']:.1f}× less)")
+    print(f"  hindsight optimum (computed after the run) {summary['energy_hindsight_j']:.4g} J: regret "
+          f"{summary['regret']:.2f} over {summary['hindsight_slots']} slots")
     print(f"  MR images: mean loss {summary['mean_loss']:.4f}, PSNR {summary['psnr_db']:.2f} dB, "
           f"SSIM {summary['ssim']:.4f}; on time {summary['slots_on_time']}/{summary['slots']}")
     print(f"  report: {out}")

@@ -59,11 +59,28 @@ class ProcessSpec:
 WORLD_NICE = 10
 
 
+def robot_jpeg_quality(robot_yaml: str) -> int:
+    """The robot's JPEG quality from its parameter file (the server's hindsight encodes true frames alike)."""
+    import yaml
+
+    data = yaml.safe_load(Path(robot_yaml).read_text()) or {}
+    for section in data.values():
+        quality = (section or {}).get("ros__parameters", {}).get("jpeg_quality")
+        if quality is not None:
+            return int(quality)
+    return 80
+
+
 def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", loss_threshold: float = 0.03,
               link_path: str = "/tmp/gsrmr_limo", laps: int = 1, method: str = "exact",
               loss_map_file: str = "", state_dir: str = "", overrides: dict[str, dict] | None = None,
-              config: Path | None = None) -> list[ProcessSpec]:
-    """Every process of the simulated closed loop (mock base and camera, robot, server, scheduler)."""
+              config: Path | None = None, channel_seed: int | None = None,
+              oracle_channel: bool = False) -> list[ProcessSpec]:
+    """Every process of the simulated closed loop (mock base, camera and radio, robot, server, scheduler).
+
+    ``channel_seed`` overrides ``config/link.yaml``'s for the simulated radio (and the scheduler, which
+    only uses it with ``oracle_channel``: planning with the simulator's future fading, an upper bound).
+    """
     cfg = config or config_dir()
     link, base, robot, server, scheduler = (
         str(cfg / n) for n in ("link.yaml", "limo_base.yaml", "robot.yaml", "server.yaml", "scheduler.yaml"))
@@ -73,6 +90,7 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
     mount = {"camera_mount.height_m": m.height_m, "camera_mount.pitch_rad": m.pitch_rad,
              "camera_mount.forward_m": m.forward_m, "camera_mount.left_m": m.left_m}
     over = overrides or {}
+    seed = {} if channel_seed is None else {"channel_seed": int(channel_seed)}
     specs = [
         ProcessSpec("gsrmr-mock-limo", "gsrmr_mock_limo", ros=True,
                     arguments=["--link", link_path, f"--start-pose={a0},{b0},{t0}"], nice=WORLD_NICE),
@@ -81,15 +99,18 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
                     {"scene": scene, "round": 2, "clock_from_motion": True}, nice=WORLD_NICE),
         ProcessSpec("gsrmr-route-follower", "gsrmr_route_follower", [],
                     {"scene": scene, "laps": laps, "odom_topic": "/sim/ground_truth/odom"}, nice=WORLD_NICE),
+        ProcessSpec("gsrmr-sim-channel", "gsrmr_sim_channel", [link], seed, nice=WORLD_NICE),
         ProcessSpec("gsrmr-robot", "gsrmr_robot", [link, robot],
                     {"map_from_odom": [a0, b0, t0], **mount}),
         ProcessSpec("gsrmr-server", "gsrmr_server", [link, server],
                     {"mr_content": sc.mr_content, "background_rgb": [float(c) for c in sc.background], **mount,
-                     "model_path": model_path, "record_dir": record_dir, "evaluate_ground_truth": True}),
+                     "model_path": model_path, "record_dir": record_dir, "evaluate_ground_truth": True,
+                     "hindsight_jpeg_quality": robot_jpeg_quality(robot)}),
         ProcessSpec("gsrmr-scheduler", "gsrmr_scheduler", [link, scheduler],
                     {"route_waypoints_m": [float(v) for xy in sc.route.waypoints for v in xy],
                      "route_speed_mps": float(sc.route.speed_mps), "loss_threshold": loss_threshold, "method": method,
-                     "loss_map_file": loss_map_file, "state_dir": state_dir}),
+                     "loss_map_file": loss_map_file, "state_dir": state_dir, "oracle_channel": oracle_channel,
+                     **seed}),
     ]
     for spec in specs:
         spec.params.update(over.get(spec.name, {}))

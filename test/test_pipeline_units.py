@@ -87,17 +87,44 @@ def test_server_core_turns_a_slot_into_its_images_row_and_loss_sample(composer):
         (7, 0.7, 1, 0.03, (8000 + POSE_KEY_BITS) // 8, 0.003, 0.0029)
     assert r.source == RealSource.IMAGE and r.pose_a_m == -1.0 and r.loss is None
     assert out.loss_sample is not None and out.loss_sample.slot == 7 and out.loss_sample.loss == r.gs_loss > 0
-    ServerCore.score(out, frame)
+    core.score(out, frame)
     assert out.quality is not None and out.row.loss == out.quality["loss"] and out.row.psnr_db > 20
+    assert out.row.gs_truth_loss is None  # hindsight off by default
     lost = core.process(SlotUploads(8, faults=[UplinkFault.MISSING_KEY]), key, time_s=0.1, stamp_s=0.8,
                         scheduled_x=0)
     assert lost.row.x == 0 and lost.row.bytes_sent is None and lost.row.source == RealSource.FALLBACK
     assert lost.loss_sample is None and lost.row.faults == (UplinkFault.MISSING_KEY,)
-    assert ServerCore.score(lost, np.zeros((2, 2, 3), np.uint8)).quality is None  # a frame of another size
+    assert core.score(lost, np.zeros((2, 2, 3), np.uint8)).quality is None  # a frame of another size
     frames = [(12_500_000_000, frame), (12_600_000_000, frame[::-1])]
     assert match_frame(frames, led, 0) is frame  # the frame the robot's ledger names
     assert match_frame(frames, None, 12_600_000_000) is frames[1][1]  # else the newest at the slot start
     assert match_frame(frames, None, 0) is None
+
+
+def test_server_core_measures_both_choices_in_hindsight(composer):
+    """With hindsight on, every scored slot carries what an image and what a key would have cost and given:
+    energies at the ledger's gain (image = this frame's JPEG + key), losses against the truth."""
+    from gsrmr_common.wire import LedgerRow
+    from gsrmr_server.slot_core import ServerCore
+
+    k = composer.intrinsics
+    core = ServerCore(composer, jpeg_quality=90, hindsight_jpeg_quality=80)
+    frame = np.random.default_rng(1).integers(0, 255, (k.height, k.width, 3), np.uint8)
+    key = PoseKey(7, -1.0, 0.0, 0.0)
+    g = 2e-6
+    img_led = LedgerRow(7, 1, 0.0, 8 * 1000 + POSE_KEY_BITS, g, 0.0, 0.0, 8000, 0.0, 0.7)
+    img = core.score(core.process(SlotUploads(7, key=key, jpeg=encode_jpeg(frame, 80)), None, time_s=0.0,
+                                  stamp_s=0.7, ledger=img_led), frame)
+    r = img.row
+    assert r.energy_image_j == pytest.approx(0.1 * required_power_w(8000 + POSE_KEY_BITS, g, 0.1, 1e6, 1e-9))
+    assert r.energy_key_j == pytest.approx(0.1 * required_power_w(POSE_KEY_BITS, g, 0.1, 1e6, 1e-9))
+    assert r.energy_image_j > 10 * r.energy_key_j
+    assert r.image_truth_loss == r.loss and r.gs_truth_loss > r.image_truth_loss  # random pixels: GS is poor
+    key_led = LedgerRow(8, 0, 0.0, POSE_KEY_BITS, g, 0.0, 0.0, 8000, 0.0, 0.8)
+    ks = core.score(core.process(SlotUploads(8, key=key), None, time_s=0.1, stamp_s=0.8, ledger=key_led), frame)
+    assert ks.row.source == "render" and ks.row.gs_truth_loss == ks.row.loss
+    # the JPEG alternative of a key slot: the true frame at the robot's quality, as the image slot got it
+    assert ks.row.image_truth_loss == pytest.approx(r.image_truth_loss, rel=1e-6)
 
 
 def test_uplink_core_decides_each_slot_and_books_it():

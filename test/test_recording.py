@@ -38,7 +38,9 @@ def make_row(k: int) -> dict:
             "energy_j": 1e-3 * (k + 1), "loss": 0.1 / (k + 1), "psnr_db": 20.0 + k, "ssim": 0.9,
             "source": ("render", "image", "fallback")[k % 3], "pose_a_m": 0.1 * k, "pose_b_m": -0.2 * k,
             "pose_theta_rad": math.pi / 7 * k, "latency_ms": 12.5, "faults": "" if k % 4 else "late;retry",
-            "gs_loss": 0.02 * k if k % 2 else None, "energy_upload_all_j": 0.5 + k}
+            "gs_loss": 0.02 * k if k % 2 else None, "energy_upload_all_j": 0.5 + k, "channel_gain": 1e-6 * (k + 1),
+            "energy_image_j": 0.4 + k, "energy_key_j": 1e-3 * k, "gs_truth_loss": 0.03, "image_truth_loss": 0.01,
+            "scored": k % 2}
 
 
 def make_image(k: int) -> np.ndarray:
@@ -204,7 +206,8 @@ def test_recover_after_crash_between_rename_and_delete(tmp_path: Path) -> None:
 
 def test_torn_last_line_is_dropped(tmp_path: Path) -> None:
     path = tmp_path / "slots.csv"
-    path.write_text(",".join(CSV_COLUMNS) + "\n1,0.1,1,,,,,,,image,,,,,,,\n2,0.2,0,0.0")
+    cells = dict.fromkeys(CSV_COLUMNS, "") | {"slot": "1", "stamp_s": "0.1", "x": "1", "source": "image"}
+    path.write_text(",".join(CSV_COLUMNS) + "\n" + ",".join(cells.values()) + "\n2,0.2,0,0.0")
     rows = read_slots_csv(path)
     assert [r["slot"] for r in rows] == [1]
     path.write_text("slot,stamp\n1,2\n")

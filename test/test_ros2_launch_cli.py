@@ -27,7 +27,7 @@ from stack_harness import make_point_model  # noqa: E402
 
 from gsrmr_common.wire import JPEG_FORMAT  # noqa: E402
 
-SIM_PROCESSES = 7
+SIM_PROCESSES = 8  # gsrmr_sim.sim_stack: mock LIMO, base, camera, radio, route follower, robot, server, scheduler
 
 
 @pytest.mark.ros

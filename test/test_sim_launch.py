@@ -29,8 +29,8 @@ from stack_harness import make_point_model  # noqa: E402
 
 SLOT_S = 0.1
 ROUND_TIMEOUT_S = 150.0
-NODES = ("gsrmr_mock_limo", "gsrmr_limo_base", "gsrmr_mock_camera", "gsrmr_route_follower", "gsrmr_robot",
-         "gsrmr_server", "gsrmr_scheduler")
+NODES = ("gsrmr_mock_limo", "gsrmr_limo_base", "gsrmr_mock_camera", "gsrmr_route_follower", "gsrmr_sim_channel",
+         "gsrmr_robot", "gsrmr_server", "gsrmr_scheduler")
 
 
 @needs_ros_tooling

@@ -10,7 +10,8 @@ Output directory layout
     start in seconds of ROS time, ``x`` 1 = image / 0 = pose key, ``source`` ∈ {image, render,
     fallback}, pose in ``map`` per REP-103, ``loss`` = MR loss of m̂_t against the true m_t (simulation
     only), ``gs_loss`` = the GS loss L_t measured in an image slot, ``energy_upload_all_j`` = what the
-    upload-all reference (RoboMR) would have spent on this slot's frame; empty cell = not available).
+    upload-all reference (RoboMR) would have spent on this slot's frame, ``channel_gain`` = the gain
+    g = |h|² the robot's ledger booked the slot at; empty cell = not available).
     The file is flushed after every row, so a killed process (``kill -9``) loses no row that
     :meth:`RunRecorder.write_slot`
     returned from. ``fsync=True`` makes rows survive power loss as well (costs a disk sync per slot).
@@ -53,8 +54,8 @@ from gsrmr_server.recording.mcap_log import (
 )
 from gsrmr_server.recording.msgdefs import message_definition
 from gsrmr_server.recording.recorder import RunRecorder
-from gsrmr_server.recording.slots_csv import CSV_COLUMNS, CSV_NAME, SOURCES, read_slots_csv
+from gsrmr_server.recording.slots_csv import CSV_COLUMNS, CSV_NAME, SOURCES, read_slots_csv, write_slots_csv
 
 __all__ = ["CSV_COLUMNS", "CSV_NAME", "MCAP_NAME", "SOURCES", "TOPIC_CAMERA_INFO", "TOPIC_CMD_VEL", "TOPIC_MR_IMAGE",
            "TOPIC_SLOT_LOG", "TOPIC_TYPES", "RunRecorder", "main", "merge_segments", "message_definition", "read_mcap",
-           "read_slots_csv", "recover_run"]
+           "read_slots_csv", "recover_run", "write_slots_csv"]

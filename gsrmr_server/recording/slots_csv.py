@@ -15,7 +15,7 @@ from gsrmr_server.slot_row import SLOT_ROW_COLUMNS
 
 CSV_COLUMNS = SLOT_ROW_COLUMNS  # the fields of gsrmr_server.slot_row.SlotRow, in order
 CSV_NAME = "slots.csv"
-_INT_COLUMNS = frozenset({"slot", "x", "bytes_sent"})
+_INT_COLUMNS = frozenset({"slot", "x", "bytes_sent", "scored"})
 _STR_COLUMNS = frozenset({"source", "faults"})
 SOURCES = tuple(s.value for s in RealSource)  # the source column: where r̂_t came from
 
@@ -63,6 +63,14 @@ def read_slots_csv(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
     if tuple(reader.fieldnames or ()) != CSV_COLUMNS:
         raise ValueError(f"{path}: header {reader.fieldnames} is not {list(CSV_COLUMNS)}")
     return [{c: _parse_cell(c, row[c]) for c in CSV_COLUMNS} for row in reader]
+
+
+def write_slots_csv(path: str | os.PathLike[str], rows: list[dict[str, Any]]) -> None:
+    """Write ``rows`` (dicts as :func:`read_slots_csv` returns them) as a ``slots.csv``."""
+    with Path(path).open("w", newline="", encoding="utf-8") as f:
+        f.write(",".join(CSV_COLUMNS) + "\n")
+        for row in rows:
+            f.write(",".join(_cell(c, row.get(c)) for c in CSV_COLUMNS) + "\n")
 
 
 def _json_value(value: Any) -> Any:

@@ -85,8 +85,11 @@ def _mount_dict(m: CameraMount) -> dict:
 
 
 def record_round2(scene: Scene, out_dir: str | Path, slots: int | None = None, seed: int = 0,
-                  progress: bool = False) -> Path:
+                  progress: bool = False, round_index: int = 2) -> Path:
     """Write T = ``slots`` (default ``scene.slots``) operating slots with r_t, s_t, v_t, d_t.
+
+    ``round_index`` picks the world: 2 (default) is the operating round with its change events; 1 is the
+    mapping round's world (what the robot saw when the model was built) at the same slot poses.
 
     Returns the record directory.
     """
@@ -95,7 +98,7 @@ def record_round2(scene: Scene, out_dir: str | Path, slots: int | None = None, s
     t_slots = int(slots or scene.slots)
     pose0 = start_pose(scene.route, scene.route.start_jitter_m, seed)
     drive = drive_route(scene.route, t_slots, scene.slot_s, pose0=pose0)
-    world = make_world(scene, 2)
+    world = make_world(scene, round_index)
     virtual = virtual_view(scene)
     k, mount = scene.camera.intrinsics, scene.camera.mount
     entries = []

@@ -1,0 +1,72 @@
+"""``gsrmr-sim-channel``: the simulated radio — publishes the true uplink gain of every slot.
+
+Topic ``radio/channel_gain`` (:data:`gsrmr_common.wire.CHANNEL_TOPIC`, ``std_msgs/Float64MultiArray``,
+``layout.dim = [channel_sample(3)]``: slot, round_slot, gain), reliable, depth 10. The sample for slot
+t is published ``lead_s`` before t starts, so the robot has it when it decides slot t — on hardware the
+radio's driver publishes the same message from its own measurement. The truth is
+:class:`~gsrmr_sim.world.true_channel.TrueChannel` over the link parameters of ``config/link.yaml``
+(``channel_seed`` picks the realisation) at the true pose from ``odom_topic``.
+"""
+
+from __future__ import annotations
+
+import math
+
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from std_msgs.msg import Float64MultiArray
+
+from gsrmr_common.ros_node import declare, declare_link_budget, run_node
+from gsrmr_common.ros_wire import channel_sample_to_msg
+from gsrmr_common.wire import CHANNEL_TOPIC, slot_ns
+from gsrmr_sim.world.true_channel import TrueChannel
+
+
+class ChannelNode(Node):
+    """Publishes one :class:`~gsrmr_common.wire.ChannelSample` per slot, ``lead_s`` ahead of it."""
+
+    def __init__(self) -> None:
+        super().__init__("gsrmr_sim_channel")
+        self.link = declare_link_budget(self)
+        slot_s = declare(self, "slot_s", 0.1, "Slot length τ [s]", min_value=1e-3, max_value=10.0,
+                         read_only=True)
+        self.lead_ns = int(1e9 * declare(self, "lead_s", 0.02, "Publish slot t's gain this long before t "
+                                         "starts [s]", min_value=0.0, max_value=0.05, read_only=True))
+        odom_topic = declare(self, "odom_topic", "/sim/ground_truth/odom", "true pose (nav_msgs/Odometry, map)",
+                             read_only=True)
+        self.slot_len_ns = slot_ns(slot_s)
+        self.truth = TrueChannel(self.link)
+        self.next_slot: int | None = None
+        self.published = 0
+        self.pub = self.create_publisher(Float64MultiArray, CHANNEL_TOPIC, 10)
+        self.create_subscription(Odometry, odom_topic, self._on_odom, qos_profile_sensor_data)
+        self.create_timer(0.005, self._tick)
+        self.get_logger().info(f"simulated radio: channel seed {self.link.channel_seed}, server at "
+                               f"{self.link.server_position_m}, gains on {CHANNEL_TOPIC} {self.lead_ns / 1e6:.0f} ms "
+                               "ahead of each slot")
+
+    def _on_odom(self, msg: Odometry) -> None:
+        p, q = msg.pose.pose, msg.pose.pose.orientation
+        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+        self.truth.observe_pose((p.position.x, p.position.y, yaw))
+
+    def _tick(self) -> None:
+        ahead_ns = self.get_clock().now().nanoseconds + self.lead_ns
+        upcoming = ahead_ns // self.slot_len_ns  # the slot that starts within lead_s (or already has)
+        if self.next_slot is None:
+            self.next_slot = upcoming + 1
+            return
+        while self.next_slot <= upcoming:
+            started = self.truth.round_start_slot is not None
+            sample = self.truth.sample(self.next_slot)
+            if not started and self.truth.round_start_slot is not None:
+                self.get_logger().info(f"robot moving: round clock of the channel starts at slot {sample.slot}")
+            self.pub.publish(channel_sample_to_msg(sample))
+            self.published += 1
+            self.next_slot += 1
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``gsrmr-sim-channel``."""
+    return run_node(ChannelNode, args)

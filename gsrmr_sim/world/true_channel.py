@@ -1,0 +1,49 @@
+"""The simulated world's true uplink channel (pure: no ROS): one gain per slot, reproducible per seed.
+
+The fading of slot t is drawn from (``channel_seed``, k) where k is the slot's index since the round
+started (the robot's true pose first moved, the same rule as the mock camera's round clock), and the
+path loss is taken at the robot's *true* position (map frame, metres) against the server position of
+:class:`~gsrmr_common.link_model.LinkBudget`. Two runs with one seed therefore see the same small-scale
+fading slot for slot, and the same path loss up to how exactly the robot retraces the route.
+
+Slots before the round starts (the stack warming up) draw from (``channel_seed``, absolute slot) and
+carry ``round_slot = −1``: they are never scored.
+"""
+
+from __future__ import annotations
+
+from gsrmr_common.link_model import LinkBudget
+from gsrmr_common.wire import ChannelSample
+from gsrmr_sim.world.kinematics import has_moved
+
+Pose = tuple[float, float, float]  # (a_m, b_m, theta_rad) of base_link in map
+
+
+class TrueChannel:
+    """Per-slot channel gains of the simulated world (see the module docstring)."""
+
+    def __init__(self, link: LinkBudget) -> None:
+        self.link = link
+        self.pose: Pose | None = None
+        self.rest_pose: Pose | None = None
+        self.round_start_slot: int | None = None
+
+    def observe_pose(self, pose: Pose) -> None:
+        """The robot's true pose now (map, m, rad); the first motion arms the round start."""
+        self.pose = pose
+        self.rest_pose = self.rest_pose or pose
+
+    def moving(self) -> bool:
+        """Whether the robot has left its rest pose."""
+        return self.pose is not None and self.rest_pose is not None and has_moved(self.pose, self.rest_pose)
+
+    def sample(self, slot: int) -> ChannelSample:
+        """The gain of absolute slot ``slot`` at the current true position; starts the round clock at
+        the first slot sampled after the robot moved."""
+        if self.round_start_slot is None and self.moving():
+            self.round_start_slot = int(slot)
+        position = self.pose[:2] if self.pose is not None else None
+        if self.round_start_slot is not None and slot >= self.round_start_slot:
+            k = int(slot) - self.round_start_slot
+            return ChannelSample(int(slot), k, self.link.gain(k, position))
+        return ChannelSample(int(slot), -1, self.link.gain(int(slot), position))
