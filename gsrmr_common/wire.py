@@ -167,6 +167,7 @@ class LedgerRow:
     upload_all_bits: int
     upload_all_energy_j: float
     frame_stamp_s: float = float("nan")  # capture stamp of the camera frame this slot used (NaN: none)
+    round_slot: int = -1  # the radio's index of the slot in the round (ChannelSample.round_slot; −1: unknown)
 
 
 # Order of the values in a ``gsrmr/ledger`` Float64MultiArray (one message per slot).
@@ -245,9 +246,9 @@ def ledger_row_from_data(data: list[float] | np.ndarray) -> LedgerRow:
     if arr.shape != (len(LEDGER_FIELDS),):
         raise ValueError(f"ledger row: expected {len(LEDGER_FIELDS)} values {LEDGER_FIELDS}, got {arr.size}")
     row = dict(zip(LEDGER_FIELDS, arr.tolist(), strict=True))
-    if not all(math.isfinite(row[k]) for k in ("slot", "x", "bits_sent", "upload_all_bits")):
-        raise ValueError("ledger row: slot, x, bits_sent and upload_all_bits must be finite")
-    for k in ("slot", "x", "bits_sent", "upload_all_bits"):
+    if not all(math.isfinite(row[k]) for k in ("slot", "x", "bits_sent", "upload_all_bits", "round_slot")):
+        raise ValueError("ledger row: slot, x, bits_sent, upload_all_bits and round_slot must be finite")
+    for k in ("slot", "x", "bits_sent", "upload_all_bits", "round_slot"):
         row[k] = int(row[k])
     return LedgerRow(**row)
 

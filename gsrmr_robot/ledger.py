@@ -41,7 +41,8 @@ class EnergyLedger:
         return power, self.slot_s * power
 
     def record(self, slot: int, x: int, scheduled_power_w: float, jpeg_bytes: int | None, gain: float,
-               reference_jpeg_bytes: int | None, frame_stamp_s: float = float("nan")) -> LedgerRow:
+               reference_jpeg_bytes: int | None, frame_stamp_s: float = float("nan"),
+               round_slot: int = -1) -> LedgerRow:
         """Record one slot. ``jpeg_bytes`` is None for a key-only slot; ``reference_jpeg_bytes`` is the
         size this slot's frame has (or would have) as a JPEG, for the upload-all reference."""
         bits = POSE_KEY_BITS + (8 * jpeg_bytes if jpeg_bytes is not None else 0)
@@ -49,7 +50,7 @@ class EnergyLedger:
         ref_bits = 8 * reference_jpeg_bytes if reference_jpeg_bytes else 0
         _, ref_energy_j = self._energy(ref_bits, gain)
         row = LedgerRow(slot, int(x), float(scheduled_power_w), bits, float(gain), power_w, energy_j,
-                        ref_bits, ref_energy_j, float(frame_stamp_s))
+                        ref_bits, ref_energy_j, float(frame_stamp_s), int(round_slot))
         self.slots += 1
         self.images += int(jpeg_bytes is not None)
         self.keys_only += int(jpeg_bytes is None)

@@ -198,7 +198,7 @@ class RobotNode(Node):
         self.create_subscription(Odometry, "odom", self._on_odom, 20)
         self.create_subscription(Float64MultiArray, "gsrmr/schedule", self._on_schedule, SCHEDULE_QOS)
         self.create_subscription(Float64MultiArray, CHANNEL_TOPIC, self._on_channel, 10)
-        self._gains: dict[int, float] = {}  # slot → the radio's measured gain
+        self._gains: dict[int, tuple[float, int]] = {}  # slot → the radio's (measured gain, round slot)
         self.channel_unmeasured = 0
         # 5 ms tick: slot starts are detected with ≤ 5 ms jitter without a drifting periodic timer.
         self.create_timer(0.005, self._tick)
@@ -287,7 +287,7 @@ class RobotNode(Node):
             self.get_logger().warning(f"channel sample refused: {err}", throttle_duration_sec=5.0)
             return
         with self._lock:
-            self._gains[sample.slot] = sample.gain
+            self._gains[sample.slot] = (sample.gain, sample.round_slot)
             if len(self._gains) > 64:
                 for old in sorted(self._gains)[:-32]:
                     del self._gains[old]
@@ -328,21 +328,22 @@ class RobotNode(Node):
             pose = self._poses.at(frame_stamp_ns)
             sched = self._schedule
             frame_id = self.params.camera_frame_id
-            gain = self._gains.get(slot)
+            gain, round_slot = self._gains.get(slot, (None, -1))
             decision = self.core.run_slot(SlotInputs(slot, frame, frame_stamp_ns, pose,
                                                      sched.lookup(slot) if sched is not None else None, gain,
-                                                     sched.threshold(slot) if sched is not None else None))
+                                                     sched.threshold(slot) if sched is not None else None,
+                                                     round_slot))
         self.channel_unmeasured += int(gain is None)
         self.schedule_misses += int(not decision.scheduled)
         self.no_frame += int(frame is None)
         self.no_pose += int(decision.key is None)
         stamp_ns = slot_start_ns(slot, self._slot_len_ns)
+        if decision.publish_row:  # first: the server waits for it to know whether an image follows
+            self._pub_ledger.publish(ledger_to_msg(decision.row))
         if decision.jpeg is not None:
             self._pub_img.publish(compressed_to_msg(decision.jpeg, stamp_ns, frame_id))
         if decision.key is not None:
             self._pub_key.publish(pose_key_to_msg(decision.key, self._slot_len_ns))
-        if decision.publish_row:
-            self._pub_ledger.publish(ledger_to_msg(decision.row))
 
     def _publish_diagnostics(self) -> None:
         totals = self.ledger.totals()

@@ -68,6 +68,7 @@ class SlotInputs:
     entry: tuple[int, float] | None  # (x, power_w) of the schedule, None when no schedule covers the slot
     measured_gain: float | None = None  # the radio's channel gain g = |h|² for this slot (None: not measured)
     gain_threshold: float | None = None  # the schedule's in-slot rule: image iff measured_gain ≥ this
+    round_slot: int = -1  # the radio's index of this slot in the round (−1: unknown)
 
 
 @dataclass(frozen=True)
@@ -115,6 +116,6 @@ class UplinkCore:
         stamp_s = inputs.frame_stamp_ns / 1e9 if inputs.frame_stamp_ns is not None and frame is not None \
             else float("nan")
         row = self.ledger.record(inputs.slot, x, power_w, len(upload) if upload is not None else None, gain,
-                                 len(jpeg) if jpeg is not None else None, stamp_s)
+                                 len(jpeg) if jpeg is not None else None, stamp_s, inputs.round_slot)
         return SlotDecision(inputs.slot, x, key, upload, row, inputs.entry is not None,
                             publish_row=key is not None or upload is not None)

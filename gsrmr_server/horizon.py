@@ -20,7 +20,9 @@ The scheduler node calls :meth:`OnlinePlanner.plan` at every replan. The planner
    L_t is a prediction — in the sandbox demo the key slots' measured loss ran 10–20 % above the seed
    map's prediction at the reported pose (odometry pose error, change events off the survey's timing);
 5. solves with :func:`gsrmr_server.scheduling.solve` and returns the schedule for the wire;
-6. with ``in_slot_decision`` (and no oracle), adds per-slot gain thresholds
+6. with ``calibrate``, scales the map's predictions by the median ratio measured/predicted over the
+   last image slots (:attr:`OnlinePlanner.calibration`);
+7. with ``in_slot_decision`` (and no oracle), adds per-slot gain thresholds
    (:mod:`gsrmr_server.slot_price`): the robot then sends an image only when the gain it measures in
    the slot is at least the threshold, the price chosen so that the expected loss meets the same budget.
    Key slots are charged by what the robot actually did (its ledger, :meth:`OnlinePlanner.record_action`).
@@ -94,7 +96,8 @@ class OnlinePlanner:
                  pose_bits: float, loss_threshold: float, horizon: int, method: str = "exact",
                  options: dict | None = None, drift_threshold: float = 0.02, drift_window: int = 5,
                  loss_margin: float = 0.0, oracle_channel: bool = False, in_slot_decision: bool = False,
-                 rician_k: float = 1.0) -> None:
+                 rician_k: float = 1.0, calibrate: bool = False, explore_image_fraction: float = 0.0,
+                 calibration_window: int = 30, calibration_quantile: float = 0.75) -> None:
         self.predictor, self.loss_map, self.link = predictor, loss_map, link
         self.oracle_channel = bool(oracle_channel)
         self.round_start_slot: int | None = None  # learnt from the radio's samples (oracle only)
@@ -102,6 +105,10 @@ class OnlinePlanner:
         self._fading = rician_power_samples(rician_k)
         self._actual_x: dict[int, int] = {}  # slot → what the robot did (its ledger)
         self.last_price: float | None = None  # λ of the last plan (J per unit of loss)
+        self.calibrate = bool(calibrate)
+        self.explore_image_fraction = float(explore_image_fraction)
+        self._ratios: deque[float] = deque(maxlen=int(calibration_window))  # measured / map-predicted L
+        self.calibration_quantile = float(calibration_quantile)
         self.slot_s, self.image_bits, self.pose_bits = slot_s, image_bits, pose_bits
         self.loss_threshold, self.horizon, self.method = loss_threshold, horizon, method
         self.options = dict(options or {})
@@ -129,7 +136,7 @@ class OnlinePlanner:
             self.slots_done += 1
             if self._actual_x.pop(k, entry[0]) == 0:
                 pose = self._reported.pop(k, None)
-                self.loss_spent += (self.loss_map.predict(*pose) if pose is not None
+                self.loss_spent += (self.loss_map.predict(*pose) * self.calibration if pose is not None
                                     else self._predicted.get(k, self.loss_map.prior))
             self._accounted_up_to = k
         for old in [k for k in self._reported if k < slot - 1000]:
@@ -152,7 +159,7 @@ class OnlinePlanner:
         self.account_until(now_slot + 1)
         first = now_slot + 1
         poses = self.predictor.predict(pose, self.horizon, self.slot_s)
-        losses = self.loss_map.predict_many(poses)
+        losses = self.loss_map.predict_many(poses) * self.calibration
         gains = self.gains(first, poses)
         target = self.loss_threshold * (1.0 - self.loss_margin)
         total = target * (self.slots_done + self.horizon) - self.loss_spent
@@ -170,8 +177,12 @@ class OnlinePlanner:
         if self.in_slot_decision and not self.oracle_channel:
             coeff = saving_coefficient_j(self.image_bits, self.pose_bits, self.slot_s, self.link.bandwidth_hz,
                                          self.link.noise_w)
+            # explore harder until the calibration has its first samples (the seed map may be far off)
+            explore = self.explore_image_fraction
+            if self.calibrate and len(self._ratios) < 3:
+                explore = max(explore, 0.5)
             thresholds, self.last_price, _ = gain_thresholds(gains, losses, budget * self.horizon, coeff,
-                                                             self._fading)
+                                                             self._fading, explore)
         self.seq += 1
         schedule = ScheduleMsg(first, self.slot_s, self.seq, x, power, thresholds)
         for i in range(self.horizon):
@@ -193,8 +204,23 @@ class OnlinePlanner:
             out.append(self.link.gain(k if k >= 0 else first + i, poses[i, :2]))
         return np.array(out)
 
+    @property
+    def calibration(self) -> float:
+        """Factor on the map's predictions: the ``calibration_quantile`` (0.75) of measured / predicted L over
+        the last ``calibration_window`` image slots (1 until 3 samples; clipped to [0.25, 4]). The seed map
+        comes from the mapping round, whose frames trained the model: it under-predicts a round with
+        changes and odometry error, by a factor the run measures; taking an upper quantile of the ratios
+        rather than their median is the safety margin learned from the run's own prediction errors."""
+        if not self.calibrate or len(self._ratios) < 3:
+            return 1.0
+        return float(np.clip(np.quantile(self._ratios, self.calibration_quantile), 0.25, 4.0))
+
     def observe(self, slot: int, a_m: float, b_m: float, theta_rad: float, loss: float) -> bool:
         """Add a measured loss to the map; True when the prediction error says a replan is due."""
+        if self.calibrate and math.isfinite(loss):
+            raw = self.loss_map.predict(a_m, b_m, theta_rad)
+            if raw > 1e-4:
+                self._ratios.append(loss / raw)
         self.loss_map.add(a_m, b_m, theta_rad, loss)
         predicted = self._predicted.get(slot)
         if predicted is None or not math.isfinite(loss):

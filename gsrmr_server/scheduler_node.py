@@ -98,6 +98,11 @@ class SchedulerNode(Node):
                                         "schedule: the robot sends an image only if the gain it measures in the "
                                         "slot reaches it (a price on the loss budget; off with oracle_channel)",
                                         read_only=True)
+        self.explore = declare(self, "explore_image_fraction", 0.1, "In-slot rule: send an image at least when the "
+                               "slot's fade is in this best fraction (cheap images that keep measuring L_t)",
+                               min_value=0.0, max_value=1.0, read_only=True)
+        self.calibrate = declare(self, "calibrate_loss_map", True, "Scale the loss map's predictions by the "
+                                 "median measured/predicted ratio of the last image slots", read_only=True)
         self.oracle_channel = declare(self, "oracle_channel", False, "Plan with the simulator's future channel "
                                       "realisation (learnt from radio/channel_gain; simulation only, an upper "
                                       "bound — a deployment plans with the channel's statistics)", read_only=True)
@@ -123,7 +128,8 @@ class SchedulerNode(Node):
                                      options=json.loads(self.solver_options),
                                      drift_threshold=self.drift_threshold, drift_window=self.drift_window,
                                      loss_margin=self.loss_margin, oracle_channel=self.oracle_channel,
-                                     in_slot_decision=self.in_slot_decision, rician_k=self.link.rician_k)
+                                     in_slot_decision=self.in_slot_decision, rician_k=self.link.rician_k,
+                                     calibrate=self.calibrate, explore_image_fraction=self.explore)
         self._lock = threading.RLock()
         self._pose: tuple[float, float, float] | None = None
         self._replan_reason: str | None = "start"

@@ -315,18 +315,22 @@ class ServerNode(Node):
         self.process_slot(slot)
 
     def _uploads_complete(self, slot: int) -> bool:
+        """Everything for ``slot`` arrived: its key and its image, or its key and the robot's ledger row
+        saying no image was sent (the robot decides in the slot, so the schedule alone cannot say; the robot
+        publishes the row first). Until then the slot waits, at most ``process_delay_s``."""
         with self._lock:
-            entry = self._schedule.lookup(slot) if self._schedule is not None else None
-            return self.uplink.complete(slot, None if entry is None else bool(entry[0]))
+            ledger = self._ledger.get(slot)
+            return self.uplink.complete(slot, None if ledger is None else bool(ledger.x))
 
     def process_slot(self, slot: int) -> None:
         """Compose, publish and record slot ``slot`` (the work is the slot core's; this publishes)."""
         start_ns = slot_start_ns(slot, self._slot_len_ns)
         with self._lock:
             entry = self._schedule.lookup(slot) if self._schedule is not None else None
-            uploads = self.uplink.take(slot, image_expected=None if entry is None else bool(entry[0]))
-            best = self.uplink.best_pose(slot)
             ledger = self._ledger.pop(slot, None)
+            expected = bool(ledger.x) if ledger is not None else (None if entry is None else bool(entry[0]))
+            uploads = self.uplink.take(slot, image_expected=expected)
+            best = self.uplink.best_pose(slot)
             frames = list(self._frames) if self.evaluate else []
         time_s = (slot - (self._t0_slot or slot)) * self.slot_s
         self.core.jpeg_quality, self.core.measure_loss = self.jpeg_quality, self.measure_loss

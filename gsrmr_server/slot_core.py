@@ -94,7 +94,8 @@ class ServerCore:
             channel_gain=ledger.gain if ledger else None,
             energy_image_j=(self._energy_j(ledger.upload_all_bits + POSE_KEY_BITS, ledger.gain)
                             if ledger and ledger.upload_all_bits > 0 else None),
-            energy_key_j=self._energy_j(POSE_KEY_BITS, ledger.gain) if ledger else None)
+            energy_key_j=self._energy_j(POSE_KEY_BITS, ledger.gain) if ledger else None,
+            round_slot=ledger.round_slot if ledger else None)
         return SlotOutcome(result, to_u8(result.mr), row, sample, self.jpeg_quality)
 
     def score(self, outcome: SlotOutcome, truth_frame: np.ndarray | None) -> SlotOutcome:

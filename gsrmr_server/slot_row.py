@@ -39,6 +39,7 @@ class SlotRow:
     gs_truth_loss: float | None = None  # MR loss vs the truth of the composite from the GS render
     image_truth_loss: float | None = None  # … and of the composite from the decoded JPEG of the true frame
     scored: int | None = None  # 1 = a slot of the scored round (set by the demo's report), 0 = outside it
+    round_slot: int | None = None  # the radio's index of the slot in the round (its ledger; −1 before it)
 
 
 SLOT_ROW_COLUMNS = tuple(f.name for f in fields(SlotRow))

@@ -128,7 +128,7 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
                 continue
             rows = read_slots_csv(csv_path)
             if first_moving is None:
-                first_moving = first_moving_slot(rows)
+                first_moving = first_round_row(rows)
             if first_moving is not None and len(rows) - first_moving >= slots:
                 break
             if time.monotonic() - last_report > 5:
@@ -145,6 +145,17 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
             os.unlink(link)
     rows = read_slots_csv(csv_path)
     return rows[first_moving:first_moving + slots], first_moving
+
+
+def first_round_row(rows: list[dict]) -> int | None:
+    """Index of the row of the round's first slot: where the radio's ``round_slot`` (through the robot's
+    ledger) is 0 — the slot the channel's fading index starts from, so runs with one channel seed score
+    the same fading; without round slots (no radio), the first slot whose pose key moved."""
+    for i, r in enumerate(rows):
+        k = r.get("round_slot")
+        if k is not None and k >= 0:
+            return max(0, i - int(k))
+    return first_moving_slot(rows)
 
 
 def first_moving_slot(rows: list[dict]) -> int | None:

@@ -148,6 +148,19 @@ def test_server_catches_up_a_short_stall_and_skips_ahead_only_past_the_backlog_b
         assert composed[n:] == [slot]
         node._tick()
         assert composed[n:] == [slot]  # the next slot has not started
+        # A key-only slot is complete once the robot's ledger row says no image follows (whatever x the
+        # schedule had: the robot decides in the slot).
+        from gsrmr_common.wire import LedgerRow
+
+        slot = node._next_slot
+        now["ns"] = slot * slot_ns + 1_000_000
+        node._tick()
+        node.uplink.on_key(PoseKey(slot, 0.0, 0.0, 0.0), slot, now["ns"])
+        node._tick()
+        assert composed[-1] != slot  # no image, no ledger: wait
+        node._ledger[slot] = LedgerRow(slot, 0, 0.0, 192, 1e-6, 0.0, 0.0, 8000, 0.0)
+        node._tick()
+        assert composed[-1] == slot
         node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)

@@ -31,7 +31,7 @@ class ChannelNode(Node):
         self.link = declare_link_budget(self)
         slot_s = declare(self, "slot_s", 0.1, "Slot length τ [s]", min_value=1e-3, max_value=10.0,
                          read_only=True)
-        self.lead_ns = int(1e9 * declare(self, "lead_s", 0.02, "Publish slot t's gain this long before t "
+        self.lead_ns = int(1e9 * declare(self, "lead_s", 0.04, "Publish slot t's gain this long before t "
                                          "starts [s]", min_value=0.0, max_value=0.05, read_only=True))
         odom_topic = declare(self, "odom_topic", "/sim/ground_truth/odom", "true pose (nav_msgs/Odometry, map)",
                              read_only=True)
