@@ -21,17 +21,13 @@ import math
 import numpy as np
 
 from gsrmr_common import link_model as link
+from gsrmr_common.channel import ChannelModel
 
 
 def rician_power_samples(k_factor: float, n: int = 4096, seed: int = 0) -> np.ndarray:
-    """Sorted draws of the Rician small-scale power |h|² (factor ``k_factor``), normalised to mean 1."""
-    rng = np.random.default_rng(seed)
-    psi = rng.uniform(-math.pi, math.pi, n)
-    los = np.exp(-1j * math.pi * np.sin(psi))
-    nlos = (rng.standard_normal(n) + 1j * rng.standard_normal(n)) / math.sqrt(2.0)
-    k = float(k_factor)
-    h = math.sqrt(k / (1 + k)) * los + math.sqrt(1 / (1 + k)) * nlos
-    p = np.sort(np.abs(h) ** 2)
+    """Sorted draws of the Rician small-scale power |h|² (factor ``k_factor``), normalised to mean 1 — the
+    channel model of :mod:`gsrmr_common.channel` at unit path loss."""
+    p = np.sort(ChannelModel(rho0_db=0.0, alpha=0.0, k_factor=float(k_factor), seed=seed).gains(np.ones(n)))
     return p / p.mean()
 
 
