@@ -15,6 +15,7 @@ import argparse
 import json
 import os
 from pathlib import Path
+import signal
 import statistics
 import subprocess
 import sys
@@ -28,13 +29,26 @@ def run_once(demo_args: list[str]) -> dict:
     """One ``gsrmr-demo`` run; its summary (the last stdout line) plus the wall time."""
     exe = Path(sys.executable).parent / "gsrmr-demo"
     t0 = time.perf_counter()
-    out = subprocess.run([str(exe), *demo_args], capture_output=True, text=True, check=True).stdout
+    with subprocess.Popen([str(exe), *demo_args], stdout=subprocess.PIPE, text=True) as proc:
+        try:
+            out, _ = proc.communicate()
+        except BaseException:  # Ctrl-C / SIGTERM: let the demo stop its nodes (it handles both)
+            proc.terminate()
+            proc.wait(timeout=60)
+            raise
+    if proc.returncode:
+        raise subprocess.CalledProcessError(proc.returncode, proc.args)
     summary = json.loads(out.strip().splitlines()[-1])
     summary["wall_s"] = time.perf_counter() - t0
     return summary
 
 
+def _exit_on_sigterm(signum: int, _frame: object) -> None:
+    raise SystemExit(128 + signum)
+
+
 def main() -> int:
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=6)
     ap.add_argument("--seeds", type=int, default=None, metavar="BASE",

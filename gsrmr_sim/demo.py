@@ -27,6 +27,7 @@ import math
 import os
 from pathlib import Path
 import random
+import signal
 import sys
 import time
 from typing import TYPE_CHECKING
@@ -238,8 +239,14 @@ def write_report(report_dir: Path, rows: list[dict], summary: dict) -> None:
     (report_dir / "summary.json").write_text(json.dumps(summary, indent=1))
 
 
+def _exit_on_sigterm(signum: int, _frame: object) -> None:
+    """SIGTERM (``kill``, a CI runner's timeout) as an exit: the stack's ``finally`` stops every node."""
+    raise SystemExit(128 + signum)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Console script ``gsrmr-demo``."""
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
     ap = argparse.ArgumentParser(prog="gsrmr-demo", description=__doc__.split("\n\n")[0])
     ap.add_argument("--scene", default="sandbox")
     ap.add_argument("--loss-threshold", type=float, default=0.03)

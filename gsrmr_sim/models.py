@@ -140,7 +140,7 @@ def compact_built(built: BuiltModel, recipe: ModelRecipe, max_psnr_drop_db: floa
     path, info_path = built.folder / f"model-compact-{tag}.ply", built.folder / f"compact-{tag}.json"
     if path.exists() and info_path.exists():
         log(f"{recipe.scene}: compacted GS model cached: {path}")
-        return BuiltModel(GaussianModel.load_ply(path), built.folder, json.loads(info_path.read_text()))
+        return BuiltModel(GaussianModel.load_ply(path), built.folder, json.loads(info_path.read_text()), path.name)
     train, test = holdout_split(read_dataset(built.folder / "round1"), recipe.holdout_every)
     result = Compactor(train, test, recipe.config, CompactConfig(max_psnr_drop_db=max_psnr_drop_db)).run(built.model)
     full_res = Compactor(train, test, replace(recipe.config, resolution=None))
