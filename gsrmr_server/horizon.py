@@ -44,7 +44,10 @@ import numpy as np
 from gsrmr_common.route import LoopPath
 from gsrmr_common.wire import ScheduleMsg
 from gsrmr_server.loss_map import LossMap
+from gsrmr_server.loss_predictor import LossPredictor
 from gsrmr_server.slot_price import gain_thresholds, rician_power_samples, saving_coefficient_j
+
+LOSS_MODELS = ("map", "burst")  # L_t predictors: calibrated seed map / burst model (gsrmr_server.loss_predictor)
 
 
 class RoutePredictor:
@@ -97,8 +100,30 @@ class OnlinePlanner:
                  options: dict | None = None, drift_threshold: float = 0.02, drift_window: int = 5,
                  loss_margin: float = 0.0, oracle_channel: bool = False, in_slot_decision: bool = False,
                  rician_k: float = 1.0, calibrate: bool = False, explore_image_fraction: float = 0.0,
-                 calibration_window: int = 30, calibration_quantile: float = 0.75) -> None:
+                 calibration_window: int = 30, calibration_quantile: float = 0.75, loss_model: str = "map",
+                 image_slot_loss: float = 0.0, burst_time_constant_slots: float = 25.0,
+                 margin_quantile: float = 0.75, refine_slots: int = 300, probe_gap_slots: int = 0,
+                 round_slots: int = 0, round_start_m: float = 0.05) -> None:
+        if loss_model not in LOSS_MODELS:
+            raise ValueError(f"loss_model must be one of {LOSS_MODELS}, got {loss_model!r}")
+        if not (image_slot_loss >= 0 and math.isfinite(image_slot_loss)):
+            raise ValueError("image_slot_loss must be a finite loss >= 0")
         self.predictor, self.loss_map, self.link = predictor, loss_map, link
+        self.loss_model = loss_model
+        self.image_slot_loss = float(image_slot_loss)
+        # the burst model reads a frozen copy of the seed; self.loss_map keeps learning (saved for later runs)
+        self.loss_predictor = LossPredictor(LossMap.from_json(loss_map.to_json()),
+                                            burst_time_constant_slots=burst_time_constant_slots,
+                                            margin_quantile=margin_quantile, margin_window=calibration_window)
+        self.refine_slots = int(refine_slots)
+        self.probe_gap_slots = int(probe_gap_slots)
+        self.round_slots, self.round_start_m = int(round_slots), float(round_start_m)
+        self._round_start: int | None = None  # first slot the reported pose left its start (round mode)
+        self._home: tuple[float, float] | None = None
+        self._round_frozen, self._round_frozen_n = 0.0, 0
+        self._last_image_slot: int | None = None
+        self._done: deque[tuple[int, int, tuple[float, float, float] | None]] = deque()  # (slot, x, pose)
+        self._frozen_spent = 0.0
         self.oracle_channel = bool(oracle_channel)
         self.round_start_slot: int | None = None  # learnt from the radio's samples (oracle only)
         self.in_slot_decision = bool(in_slot_decision)
@@ -117,14 +142,14 @@ class OnlinePlanner:
         self._predicted: dict[int, float] = {}
         self._reported: dict[int, tuple[float, float, float]] = {}  # slot → pose (a_m, b_m, theta_rad) keyed
         self._errors: deque[float] = deque(maxlen=drift_window)
-        self.loss_spent = 0.0
         self.slots_done = 0
         self._accounted_up_to: int | None = None
         self._active: ScheduleMsg | None = None
         self.seq = 0
 
     def account_until(self, slot: int) -> None:
-        """Charge the predicted loss of the key slots of the active schedule that ended before ``slot``."""
+        """Book the slots of the active schedule that ended before ``slot``: what the robot did (its ledger,
+        else the plan) and the pose it reported (else none)."""
         sched = self._active
         if sched is None:
             return
@@ -134,23 +159,55 @@ class OnlinePlanner:
             if entry is None:
                 continue
             self.slots_done += 1
-            if self._actual_x.pop(k, entry[0]) == 0:
-                pose = self._reported.pop(k, None)
-                self.loss_spent += (self.loss_map.predict(*pose) * self.calibration if pose is not None
-                                    else self._predicted.get(k, self.loss_map.prior))
+            self._done.append((k, self._actual_x.pop(k, entry[0]), self._reported.pop(k, None)))
             self._accounted_up_to = k
+        while len(self._done) > self.refine_slots:  # old slots: their estimate will not change any more
+            done = self._done.popleft()
+            loss = self._slot_loss(*done)
+            self._frozen_spent += loss
+            if self._round_start is not None and done[0] >= self._round_start:
+                self._round_frozen += loss
+                self._round_frozen_n += 1
         for old in [k for k in self._reported if k < slot - 1000]:
             del self._reported[old]
+
+    def _slot_loss(self, slot: int, x: int, pose: tuple[float, float, float] | None) -> float:
+        """Estimated MR loss a booked slot left: ``image_slot_loss`` for an image; for a key, the burst
+        model's estimate from the measurements around it (or the calibrated map at the reported pose), the
+        plan's prediction without a reported pose."""
+        if x:
+            return self.image_slot_loss
+        if pose is None:
+            return self._predicted.get(slot, self.loss_map.prior)
+        if self.loss_model == "burst":
+            return self.loss_predictor.estimate(slot, pose)
+        return self.loss_map.predict(*pose) * self.calibration
+
+    @property
+    def loss_spent(self) -> float:
+        """Σ estimated MR loss of the booked slots (recent ones re-estimated as measurements arrive)."""
+        return self._frozen_spent + math.fsum(self._slot_loss(*d) for d in self._done)
 
     def record_action(self, slot: int, x: int) -> None:
         """What the robot did in ``slot`` (1 = image), from its ledger: key slots are charged by it."""
         self._actual_x[slot] = int(x)
+        if x and (self._last_image_slot is None or slot > self._last_image_slot):
+            self._last_image_slot = slot
         for old in [k for k in self._actual_x if k < slot - 1000]:
             del self._actual_x[old]
 
     def record_pose(self, slot: int, a_m: float, b_m: float, theta_rad: float) -> None:
         """The pose the robot reported for ``slot`` (its pose key): key slots are charged at it."""
         self._reported[slot] = (a_m, b_m, theta_rad)
+        if self.round_slots <= 0:
+            return
+        if self._round_start is not None and slot >= self._round_start + self.round_slots:
+            self._round_start, self._home = None, None  # the round is over: the next one starts on motion
+        if self._round_start is None:
+            if self._home is None:
+                self._home = (a_m, b_m)
+            elif math.hypot(a_m - self._home[0], b_m - self._home[1]) > self.round_start_m:
+                self._round_start, self._round_frozen, self._round_frozen_n = slot, 0.0, 0
 
     def plan(self, now_slot: int, pose: tuple[float, float, float] | None) -> PlanResult:
         """Solve the horizon starting at ``now_slot + 1``."""
@@ -159,40 +216,94 @@ class OnlinePlanner:
         self.account_until(now_slot + 1)
         first = now_slot + 1
         poses = self.predictor.predict(pose, self.horizon, self.slot_s)
-        losses = self.loss_map.predict_many(poses) * self.calibration
+        slots = np.arange(first, first + self.horizon)
+        if self.loss_model == "burst":
+            raw = self.loss_predictor.predict(slots, poses)
+            losses = raw * self.loss_predictor.margin
+        else:
+            raw = losses = self.loss_map.predict_many(poses) * self.calibration
         gains = self.gains(first, poses)
         target = self.loss_threshold * (1.0 - self.loss_margin)
-        total = target * (self.slots_done + self.horizon) - self.loss_spent
-        budget = max(0.0, total / self.horizon)
-        problem = Problem(slot_s=self.slot_s, image_bits=self.image_bits, pose_bits=self.pose_bits,
-                          bandwidth_hz=self.link.bandwidth_hz, noise_w=self.link.noise_w, channel_gain=gains,
-                          gs_loss=losses, loss_threshold=budget)
-        t0 = time.perf_counter()
-        result = solve(problem, self.method, **self.options)
-        solve_time = time.perf_counter() - t0
-        notes = list(getattr(result, "notes", []) or [])
-        x = np.asarray(result.x, dtype=np.int8)
-        power = np.nan_to_num(np.asarray(result.power_w, dtype=np.float64), nan=0.0, posinf=0.0)
-        thresholds = None
-        if self.in_slot_decision and not self.oracle_channel:
-            coeff = saving_coefficient_j(self.image_bits, self.pose_bits, self.slot_s, self.link.bandwidth_hz,
-                                         self.link.noise_w)
-            # explore harder until the calibration has its first samples (the seed map may be far off)
-            explore = self.explore_image_fraction
-            if self.calibrate and len(self._ratios) < 3:
-                explore = max(explore, 0.5)
-            thresholds, self.last_price, _ = gain_thresholds(gains, losses, budget * self.horizon, coeff,
-                                                             self._fading, explore)
+        # an image slot leaves image_slot_loss J (its JPEG): Σ x·J + (1−x)·L ≤ cap ⇔ Σ (1−x)(L − J) ≤ cap − n·J
+        j = self.image_slot_loss
+        key_cost = np.maximum(losses - j, 0.0)
+        explore = self._explore(slots)
+        blocks = []  # (slice of the horizon, Σ loss allowed over it)
+        remaining = self.round_remaining(first)
+        if remaining is not None and remaining <= self.horizon:  # the round ends inside the horizon
+            n_round, spent_round = self.round_booked()
+            blocks.append((slice(0, remaining), target * (n_round + remaining) - spent_round))
+            if remaining < self.horizon:  # what follows the round: a fresh budget
+                blocks.append((slice(remaining, self.horizon), target * (self.horizon - remaining)))
+        elif remaining is not None:
+            n_round, spent_round = self.round_booked()
+            blocks.append((slice(0, self.horizon), target * (n_round + self.horizon) - spent_round))
+        else:
+            blocks.append((slice(0, self.horizon), target * (self.slots_done + self.horizon) - self.loss_spent))
+        x = np.zeros(self.horizon, np.int8)
+        power = np.zeros(self.horizon)
+        thresholds = np.full(self.horizon, np.inf) if self.in_slot_decision and not self.oracle_channel else None
+        energy, feasible, solve_time, notes, budget = 0.0, True, 0.0, [], None
+        for part, cap in blocks:
+            n = part.stop - part.start
+            block_budget = max(0.0, (cap - j * n) / n)
+            budget = block_budget if budget is None else budget
+            problem = Problem(slot_s=self.slot_s, image_bits=self.image_bits, pose_bits=self.pose_bits,
+                              bandwidth_hz=self.link.bandwidth_hz, noise_w=self.link.noise_w,
+                              channel_gain=gains[part], gs_loss=key_cost[part], loss_threshold=block_budget)
+            t0 = time.perf_counter()
+            result = solve(problem, self.method, **self.options)
+            solve_time += time.perf_counter() - t0
+            notes += list(getattr(result, "notes", []) or [])
+            x[part] = np.asarray(result.x, dtype=np.int8)
+            power[part] = np.nan_to_num(np.asarray(result.power_w, dtype=np.float64), nan=0.0, posinf=0.0)
+            energy += float(result.energy_j)
+            feasible = feasible and bool(result.feasible)
+            if thresholds is not None:
+                coeff = saving_coefficient_j(self.image_bits, self.pose_bits, self.slot_s, self.link.bandwidth_hz,
+                                             self.link.noise_w)
+                thresholds[part], price, _ = gain_thresholds(gains[part], key_cost[part], block_budget * n, coeff,
+                                                             self._fading, explore[part])
+                if part.start == 0:
+                    self.last_price = price
         self.seq += 1
         schedule = ScheduleMsg(first, self.slot_s, self.seq, x, power, thresholds)
         for i in range(self.horizon):
-            self._predicted[first + i] = float(losses[i])
+            self._predicted[first + i] = float(raw[i])
         for old in [k for k in self._predicted if k < now_slot - 1000]:
             del self._predicted[old]
         self._active = schedule
         self._accounted_up_to = now_slot
-        return PlanResult(schedule, self.method, int(x.sum()), float(result.energy_j),
-                          float(np.mean(losses * (1 - x))), budget, bool(result.feasible), solve_time, losses, notes)
+        return PlanResult(schedule, self.method, int(x.sum()), energy, float(np.mean(losses * (1 - x) + j * x)),
+                          float(budget), feasible, solve_time, losses, notes)
+
+    def _explore(self, slots: np.ndarray) -> np.ndarray:
+        """Per-slot exploration fraction of the in-slot rule (see ``probe_gap_slots``)."""
+        explore = np.full(slots.shape, self.explore_image_fraction)
+        if self.calibrate and self._samples_held() < 3:  # the seed map may be far off: measure first
+            explore = np.maximum(explore, 0.5)
+        if self.probe_gap_slots > 0:  # no image for a while: accept ever poorer fades, up to the median one
+            last = self._last_image_slot if self._last_image_slot is not None else int(slots[0]) - 1
+            explore = np.maximum(explore, 0.5 * np.minimum(1.0, (slots - last) / self.probe_gap_slots))
+        return explore
+
+    # ------------------------------------------------------------------ rounds
+    def round_remaining(self, first: int) -> int | None:
+        """Slots of the current round from ``first`` on (None outside a round or without ``round_slots``)."""
+        if self.round_slots <= 0 or self._round_start is None:
+            return None
+        left = self._round_start + self.round_slots - first
+        return left if left > 0 else None
+
+    def round_booked(self) -> tuple[int, float]:
+        """(slots booked since the round started, their estimated Σ loss)."""
+        start = self._round_start if self._round_start is not None else 0
+        inside = [d for d in self._done if d[0] >= start]
+        return (self._round_frozen_n + len(inside),
+                self._round_frozen + math.fsum(self._slot_loss(*d) for d in inside))
+
+    def _samples_held(self) -> int:
+        return self.loss_predictor.samples if self.loss_model == "burst" else len(self._ratios)
 
     def gains(self, first: int, poses: np.ndarray) -> np.ndarray:
         """g_t for slots ``first …`` at the predicted ``poses`` (see the module docstring, step 3)."""
@@ -216,13 +327,16 @@ class OnlinePlanner:
         return float(np.clip(np.quantile(self._ratios, self.calibration_quantile), 0.25, 4.0))
 
     def observe(self, slot: int, a_m: float, b_m: float, theta_rad: float, loss: float) -> bool:
-        """Add a measured loss to the map; True when the prediction error says a replan is due."""
-        if self.calibrate and math.isfinite(loss):
+        """An image slot's measured L_t (the server's loss sample); True when the prediction error says a
+        replan is due."""
+        predicted = self._predicted.get(slot)
+        if self.loss_model == "burst":
+            self.loss_predictor.observe(slot, (a_m, b_m, theta_rad), loss, predicted)
+        elif self.calibrate and math.isfinite(loss):
             raw = self.loss_map.predict(a_m, b_m, theta_rad)
             if raw > 1e-4:
                 self._ratios.append(loss / raw)
         self.loss_map.add(a_m, b_m, theta_rad, loss)
-        predicted = self._predicted.get(slot)
         if predicted is None or not math.isfinite(loss):
             return False
         self._errors.append(abs(loss - predicted))

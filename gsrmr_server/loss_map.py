@@ -8,7 +8,9 @@ weighted mean of sampled cells of the same heading sector within ``radius_m``, e
 
 Each cell keeps an exponentially weighted mean (``forgetting`` = weight of the newest sample once a
 cell has more than 1/forgetting samples) so the map follows a world that changes during a round.
-Pure Python/numpy; JSON save/load so a run can seed the next one.
+``image_loss`` (optional) is the mean MR loss an *image* slot leaves — its JPEG — measured where the map
+was made (the mapping-round survey encodes each frame at the robot's quality). Pure Python/numpy; JSON
+save/load so a run can seed the next one.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ class LossMap:
     prior: float = 0.05
     forgetting: float = 0.5
     cells: dict[tuple[int, int, int], _Cell] = field(default_factory=dict)
+    image_loss: float | None = None  # mean MR loss an image slot leaves (its JPEG), where it was measured
 
     def __post_init__(self) -> None:
         if not (self.cell_m > 0 and math.isfinite(self.cell_m)):
@@ -47,6 +50,8 @@ class LossMap:
             raise ValueError("loss map: forgetting must be in (0, 1]")
         if not (self.prior >= 0 and math.isfinite(self.prior)):
             raise ValueError("loss map: prior must be a finite loss >= 0")
+        if self.image_loss is not None and not (self.image_loss >= 0 and math.isfinite(self.image_loss)):
+            raise ValueError("loss map: image_loss must be a finite loss >= 0")
 
     def key(self, a_m: float, b_m: float, theta_rad: float) -> tuple[int, int, int]:
         """Grid cell of a pose."""
@@ -97,15 +102,20 @@ class LossMap:
 
     def to_json(self) -> dict:
         """JSON-serialisable form."""
-        return {"cell_m": self.cell_m, "heading_bins": self.heading_bins, "radius_m": self.radius_m,
-                "prior": self.prior, "forgetting": self.forgetting,
-                "cells": [[*k, c.mean, c.count] for k, c in sorted(self.cells.items())]}
+        out = {"cell_m": self.cell_m, "heading_bins": self.heading_bins, "radius_m": self.radius_m,
+               "prior": self.prior, "forgetting": self.forgetting,
+               "cells": [[*k, c.mean, c.count] for k, c in sorted(self.cells.items())]}
+        if self.image_loss is not None:
+            out["image_loss"] = self.image_loss
+        return out
 
     @classmethod
     def from_json(cls, data: dict) -> LossMap:
         """Inverse of :meth:`to_json`."""
+        image_loss = data.get("image_loss")
         out = cls(float(data["cell_m"]), int(data["heading_bins"]), float(data["radius_m"]),
-                  float(data["prior"]), float(data["forgetting"]))
+                  float(data["prior"]), float(data["forgetting"]),
+                  image_loss=None if image_loss is None else float(image_loss))
         for i, j, h, mean, count in data["cells"]:
             if math.isfinite(mean) and mean >= 0:
                 out.cells[(int(i), int(j), int(h))] = _Cell(float(mean), int(count))

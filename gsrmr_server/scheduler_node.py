@@ -38,7 +38,7 @@ from gsrmr_common.ros_wire import (
     schedule_to_msg,
 )
 from gsrmr_common.wire import CHANNEL_TOPIC, ScheduleMsg, slot_ns
-from gsrmr_server.horizon import OnlinePlanner, PlanResult, RoutePredictor
+from gsrmr_server.horizon import LOSS_MODELS, OnlinePlanner, PlanResult, RoutePredictor
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.scheduling import METHODS
 
@@ -78,8 +78,8 @@ class SchedulerNode(Node):
                                        max_value=1.0)
         self.drift_window = declare(self, "drift_window", 3, "Samples in the drift test", min_value=1,
                                     max_value=1000)
-        self.loss_margin = declare(self, "loss_margin", 0.3, "Plan for loss_threshold·(1 − loss_margin): "
-                                   "room for the MR loss image slots keep (JPEG) and for prediction error",
+        self.loss_margin = declare(self, "loss_margin", 0.0, "Plan for loss_threshold·(1 − loss_margin): a fixed "
+                                   "back-off on top of the learned margin (margin_quantile)",
                                    min_value=0.0, max_value=0.99)
         route_flat = list(declare(self, "route_waypoints_m", [0.0], "The robot's route loop, predicted along: "
                                   "[x0, y0, x1, y1, ...] in map [m], ≥ 3 points (config/routes/*.yaml)",
@@ -106,6 +106,27 @@ class SchedulerNode(Node):
         self.oracle_channel = declare(self, "oracle_channel", False, "Plan with the simulator's future channel "
                                       "realisation (learnt from radio/channel_gain; simulation only, an upper "
                                       "bound — a deployment plans with the channel's statistics)", read_only=True)
+        loss_model = declare(self, "loss_model", "burst", "L_t predictor: 'burst' (seed map × an online "
+                             "correction that decays from the last measurement, gsrmr_server.loss_predictor) or "
+                             "'map' (seed map × a quantile of measured/predicted)",
+                             constraints=f"one of {list(LOSS_MODELS)}", read_only=True)
+        if loss_model not in LOSS_MODELS:
+            raise ValueError(f"parameter loss_model must be one of {list(LOSS_MODELS)}, got {loss_model!r}")
+        image_slot_loss = declare(self, "image_slot_loss", -1.0, "MR loss an image slot leaves (its JPEG); −1 = "
+                                  "the seed loss map's image_loss (measured on the mapping round), 0 without one",
+                                  min_value=-1.0, max_value=1.0, read_only=True)
+        margin_quantile = declare(self, "margin_quantile", 0.4, "Learned margin: predictions × this quantile of "
+                                  "measured / predicted L over the last 30 image slots (0 = off)",
+                                  min_value=0.0, max_value=1.0, read_only=True)
+        burst_tau = declare(self, "burst_time_constant_slots", 25.0, "How fast a measured burst of L fades into "
+                            "the run's average in the prediction [slots]", min_value=0.1, max_value=1e6,
+                            read_only=True)
+        probe_gap = declare(self, "probe_gap_slots", 16, "In-slot rule: after this many slots without an image "
+                            "any fade at or above the median one sends an image (0 = off)", min_value=0,
+                            max_value=100_000, read_only=True)
+        round_slots = declare(self, "round_slots", 0, "Slots of an operating round (T) whose mean loss must meet "
+                              "L_th: the round starts when the reported pose first moves (0 = no rounds: a "
+                              "running mean)", min_value=0, max_value=10_000_000, read_only=True)
         self._check_options(self.solver_options)
 
         self._slot_len_ns = slot_ns(self.slot_s)
@@ -129,7 +150,12 @@ class SchedulerNode(Node):
                                      drift_threshold=self.drift_threshold, drift_window=self.drift_window,
                                      loss_margin=self.loss_margin, oracle_channel=self.oracle_channel,
                                      in_slot_decision=self.in_slot_decision, rician_k=self.link.rician_k,
-                                     calibrate=self.calibrate, explore_image_fraction=self.explore)
+                                     calibrate=self.calibrate, explore_image_fraction=self.explore,
+                                     loss_model=loss_model, margin_quantile=margin_quantile,
+                                     burst_time_constant_slots=burst_tau, probe_gap_slots=probe_gap,
+                                     round_slots=round_slots,
+                                     image_slot_loss=(image_slot_loss if image_slot_loss >= 0
+                                                      else loss_map.image_loss or 0.0))
         self._lock = threading.RLock()
         self._pose: tuple[float, float, float] | None = None
         self._replan_reason: str | None = "start"
@@ -302,8 +328,17 @@ class SchedulerNode(Node):
 
     def _publish_diagnostics(self) -> None:
         r = self.last
-        values = {"replans": json.dumps(self.replans), "loss_map_cells": len(self.planner.loss_map.cells),
-                  "loss_spent": round(self.planner.loss_spent, 6), "slots_accounted": self.planner.slots_done}
+        p = self.planner
+        values = {"replans": json.dumps(self.replans), "loss_map_cells": len(p.loss_map.cells),
+                  "loss_spent": round(p.loss_spent, 6), "slots_accounted": p.slots_done,
+                  "loss_model": p.loss_model, "image_slot_loss": round(p.image_slot_loss, 6)}
+        if p.loss_model == "burst":
+            lp = p.loss_predictor
+            values.update({"loss_level_ratio": round(math.exp(lp.level), 4), "loss_margin_factor": round(lp.margin, 4),
+                           "loss_burst_factor": round(lp.burst_factor, 4)})
+        if p.round_slots:
+            remaining = p.round_remaining(self.get_clock().now().nanoseconds // self._slot_len_ns + 1)
+            values["round_slots_remaining"] = -1 if remaining is None else remaining
         if r is not None:
             values.update({"method": r.method, "horizon": len(r.schedule.x), "images": r.images,
                            "energy_j": r.energy_j, "feasible": r.feasible, "solve_time_s": round(r.solve_time_s, 5),

@@ -19,12 +19,12 @@ import math
 
 import numpy as np
 
-from gsrmr_common.jpeg import decode_jpeg, encode_jpeg
+from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.link_model import BANDWIDTH_HZ, NOISE_W, SLOT_S, required_power_w
 from gsrmr_common.metrics import image_quality
 from gsrmr_common.wire import POSE_KEY_BITS, LedgerRow, LossSample, PoseKey
 from gsrmr_server.compose import ComposedSlot, MRComposer, to_u8
-from gsrmr_server.mr.blend import mr_image
+from gsrmr_server.mr.blend import jpeg_mr_loss, mr_image
 from gsrmr_server.slot_row import SlotRow
 from gsrmr_server.uplink import SlotUploads
 
@@ -118,9 +118,7 @@ class ServerCore:
             if c.source == "image":
                 extra["image_truth_loss"] = quality["loss"]
             else:
-                jpeg = decode_jpeg(encode_jpeg(truth_frame, self.hindsight_jpeg_quality))
-                img_u8 = to_u8(mr_image(jpeg.astype(np.float32) / 255.0, c.virtual, c.mask))
-                extra["image_truth_loss"] = image_quality(truth, img_u8.astype(np.float32) / 255.0)["loss"]
+                extra["image_truth_loss"] = jpeg_mr_loss(truth_frame, c.virtual, c.mask, self.hindsight_jpeg_quality)
         outcome.row = replace(outcome.row, loss=quality["loss"], psnr_db=quality["psnr_db"], ssim=quality["ssim"],
                               **extra)
         return outcome

@@ -40,20 +40,22 @@ def saving_coefficient_j(image_bits: float, key_bits: float, slot_s: float, band
 
 
 def gain_thresholds(mean_gain: np.ndarray, loss: np.ndarray, loss_cap: float, coeff_j: float,
-                    samples: np.ndarray, min_image_prob: float = 0.0) -> tuple[np.ndarray, float, float]:
+                    samples: np.ndarray, min_image_prob: float | np.ndarray = 0.0) -> tuple[np.ndarray, float, float]:
     """(g*_t per slot, λ, expected loss of the rule) for a horizon with loss budget ``loss_cap`` (Σ, not
     mean). ``samples``: :func:`rician_power_samples`. All keys when the whole predicted loss fits
     (λ = 0, g* = +inf); all images when nothing fits (λ = +inf, g* = 0).
 
     ``min_image_prob`` (exploration): every slot with L_t > 0 sends an image at least when its fade is in
     the best ``min_image_prob`` fraction (g*_t capped at that quantile of m_t·|h|²) — cheap images that
-    keep measuring L_t where the predictions may be wrong. The expected loss returned includes it."""
+    keep measuring L_t where the predictions may be wrong (a scalar, or one fraction per slot). The
+    expected loss returned includes it."""
     thresholds, lam, expected_loss = _price(mean_gain, loss, loss_cap, coeff_j, samples)
-    if min_image_prob <= 0:
+    prob = np.broadcast_to(np.clip(np.asarray(min_image_prob, np.float64), 0.0, 1.0), thresholds.shape)
+    if not np.any(prob > 0):
         return thresholds, lam, expected_loss
     m = np.asarray(mean_gain, np.float64)
     L = np.maximum(np.asarray(loss, np.float64), 0.0)
-    q = float(np.quantile(samples, 1.0 - min(1.0, min_image_prob)))
+    q = np.where(prob > 0, np.quantile(samples, 1.0 - prob), np.inf)
     capped = np.where(L > 0, np.minimum(thresholds, q * m), thresholds)
     p_key = np.searchsorted(samples, np.where(np.isinf(capped), np.inf, capped / m)) / samples.size
     return capped, lam, float(np.sum(L * p_key))

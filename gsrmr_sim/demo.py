@@ -65,11 +65,14 @@ def ensure_survey(scene_name: str, model_path: Path, slots: int, round_index: in
     the world of round ``round_index`` — 1, the mapping round (what exists before round 2: its frames and
     the model; the default), or 2, a rehearsal of the very round being scored (the ``--oracle`` mode)."""
     from gsrmr_server.splatting.model import GaussianModel
+    from gsrmr_sim.sim_stack import config_dir, robot_jpeg_quality
     from gsrmr_sim.survey import gs_losses, loss_map_from
     from gsrmr_sim.world.recorder import Round2Record, record_round2
     from gsrmr_sim.world.scene import load_scene
 
-    out = model_path.parent / f"loss_map_{model_path.stem}_{slots}_round{round_index}.json"  # L_t depends on the model
+    quality = robot_jpeg_quality(str(config_dir() / "robot.yaml"))  # what an image slot leaves (JPEG)
+    # L_t depends on the model; the image-slot loss on the robot's JPEG quality
+    out = model_path.parent / f"loss_map_{model_path.stem}_{slots}_round{round_index}_q{quality}.json"
     if out.exists():
         _log(f"loss-map seed cached: {out}")
         return out
@@ -77,11 +80,13 @@ def ensure_survey(scene_name: str, model_path: Path, slots: int, round_index: in
     t0 = time.perf_counter()
     rec_dir = record_round2(scene, model_path.parent / f"survey_round{round_index}_{slots}", slots=slots,
                             round_index=round_index)
-    losses = gs_losses(Round2Record(rec_dir), GaussianModel.load_ply(model_path), scene.background)
-    loss_map_from(losses).save(out)
+    losses = gs_losses(Round2Record(rec_dir), GaussianModel.load_ply(model_path), scene.background,
+                       jpeg_quality=quality)
+    seed = loss_map_from(losses)
+    seed.save(out)
     values = np.array([s.loss for s in losses])
-    _log(f"round-{round_index} survey: {slots} slots, GS loss mean {values.mean():.4f}, max {values.max():.4f} "
-         f"({time.perf_counter() - t0:.1f} s)")
+    _log(f"round-{round_index} survey: {slots} slots, GS loss mean {values.mean():.4f}, max {values.max():.4f}; "
+         f"image slot (JPEG q{quality}) {seed.image_loss:.4f} ({time.perf_counter() - t0:.1f} s)")
     return out
 
 

@@ -23,3 +23,17 @@ def mr_image(real: np.ndarray, virtual: np.ndarray, mask: np.ndarray) -> np.ndar
     """The MR image m_t = d ⊙ r + (1 − d) ⊙ v (paper Eq. 1); H×W×3 float32."""
     d = np.asarray(mask, np.float32)[..., None]
     return (d * np.asarray(real, np.float32) + (1.0 - d) * np.asarray(virtual, np.float32)).astype(np.float32)
+
+
+def jpeg_mr_loss(frame_u8: np.ndarray, virtual: np.ndarray, mask: np.ndarray, jpeg_quality: int) -> float:
+    """MR loss an *image* slot leaves: the composite from the camera frame's JPEG at ``jpeg_quality`` (what
+    the robot uploads), rounded to 8 bit as published, against the composite from the frame itself.
+    ``frame_u8``: H×W×3 uint8 RGB; ``virtual``, ``mask`` as in :func:`mr_image`."""
+    from gsrmr_common.jpeg import decode_jpeg, encode_jpeg
+    from gsrmr_common.metrics import image_quality
+
+    truth = mr_image(frame_u8.astype(np.float32) / 255.0, virtual, mask)
+    jpeg = decode_jpeg(encode_jpeg(np.ascontiguousarray(frame_u8), int(jpeg_quality)))
+    composite = mr_image(jpeg.astype(np.float32) / 255.0, virtual, mask)
+    published = np.clip(np.rint(composite * 255.0), 0, 255).astype(np.float32) / 255.0
+    return float(image_quality(truth, published)["loss"])

@@ -1,0 +1,144 @@
+"""Replay a recorded run through the online planner (pure; an offline study tool, never used live).
+
+A demo's ``slots.csv`` holds, for every slot, what the world was: the robot's reported pose, the channel
+gain the radio measured, what an image and what a key would have cost at that gain (``energy_image_j``,
+``energy_key_j``) and the MR loss either would have left against the simulator's truth
+(``image_truth_loss``, ``gs_truth_loss``). None of that depends on the scheduler: the robot drives its
+route whatever it uploads. So the same slots can be played again through a *different* planner — another
+horizon, replan cadence, predictor or margin — slot by slot, with the information flow of the live loop:
+
+* every ``replan_every`` slots (and at the slot after a drift alarm) the planner plans from the next slot
+  with the last reported pose, as the scheduler node does on its timer;
+* in slot t the robot sends an image iff the gain it measured reaches the schedule's threshold for t
+  (or, without thresholds, iff the schedule says image); the planner learns what it did (the ledger) and
+  the pose it reported;
+* an image slot's L_t reaches the planner ``measurement_delay`` slots later (the server composes, then
+  publishes the sample); its value is the L_t the server measured live where the run sent an image there
+  (``gs_loss``), else the truth loss scaled by the run's median measured/truth ratio (the server compares
+  the render with the decoded JPEG, not with the truth).
+
+The replay scores the outcome as the demo does (energy, mean MR loss over the scored slots, regret against
+the hindsight optimum). It answers "what would this planner have done on that run" in milliseconds per
+slot, which is how the horizon, cadence and predictor studies in ``bench/planner_replay.py`` are made; live
+runs (``bench/demo.py``) then confirm the chosen setting. Timing effects (late images, replans that land
+mid-slot) are not replayed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+import math
+
+import numpy as np
+
+from gsrmr_server.horizon import OnlinePlanner
+from gsrmr_sim.hindsight import hindsight_optimum
+
+
+@dataclass(frozen=True)
+class RecordedSlot:
+    """One slot of a recorded run: the world as it was, whatever the scheduler did."""
+
+    slot: int
+    pose: tuple[float, float, float]  # (a_m, b_m, theta_rad) the robot reported, map frame
+    gain: float  # channel power gain the radio measured (linear)
+    energy_image_j: float
+    energy_key_j: float
+    image_truth_loss: float
+    gs_truth_loss: float
+    measured_gs_loss: float  # the L_t the server would measure if an image came
+    scored: bool
+
+
+def recorded_slots(rows: list[dict]) -> list[RecordedSlot]:
+    """``slots.csv`` rows (:func:`gsrmr_server.recording.read_slots_csv`) → replayable slots; rows missing a
+    hindsight value (a slot the server did not compose) are skipped."""
+    need = ("channel_gain", "energy_image_j", "energy_key_j", "image_truth_loss", "gs_truth_loss", "pose_a_m")
+    ok = [r for r in rows if all(r.get(c) is not None and r.get(c) != "" for c in need)]
+    ratios = [float(r["gs_loss"]) / float(r["gs_truth_loss"]) for r in ok
+              if r.get("gs_loss") not in (None, "") and float(r["gs_truth_loss"]) > 1e-6]
+    ratio = float(np.median(ratios)) if ratios else 1.0
+    out = []
+    for r in ok:
+        measured = r.get("gs_loss")
+        measured = float(measured) if measured not in (None, "") else ratio * float(r["gs_truth_loss"])
+        out.append(RecordedSlot(int(r["slot"]), (float(r["pose_a_m"]), float(r["pose_b_m"]),
+                                                 float(r["pose_theta_rad"])),
+                                float(r["channel_gain"]), float(r["energy_image_j"]), float(r["energy_key_j"]),
+                                float(r["image_truth_loss"]), float(r["gs_truth_loss"]), measured,
+                                bool(int(r.get("scored") or 0))))
+    return out
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    """What the replayed planner did and what it cost (scored slots only in the figures)."""
+
+    x: np.ndarray  # per recorded slot, 1 = image
+    energy_j: float
+    mean_loss: float
+    images: int
+    energy_hindsight_j: float
+    regret: float
+    replans: int
+    plan_time_s: float  # Σ over replans of the planner's wall time
+
+    def row(self) -> dict:
+        """Figures as a flat dict."""
+        return {"energy_j": self.energy_j, "mean_loss": self.mean_loss, "images": self.images,
+                "energy_hindsight_j": self.energy_hindsight_j, "regret": self.regret, "replans": self.replans,
+                "plan_time_s": self.plan_time_s}
+
+
+def replay(slots: list[RecordedSlot], planner: OnlinePlanner, *, loss_threshold: float, replan_every: int = 20,
+           measurement_delay: int = 1, on_plan: Callable[[int, object], None] | None = None) -> ReplayResult:
+    """Play ``slots`` through ``planner`` (a fresh :class:`OnlinePlanner`); see the module docstring."""
+    import time
+
+    if replan_every < 1 or measurement_delay < 0:
+        raise ValueError("replay: replan_every ≥ 1 and measurement_delay ≥ 0")
+    x = np.zeros(len(slots), np.int8)
+    pending: list[tuple[int, RecordedSlot]] = []  # (index when it arrives, slot measured)
+    pose: tuple[float, float, float] | None = None
+    replan_due, replans, plan_time = True, 0, 0.0
+    since_plan = 0
+    for i, s in enumerate(slots):
+        for item in [p for p in pending if p[0] <= i]:
+            pending.remove(item)
+            m = item[1]
+            if planner.observe(m.slot, *m.pose, m.measured_gs_loss):
+                replan_due = True
+        if replan_due or since_plan >= replan_every or planner.active is None:
+            t0 = time.perf_counter()
+            result = planner.plan(s.slot - 1, pose)
+            plan_time += time.perf_counter() - t0
+            replans += 1
+            planner.clear_drift()
+            replan_due, since_plan = False, 0
+            if on_plan is not None:
+                on_plan(i, result)
+        since_plan += 1
+        sched = planner.active
+        entry = sched.lookup(s.slot) if sched is not None else None
+        threshold = sched.threshold(s.slot) if sched is not None else None
+        if threshold is not None and math.isfinite(s.gain):
+            x[i] = int(s.gain >= threshold)
+        else:
+            x[i] = int(entry[0]) if entry is not None else 1
+        pose = s.pose
+        planner.record_pose(s.slot, *s.pose)
+        planner.record_action(s.slot, int(x[i]))
+        if x[i]:
+            pending.append((i + measurement_delay, s))
+    scored = np.array([s.scored for s in slots], bool)
+    e_img = np.array([s.energy_image_j for s in slots])
+    e_key = np.array([s.energy_key_j for s in slots])
+    l_img = np.array([s.image_truth_loss for s in slots])
+    l_gs = np.array([s.gs_truth_loss for s in slots])
+    energy = np.where(x == 1, e_img, e_key)[scored]
+    loss = np.where(x == 1, l_img, l_gs)[scored]
+    best = hindsight_optimum(e_img[scored], e_key[scored], l_img[scored], l_gs[scored], loss_threshold)
+    total = math.fsum(energy.tolist())
+    return ReplayResult(x, total, float(loss.mean()) if loss.size else math.nan, int(x[scored].sum()), best.energy_j,
+                        total / best.energy_j if best.energy_j > 0 else math.nan, replans, plan_time)
