@@ -1,12 +1,17 @@
 """Repeated ``gsrmr-demo`` runs: the node suite's acceptance figures as a table with medians.
 
-Usage: ``.venv/bin/python bench/demo.py [--runs 6] [-- DEMO_ARGS...]``. Each run is a full round 2 over
-DDS (~40 s with the model cached; the first run trains it). Prints, per run and as the median: slots
-on time (MR image ≤ τ after the slot start), images sent, uplink energy ratio upload-all / ours, the
-upload-all energy itself (equal across runs with one ``--channel-seed``), mean MR loss, PSNR and SSIM
-measured on the MR images the server produced, and the regret against the hindsight optimum (computed
-after each run) with the images that optimum sends. Pass ``-- --channel-seed N`` to vary the channel, or
-``--seeds`` to give run k the seed ``base + k``.
+Usage: ``.venv/bin/python bench/demo.py [--runs 6] [--seeds BASE] [--method M] [--load N] [-- DEMO_ARGS...]``.
+Each run is a full round 2 over DDS (~40 s with the model cached; the first run trains it). Prints, per
+run and as the median: slots on time (MR image ≤ τ after the slot start), images sent, uplink energy ratio
+upload-all / ours, the upload-all energy itself (equal across runs with one ``--channel-seed``), mean MR
+loss, PSNR and SSIM measured on the MR images the server produced, the regret against the hindsight
+optimum (computed after each run) with the images that optimum sends, slot latency p50/p95/p99 (MR image
+published − slot start, scored slots), the scheduler's plan time (median and worst over its replans) and
+the server's median compose time per stage.
+
+``--seeds BASE`` gives run k the channel seed BASE + k (else ``-- --channel-seed N`` for all);
+``--method M`` runs the scheduler with method M; ``--load N`` keeps N busy processes
+(``python -c "while True: pass"``, normal priority) running during the runs.
 """
 
 from __future__ import annotations
@@ -22,7 +27,28 @@ import sys
 import time
 
 COLUMNS = ("slots", "slots_on_time", "images_sent", "energy_ratio_vs_upload_all", "energy_upload_all_j", "mean_loss",
-           "psnr_db", "ssim", "regret", "hindsight_images")
+           "psnr_db", "ssim", "regret", "hindsight_images", "latency_ms_p50", "latency_ms_p95", "latency_ms_p99",
+           "plan_ms_p50", "plan_ms_max")
+
+
+def run_figures(report_dir: Path) -> dict:
+    """Latency percentiles of the scored slots, the server's stage medians and the scheduler's plan times."""
+    import csv
+
+    import numpy as np
+
+    out: dict = {}
+    with open(report_dir / "slots.csv", newline="") as f:
+        lat = [float(r["latency_ms"]) for r in csv.DictReader(f) if r.get("scored") == "1" and r.get("latency_ms")]
+    for q in (50, 95, 99):
+        out[f"latency_ms_p{q}"] = float(np.percentile(lat, q)) if lat else float("nan")
+    server = report_dir / "recording" / "server_summary.json"
+    out["compose_ms_p50"] = json.loads(server.read_text()).get("compose_ms_p50", {}) if server.exists() else {}
+    plans = report_dir / "scheduler_state" / "plan_stats.json"
+    times = json.loads(plans.read_text()).get("solve_time_s", []) if plans.exists() else []
+    out["plan_ms_p50"] = 1e3 * float(np.median(times)) if times else float("nan")
+    out["plan_ms_max"] = 1e3 * float(np.max(times)) if times else float("nan")
+    return out
 
 
 def run_once(demo_args: list[str]) -> dict:
@@ -40,6 +66,7 @@ def run_once(demo_args: list[str]) -> dict:
         raise subprocess.CalledProcessError(proc.returncode, proc.args)
     summary = json.loads(out.strip().splitlines()[-1])
     summary["wall_s"] = time.perf_counter() - t0
+    summary.update(run_figures(Path(summary["report_dir"])))
     return summary
 
 
@@ -53,10 +80,24 @@ def main() -> int:
     ap.add_argument("--runs", type=int, default=6)
     ap.add_argument("--seeds", type=int, default=None, metavar="BASE",
                     help="run k uses --channel-seed BASE + k (default: every run the demo's seed)")
+    ap.add_argument("--method", default=None, help="scheduling method (gsrmr-demo --method)")
+    ap.add_argument("--load", type=int, default=0, metavar="N", help="N busy processes during the runs")
     ap.add_argument("demo_args", nargs="*", help="passed to gsrmr-demo (after --)")
     args = ap.parse_args()
+    if args.method:
+        args.demo_args += ["--method", args.method]
     print(f"# bench/demo.py: {args.runs} × gsrmr-demo {' '.join(args.demo_args)} ({os.cpu_count()} CPUs, "
-          f"load average before {os.getloadavg()[0]:.1f})")
+          f"load average before {os.getloadavg()[0]:.1f}; {args.load} busy process(es) during the runs)")
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.load)]
+    try:
+        return _runs(args)
+    finally:
+        for proc in busy:
+            proc.kill()
+            proc.wait()
+
+
+def _runs(args: argparse.Namespace) -> int:
     print("| run | " + " | ".join(COLUMNS) + " | wall s |")
     print("|" + "---|" * (len(COLUMNS) + 2))
     rows = []
@@ -66,9 +107,11 @@ def main() -> int:
         rows.append(s)
         print(f"| {k + 1} | " + " | ".join(f"{s[c]:.4g}" if isinstance(s[c], float) else str(s[c])
                                          for c in COLUMNS) + f" | {s['wall_s']:.0f} |", flush=True)
+        print(f"|   | compose ms p50 by stage: {json.dumps(s['compose_ms_p50'])} |", flush=True)
     print("| **median** | " + " | ".join(f"{statistics.median(r[c] for r in rows):.4g}" for c in COLUMNS)
           + f" | {statistics.median(r['wall_s'] for r in rows):.0f} |")
-    lower_is_better = ("images_sent", "mean_loss", "regret")
+    lower_is_better = ("images_sent", "mean_loss", "regret", "latency_ms_p50", "latency_ms_p95", "latency_ms_p99",
+                       "plan_ms_p50", "plan_ms_max")
     print("| **worst** | " + " | ".join(
         f"{(max if c in lower_is_better else min)(r[c] for r in rows):.4g}" for c in COLUMNS) + " | |")
     return 0

@@ -161,6 +161,7 @@ class SchedulerNode(Node):
         self._replan_reason: str | None = "start"
         self.last: PlanResult | None = None
         self.replans: dict[str, int] = {}
+        self.solve_times_s: list[float] = []
         self._pub = self.create_publisher(Float64MultiArray, "gsrmr/schedule", SCHEDULE_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(Vector3Stamped, "uplink/pose_key", self._on_key, UPLINK_QOS)
@@ -275,6 +276,8 @@ class SchedulerNode(Node):
                     old = previous.lookup(result.schedule.first_slot + i)
                     changed += int(old is not None and old[0] != int(x))
             self.last = result
+            self.solve_times_s.append(round(result.solve_time_s, 6))
+            del self.solve_times_s[:-10_000]
             self.replans[reason.split(":")[0]] = self.replans.get(reason.split(":")[0], 0) + 1
             self.planner.clear_drift()
         self._pub.publish(schedule_to_msg(result.schedule))
@@ -310,6 +313,9 @@ class SchedulerNode(Node):
         tmp.write_text(json.dumps({"data": schedule.to_data()}))
         tmp.replace(state / "schedule.json")
         self.planner.loss_map.save(state / "loss_map.json")
+        stats = state / "plan_stats.json.tmp"  # every replan's solve time (bench/demo.py reads it)
+        stats.write_text(json.dumps({"method": self.planner.method, "solve_time_s": self.solve_times_s}))
+        stats.replace(state / "plan_stats.json")
 
     def _restore(self) -> None:
         if not self.state_dir or not Path(self.state_dir, "schedule.json").exists():
