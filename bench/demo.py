@@ -27,8 +27,8 @@ import sys
 import time
 
 COLUMNS = ("slots", "slots_on_time", "images_sent", "energy_ratio_vs_upload_all", "energy_upload_all_j", "mean_loss",
-           "psnr_db", "ssim", "regret", "hindsight_images", "latency_ms_p50", "latency_ms_p95", "latency_ms_p99",
-           "plan_ms_p50", "plan_ms_max")
+           "psnr_db", "psnr_slot_mean_db", "ssim", "regret", "hindsight_images", "latency_ms_p50", "latency_ms_p95",
+           "latency_ms_p99", "plan_ms_p50", "plan_ms_max", "replans_late")
 
 
 def run_figures(report_dir: Path) -> dict:
@@ -45,9 +45,11 @@ def run_figures(report_dir: Path) -> dict:
     server = report_dir / "recording" / "server_summary.json"
     out["compose_ms_p50"] = json.loads(server.read_text()).get("compose_ms_p50", {}) if server.exists() else {}
     plans = report_dir / "scheduler_state" / "plan_stats.json"
-    times = json.loads(plans.read_text()).get("solve_time_s", []) if plans.exists() else []
+    stats = json.loads(plans.read_text()) if plans.exists() else {}
+    times, slack = stats.get("solve_time_s", []), stats.get("slack_s", [])
     out["plan_ms_p50"] = 1e3 * float(np.median(times)) if times else float("nan")
     out["plan_ms_max"] = 1e3 * float(np.max(times)) if times else float("nan")
+    out["replans_late"] = f"{sum(v < 0 for v in slack)}/{len(slack)}" if slack else "n/a"
     return out
 
 
@@ -108,12 +110,21 @@ def _runs(args: argparse.Namespace) -> int:
         print(f"| {k + 1} | " + " | ".join(f"{s[c]:.4g}" if isinstance(s[c], float) else str(s[c])
                                          for c in COLUMNS) + f" | {s['wall_s']:.0f} |", flush=True)
         print(f"|   | compose ms p50 by stage: {json.dumps(s['compose_ms_p50'])} |", flush=True)
-    print("| **median** | " + " | ".join(f"{statistics.median(r[c] for r in rows):.4g}" for c in COLUMNS)
-          + f" | {statistics.median(r['wall_s'] for r in rows):.0f} |")
+    for r in rows:  # summaries of runs before the pooled PSNR existed
+        r.setdefault("psnr_slot_mean_db", float("nan"))
     lower_is_better = ("images_sent", "mean_loss", "regret", "latency_ms_p50", "latency_ms_p95", "latency_ms_p99",
                        "plan_ms_p50", "plan_ms_max")
-    print("| **worst** | " + " | ".join(
-        f"{(max if c in lower_is_better else min)(r[c] for r in rows):.4g}" for c in COLUMNS) + " | |")
+
+    def summary_cell(c: str, pick) -> str:
+        if c == "replans_late":  # all runs together: late / all replans
+            late = [tuple(map(int, r[c].split("/"))) for r in rows if "/" in str(r[c])]
+            return f"{sum(a for a, _ in late)}/{sum(b for _, b in late)}" if late else "n/a"
+        return f"{pick(r[c] for r in rows):.4g}"
+
+    print("| **median** | " + " | ".join(summary_cell(c, statistics.median) for c in COLUMNS)
+          + f" | {statistics.median(r['wall_s'] for r in rows):.0f} |")
+    print("| **worst** | " + " | ".join(summary_cell(c, max if c in lower_is_better else min) for c in COLUMNS)
+          + " | |")
     return 0
 
 

@@ -54,9 +54,10 @@ def make_planner(params: dict, overrides: dict):
               loss_model=params["loss_model"], margin_quantile=params["margin_quantile"],
               burst_time_constant_slots=params["burst_time_constant_slots"],
               probe_gap_slots=params["probe_gap_slots"], round_slots=params["round_slots"],
-              image_slot_loss=(params["image_slot_loss"] if params["image_slot_loss"] >= 0
-                               else loss_map.image_loss or 0.0))
+              image_slot_loss=params["image_slot_loss"])
     kw.update({k: v for k, v in overrides.items() if k not in REPLAY_KEYS})
+    if kw["image_slot_loss"] < 0:  # −1: the seed map's measured value, as the node reads it
+        kw["image_slot_loss"] = loss_map.image_loss or 0.0
     return OnlinePlanner(route, loss_map, LinkBudget(), **kw)
 
 
@@ -70,13 +71,15 @@ def parse_value(text: str):
 
 def main() -> int:
     from gsrmr_server.recording import read_slots_csv
-    from gsrmr_sim.replay import recorded_slots, replay
+    from gsrmr_sim.replay import TruthLossPredictor, recorded_slots, replay
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("reports", nargs="+", type=Path)
     ap.add_argument("--vary", default="", help="key=v1,v2,... (one row per value)")
     ap.add_argument("--set", action="append", default=[], help="key=value for every row")
     ap.add_argument("--per-run", action="store_true", help="also print every run's figures")
+    ap.add_argument("--truth-loss", action="store_true",
+                    help="hindsight bound: the planner is given every slot's true L (never available live)")
     args = ap.parse_args()
     fixed = {k: parse_value(v) for k, v in (s.split("=", 1) for s in args.set)}
     key, _, values = args.vary.partition("=")
@@ -86,7 +89,8 @@ def main() -> int:
         params = scheduler_params(report)
         runs.append((report.name, params, recorded_slots(read_slots_csv(report / "slots.csv"))))
     print(f"# bench/planner_replay.py: {len(runs)} recorded runs ({os.cpu_count()} CPUs, load average "
-          f"{os.getloadavg()[0]:.1f}); fixed {fixed or '{}'}")
+          f"{os.getloadavg()[0]:.1f}); fixed {fixed or '{}'}"
+          + ("; HINDSIGHT BOUND: the planner knows every slot's true L" if args.truth_loss else ""))
     print("| setting | mean loss median (worst) | ≤ L_th | regret median (worst) | images median | ms per replan |")
     print("|---|---|---|---|---|---|")
     for setting in settings:
@@ -94,6 +98,8 @@ def main() -> int:
         for name, params, slots in runs:
             p = {**params, **{k: v for k, v in setting.items() if k in params}}
             planner = make_planner(p, setting)
+            if args.truth_loss:
+                planner.loss_model, planner.loss_predictor = "burst", TruthLossPredictor(slots)
             r = replay(slots, planner, loss_threshold=p["loss_threshold"],
                        replan_every=int(setting.get("replan_every", round(p["replan_period_s"] / 0.1))),
                        measurement_delay=int(setting.get("measurement_delay", 1)))

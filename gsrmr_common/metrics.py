@@ -93,6 +93,16 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
     return -10.0 * math.log10(mse)
 
 
+def pooled_psnr_db(psnr_values_db) -> float:
+    """PSNR of a set of images taken together (``psnr_db`` in every report): the PSNR of their mean MSE,
+    −10·log10(mean_t 10^(−PSNR_t/10)) for images in [0, 1] of one size. A few bad slots pull it down far
+    more than the mean of the per-slot PSNRs (``psnr_slot_mean_db``), which is also reported; NaN for none."""
+    values = np.asarray([v for v in np.ravel(psnr_values_db) if math.isfinite(v)], np.float64)
+    if values.size == 0:
+        return math.nan
+    return float(-10.0 * np.log10(np.mean(10.0 ** (-values / 10.0))))
+
+
 def mr_loss(m: np.ndarray, m_hat: np.ndarray, lam: float = MR_LOSS_LAMBDA) -> float:
     """The paper's MR loss (1 − λ)·mean|m − m̂| + λ·(1 − SSIM(m, m̂)); 0 for identical images."""
     if not 0.0 <= lam <= 1.0:

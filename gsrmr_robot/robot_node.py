@@ -52,7 +52,14 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray
 
 from gsrmr_common.link_model import SLOT_S
-from gsrmr_common.ros_node import declare, declare_camera_mount, declare_link_budget, diagnostics_msg, run_node
+from gsrmr_common.ros_node import (
+    aligned_timer,
+    declare,
+    declare_camera_mount,
+    declare_link_budget,
+    diagnostics_msg,
+    run_node,
+)
 from gsrmr_common.ros_wire import (
     CAMERA_INFO_QOS,
     IMAGE_UPLOAD_QOS,
@@ -201,7 +208,8 @@ class RobotNode(Node):
         self._gains: dict[int, tuple[float, int]] = {}  # slot → the radio's (measured gain, round slot)
         self.channel_unmeasured = 0
         # 5 ms tick: slot starts are detected with ≤ 5 ms jitter without a drifting periodic timer.
-        self.create_timer(0.005, self._tick)
+        # run each slot 1 ms after it starts (polling the clock at 200 Hz cost ~5 % of a core)
+        aligned_timer(self, self.slot_s, 0.001, self._tick)
         self.create_timer(1.0, self._publish_diagnostics)
         self._tf_static = None
         tf2_ros, why = load_tf2_ros()

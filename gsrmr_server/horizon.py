@@ -4,32 +4,35 @@ The scheduler node calls :meth:`OnlinePlanner.plan` at every replan. The planner
 
 1. predicts the robot's poses for the next ``horizon`` slots by advancing along the scene's route loop
    at the nominal speed from the point nearest to the current pose (:class:`RoutePredictor`);
-2. predicts L_t at those poses from the :class:`~gsrmr_server.loss_map.LossMap`;
+2. predicts L_t there: with ``loss_model="burst"`` (the node's default) by
+   :class:`~gsrmr_server.loss_predictor.LossPredictor` — the seed map of the mapping round × an online
+   correction that follows measured bursts and decays back, × a margin learned from its own errors
+   (``margin_quantile``); with ``"map"`` by the seed map × a quantile of measured/predicted
+   (``calibrate``, ``calibration_quantile``; the earlier model, kept for comparison);
 3. takes g_t from the channel's statistics: the expected gain ρ0·d^−α at the predicted robot–server
    distance (:meth:`~gsrmr_common.link_model.LinkBudget.mean_gain`) — what a deployment knows. With
    ``oracle_channel`` it takes the simulator's future realisation instead (the fading of each slot's
    index since the round started, which it learns from the radio's samples): an upper bound for
    comparison, not deployable;
-4. sets the horizon's loss budget so that the *run's* mean loss meets L_th:
-   ``budget = (L_th · (1 − margin) · (n_done + H) − loss_spent) / H``, clipped to ≥ 0, where ``loss_spent``
-   is the loss of the key slots already executed — the loss map's prediction at the pose the robot
-   actually reported for that slot (:meth:`OnlinePlanner.record_pose`), or at the planned pose when no
-   key came — and image slots add 0. ``margin`` (``loss_margin``, a fraction of L_th) backs the plan
-   off the threshold for what the model of P_GS leaves out: an image slot's MR image still differs
-   from the truth by its JPEG compression (≈ 0.007 per image slot at quality 80 in the sandbox), and
-   L_t is a prediction — in the sandbox demo the key slots' measured loss ran 10–20 % above the seed
-   map's prediction at the reported pose (odometry pose error, change events off the survey's timing);
+4. sets the loss budget so that the mean loss meets ``L_th·(1 − loss_margin)``: an image slot leaves
+   ``image_slot_loss`` J (its JPEG), so Σ x·J + (1 − x)·L ≤ cap becomes the knapsack Σ (1 − x)(L − J) ≤
+   cap − n·J. The booked slots (what the robot did — its ledger — at the pose it reported) count with
+   their *estimated* loss: J for an image, for a key the burst model's estimate from the measurements
+   around it (re-estimated while they arrive; frozen after ``refine_slots``). With ``round_slots`` T the
+   budget is the round's: the round starts at the first reported pose > ``round_start_m`` from where the
+   robot stood, and cap = L_th·T − Σ booked in the round, split at the round's end (what follows gets a
+   fresh budget); without, a running mean over every booked slot: cap = L_th·(n_done + H) − Σ booked;
 5. solves with :func:`gsrmr_server.scheduling.solve` and returns the schedule for the wire;
-6. with ``calibrate``, scales the map's predictions by the median ratio measured/predicted over the
-   last image slots (:attr:`OnlinePlanner.calibration`);
-7. with ``in_slot_decision`` (and no oracle), adds per-slot gain thresholds
+6. with ``in_slot_decision`` (and no oracle), adds per-slot gain thresholds
    (:mod:`gsrmr_server.slot_price`): the robot then sends an image only when the gain it measures in
-   the slot is at least the threshold, the price chosen so that the expected loss meets the same budget.
-   Key slots are charged by what the robot actually did (its ledger, :meth:`OnlinePlanner.record_action`).
+   the slot is at least the threshold, the price chosen so that the expected loss meets the same budget;
+   ``explore_image_fraction`` and ``probe_gap_slots`` lower the threshold (an image in the best fades
+   always; after ``probe_gap_slots`` slots without an image, in any fade at or above the median one) so
+   that the measurements that find a change keep coming.
 
 It also watches drift: every measured loss is compared with what the planner predicted for that
 slot; when the mean absolute error of the last ``drift_window`` samples exceeds ``drift_threshold`` a
-replan is due.
+replan is due. Why the node's settings: ``docs/scheduling.md`` ("The live loop").
 """
 
 from __future__ import annotations
@@ -100,7 +103,7 @@ class OnlinePlanner:
                  options: dict | None = None, drift_threshold: float = 0.02, drift_window: int = 5,
                  loss_margin: float = 0.0, oracle_channel: bool = False, in_slot_decision: bool = False,
                  rician_k: float = 1.0, calibrate: bool = False, explore_image_fraction: float = 0.0,
-                 calibration_window: int = 30, calibration_quantile: float = 0.75, loss_model: str = "map",
+                 calibration_window: int = 30, calibration_quantile: float = 0.75, loss_model: str = "burst",
                  image_slot_loss: float = 0.0, burst_time_constant_slots: float = 25.0,
                  margin_quantile: float = 0.75, refine_slots: int = 300, probe_gap_slots: int = 0,
                  round_slots: int = 0, round_start_m: float = 0.05) -> None:

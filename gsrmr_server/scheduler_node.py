@@ -18,6 +18,7 @@ import json
 import math
 from pathlib import Path
 import threading
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
@@ -37,7 +38,7 @@ from gsrmr_common.ros_wire import (
     pose_key_from_msg,
     schedule_to_msg,
 )
-from gsrmr_common.wire import CHANNEL_TOPIC, ScheduleMsg, slot_ns
+from gsrmr_common.wire import CHANNEL_TOPIC, ScheduleMsg, slot_ns, slot_start_ns
 from gsrmr_server.horizon import LOSS_MODELS, OnlinePlanner, PlanResult, RoutePredictor
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.scheduling import METHODS
@@ -162,6 +163,8 @@ class SchedulerNode(Node):
         self.last: PlanResult | None = None
         self.replans: dict[str, int] = {}
         self.solve_times_s: list[float] = []
+        self.plan_times_s: list[float] = []  # wall time of the whole plan (predictor, solver, thresholds)
+        self.plan_slack_s: list[float] = []  # first covered slot's start − schedule ready
         self._pub = self.create_publisher(Float64MultiArray, "gsrmr/schedule", SCHEDULE_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(Vector3Stamped, "uplink/pose_key", self._on_key, UPLINK_QOS)
@@ -264,12 +267,23 @@ class SchedulerNode(Node):
 
     # ---------------------------------------------------------------- planning
     def replan(self, reason: str) -> tuple[PlanResult, int]:
-        """Plan from the next slot and publish; returns the result and how many slots changed x."""
+        """Plan from the first slot that starts after the plan is expected to be done (the p90 of the
+        last 20 plan times from now: the next slot for a 1-ms plan, later for a slow solver) and publish;
+        returns the result and how many slots changed x."""
         with self._lock:
             self._replan_reason = None
-            now_slot = self.get_clock().now().nanoseconds // self._slot_len_ns
+            recent = sorted(self.plan_times_s[-20:])
+            expected_ns = int(1e9 * recent[int(0.9 * (len(recent) - 1))]) if recent else 0
+            now_slot = (self.get_clock().now().nanoseconds + expected_ns) // self._slot_len_ns
             previous = self.planner.active
+            t0 = time.perf_counter()
             result = self.planner.plan(now_slot, self._pose)
+            self.plan_times_s.append(time.perf_counter() - t0)
+            del self.plan_times_s[:-100]
+            # > 0: the schedule was ready before the first slot it covers started
+            self.plan_slack_s.append(round((slot_start_ns(now_slot + 1, self._slot_len_ns)
+                                            - self.get_clock().now().nanoseconds) / 1e9, 4))
+            del self.plan_slack_s[:-10_000]
             changed = 0
             if previous is not None:
                 for i, x in enumerate(result.schedule.x):
@@ -314,7 +328,8 @@ class SchedulerNode(Node):
         tmp.replace(state / "schedule.json")
         self.planner.loss_map.save(state / "loss_map.json")
         stats = state / "plan_stats.json.tmp"  # every replan's solve time (bench/demo.py reads it)
-        stats.write_text(json.dumps({"method": self.planner.method, "solve_time_s": self.solve_times_s}))
+        stats.write_text(json.dumps({"method": self.planner.method, "solve_time_s": self.solve_times_s,
+                                     "slack_s": self.plan_slack_s}))
         stats.replace(state / "plan_stats.json")
 
     def _restore(self) -> None:

@@ -91,6 +91,30 @@ class ReplayResult:
                 "plan_time_s": self.plan_time_s}
 
 
+class TruthLossPredictor:
+    """Hindsight bound for studies only: the recorded truth L of every slot in place of the predictor
+    (``planner.loss_predictor = TruthLossPredictor(slots)``, with ``loss_model="burst"``). What the
+    planner would do if it knew L_t exactly — never available live."""
+
+    margin = 1.0
+    level = 0.0
+    burst_factor = 1.0
+    samples = 1_000_000
+
+    def __init__(self, slots: list[RecordedSlot], default: float = 0.05) -> None:
+        self._truth = {s.slot: s.gs_truth_loss for s in slots}
+        self._default = default
+
+    def observe(self, *_args, **_kwargs) -> None:
+        """Measurements add nothing to the truth."""
+
+    def predict(self, slots: np.ndarray, _poses: np.ndarray) -> np.ndarray:
+        return np.array([self._truth.get(int(k), self._default) for k in slots], np.float64)
+
+    def estimate(self, slot: int, _pose: tuple[float, float, float]) -> float:
+        return self._truth.get(int(slot), self._default)
+
+
 def replay(slots: list[RecordedSlot], planner: OnlinePlanner, *, loss_threshold: float, replan_every: int = 20,
            measurement_delay: int = 1, on_plan: Callable[[int, object], None] | None = None) -> ReplayResult:
     """Play ``slots`` through ``planner`` (a fresh :class:`OnlinePlanner`); see the module docstring."""

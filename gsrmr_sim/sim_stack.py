@@ -110,7 +110,10 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
                     {"route_waypoints_m": [float(v) for xy in sc.route.waypoints for v in xy],
                      "route_speed_mps": float(sc.route.speed_mps), "loss_threshold": loss_threshold, "method": method,
                      "loss_map_file": loss_map_file, "state_dir": state_dir, "oracle_channel": oracle_channel,
-                     "round_slots": int(sc.slots), **seed}),
+                     "round_slots": int(sc.slots), **seed,
+                     # the oracle's loss map is a survey of the scored round itself: used as it is (the
+                     # paper's "L_t known"), not corrected from the few images its blind x sends
+                     **({"loss_model": "map", "calibrate_loss_map": False} if oracle_channel else {})}),
     ]
     for spec in specs:
         spec.params.update(over.get(spec.name, {}))

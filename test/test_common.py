@@ -1,6 +1,8 @@
-"""Pure tests of the shared conventions: camera axes, pixel centres, metrics, nerfstudio datasets."""
+"""Tests of the shared conventions: camera axes, pixel centres, metrics, nerfstudio datasets (pure), and the
+slot-aligned timer of the nodes (one rclpy node)."""
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -13,7 +15,7 @@ from gsrmr_common.camera import (
     opencv_w2c_to_opengl_c2w,
     opengl_c2w_to_opencv_w2c,
 )
-from gsrmr_common.metrics import image_quality, mr_loss, psnr, ssim
+from gsrmr_common.metrics import image_quality, mr_loss, pooled_psnr_db, psnr, ssim
 from gsrmr_common.nerfstudio import DatasetFrame, read_dataset, write_dataset
 
 K = Intrinsics.from_fov(320, 240, math.radians(90))
@@ -134,3 +136,46 @@ def test_nerfstudio_errors_name_the_problem(tmp_path):
                                               '"frames": [{"file_path": "x.png"}]}')
     with pytest.raises(ValueError, match="transform_matrix"):
         read_dataset(tmp_path)
+
+
+def test_pooled_psnr_is_the_psnr_of_the_mean_mse_not_the_mean_psnr():
+    rng = np.random.default_rng(3)
+    a = rng.uniform(0, 1, (4, 16, 16, 3))
+    b = np.clip(a + rng.normal(0, [0.01, 0.02, 0.05, 0.2], (16, 16, 3, 4)).transpose(3, 0, 1, 2), 0, 1)
+    per_slot = [psnr(a[i], b[i]) for i in range(4)]
+    pooled = pooled_psnr_db(per_slot)
+    assert pooled == pytest.approx(-10 * np.log10(np.mean((a - b) ** 2)), abs=1e-9)  # one image size: exact
+    assert pooled < np.mean(per_slot)  # the bad slot weighs more than in the mean of PSNRs
+    assert pooled_psnr_db([30.0, 30.0]) == pytest.approx(30.0)
+    assert np.isnan(pooled_psnr_db([])) and pooled_psnr_db([float("nan"), 20.0]) == pytest.approx(20.0)
+
+
+def test_aligned_timer_fires_at_its_phase_of_every_period():
+    """The robot runs each slot 1 ms after it starts, the simulated radio 39 ms before: one wake-up per slot
+    at a fixed phase, never before it."""
+    from conftest import ros_env
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    from gsrmr_common.ros_node import aligned_timer
+
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=int(ros_env()["ROS_DOMAIN_ID"]))
+    try:
+        node = rclpy.create_node("aligned_timer_test", context=ctx)
+        calls: list[int] = []
+        aligned_timer(node, 0.05, 0.012, lambda: calls.append(node.get_clock().now().nanoseconds))
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        end = time.monotonic() + 0.6
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.01)
+        phases_ms = [(t % 50_000_000) / 1e6 for t in calls]
+        assert 9 <= len(calls) <= 13, calls  # one per 50 ms
+        assert all(12.0 <= p < 12.0 + 25.0 for p in phases_ms), phases_ms  # at/after the phase, never before
+        assert np.median(phases_ms) < 12.0 + 5.0
+        executor.shutdown()
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)

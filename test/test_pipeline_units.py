@@ -172,7 +172,7 @@ def test_planner_meets_budget_carries_it_over_and_detects_drift():
     lm = LossMap(prior=0.02)
     planner = OnlinePlanner(RoutePredictor(scene.route.waypoints, scene.route.speed_mps), lm, LinkBudget(),
                             slot_s=0.1, image_bits=67200, pose_bits=192, loss_threshold=0.03, horizon=40,
-                            drift_threshold=0.05, drift_window=2)
+                            drift_threshold=0.05, drift_window=2, loss_model="map")
     first = planner.plan(1000, None)
     assert first.feasible and first.images == 0  # prior 0.02 < L_th: every slot can be a key
     assert first.mean_predicted_loss <= 0.03 + 1e-12
@@ -193,7 +193,7 @@ def test_planner_charges_key_slots_at_the_reported_pose_and_backs_off_by_the_mar
     lm.add(0.0, 0.0, 0.0, 0.09)  # one costly place the plan's predicted poses do not visit
     planner = OnlinePlanner(RoutePredictor(scene.route.waypoints, scene.route.speed_mps), lm, LinkBudget(),
                             slot_s=0.1, image_bits=67200, pose_bits=192, loss_threshold=0.03, horizon=40,
-                            loss_margin=0.2)
+                            loss_margin=0.2, loss_model="map")
     first = planner.plan(1000, None)
     assert first.budget == pytest.approx(0.024)  # L_th·(1 − margin)
     x = first.schedule.x

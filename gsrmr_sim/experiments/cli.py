@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from gsrmr_common.metrics import pooled_psnr_db
 from gsrmr_sim.experiments import paper, tradeoffs
 from gsrmr_sim.experiments.composite import Compositor
 from gsrmr_sim.experiments.data import DataSettings, SceneData, build_scene_data
@@ -68,6 +69,7 @@ def data_summary(d: SceneData, thresholds: Sequence[float]) -> dict[str, Any]:
             "gs_loss_mean": float(d.gs_loss.mean()), "gs_loss_median": float(np.median(d.gs_loss)),
             "gs_loss_p90": float(np.quantile(d.gs_loss, 0.9)), "gs_loss_max": float(d.gs_loss.max()),
             "gs_psnr_db_mean": float(d.gs_psnr_db.mean()), "gs_ssim_mean": float(d.gs_ssim.mean()),
+            "gs_psnr_db": pooled_psnr_db(d.gs_psnr_db), "gs_psnr_slot_mean_db": float(d.gs_psnr_db.mean()),
             "distance_m_mean": float(d.distance_m.mean()), "channel_gain_mean": float(d.channel_gain.mean()),
             "image_key_energy_ratio": float(np.median(p.energy_image_j[ok] / p.energy_key_j[ok])),
             "share_lt_below": {f"{t:g}": float(np.mean(d.gs_loss <= t)) for t in thresholds},
@@ -103,7 +105,7 @@ def node_suite_runs(pattern: str) -> dict[str, Any]:
     import json
 
     keys = ("slots", "images_sent", "energy_j", "energy_upload_all_j", "energy_ratio_vs_upload_all", "mean_loss",
-            "psnr_db", "ssim", "slots_on_time", "faults")
+            "psnr_db", "psnr_slot_mean_db", "ssim", "slots_on_time", "faults")
     runs = {}
     for folder in sorted(glob.glob(pattern)):
         path = Path(folder) / "summary.json"

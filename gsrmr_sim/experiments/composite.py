@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gsrmr_common.metrics import image_quality
+from gsrmr_common.metrics import image_quality, pooled_psnr_db
 from gsrmr_server.mr.blend import mr_image
 from gsrmr_server.scheduling.problem import IMAGE, KEY, NONE
 from gsrmr_server.splatting.model import GaussianModel
@@ -49,8 +49,8 @@ class CompositeResult:
 
     @property
     def pooled_psnr_db(self) -> float:
-        """PSNR of the mean MSE over slots, −10·log10(mean_t 10^(−PSNR_t/10)) (dB)."""
-        return float(-10.0 * np.log10(np.mean(10.0 ** (-self.psnr_db / 10.0))))
+        """PSNR of the mean MSE over slots (:func:`gsrmr_common.metrics.pooled_psnr_db`), dB."""
+        return pooled_psnr_db(self.psnr_db)
 
     @property
     def mean_ssim(self) -> float:

@@ -17,7 +17,7 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from std_msgs.msg import Float64MultiArray
 
-from gsrmr_common.ros_node import declare, declare_link_budget, run_node
+from gsrmr_common.ros_node import aligned_timer, declare, declare_link_budget, run_node
 from gsrmr_common.ros_wire import channel_sample_to_msg
 from gsrmr_common.wire import CHANNEL_TOPIC, slot_ns
 from gsrmr_sim.world.true_channel import TrueChannel
@@ -41,7 +41,8 @@ class ChannelNode(Node):
         self.published = 0
         self.pub = self.create_publisher(Float64MultiArray, CHANNEL_TOPIC, 10)
         self.create_subscription(Odometry, odom_topic, self._on_odom, qos_profile_sensor_data)
-        self.create_timer(0.005, self._tick)
+        # wake once per slot, 1 ms after slot t's lead point (polling at 200 Hz cost 11 % of a core)
+        aligned_timer(self, self.slot_len_ns / 1e9, (1_000_000 - self.lead_ns) / 1e9, self._tick)
         self.get_logger().info(f"simulated radio: channel seed {self.link.channel_seed}, server at "
                                f"{self.link.server_position_m}, gains on {CHANNEL_TOPIC} {self.lead_ns / 1e6:.0f} ms "
                                "ahead of each slot")
