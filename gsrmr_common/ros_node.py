@@ -156,8 +156,7 @@ def aligned_timer(node: Node, period_s: float, phase_s: float, callback: Callabl
     state: dict[str, Any] = {}
 
     def start() -> None:
-        state["once"].cancel()
-        node.destroy_timer(state["once"])
+        state["once"].cancel()  # (not destroyed inside its own callback)
         state["periodic"] = node.create_timer(period_s, callback)
         callback()
 

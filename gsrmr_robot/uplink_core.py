@@ -100,19 +100,20 @@ class UplinkCore:
             x, power_w = int(self.default_upload_image), float("nan")
         else:
             x, power_w = inputs.entry
-        g = inputs.measured_gain
-        if inputs.entry is not None and inputs.gain_threshold is not None and g is not None and math.isfinite(g):
-            x = int(g >= inputs.gain_threshold)  # decided in the slot, at the gain just measured
-        frame = inputs.frame
-        # Encoded in key slots too: the ledger books what an image would have cost (upload-all baseline).
-        jpeg = encode_jpeg(frame, self.jpeg_quality) if frame is not None else None
-        upload = jpeg if x == 1 else None
         pose = inputs.pose
-        key = PoseKey(inputs.slot, *pose) if pose is not None else None
         # the radio's measurement of this slot; without one, the expected gain at the odometry position
         gain = inputs.measured_gain
         if gain is None or not (math.isfinite(gain) and gain > 0):
             gain = self.link.mean_gain(pose[:2] if pose is not None else None)
+        if inputs.entry is not None and inputs.gain_threshold is not None:
+            # decided in the slot at the gain just measured (the expected one when the radio said nothing:
+            # the rule, with its probing, keeps working; the plan's own x assumed the rule would run)
+            x = int(gain >= inputs.gain_threshold)
+        frame = inputs.frame
+        # Encoded in key slots too: the ledger books what an image would have cost (upload-all baseline).
+        jpeg = encode_jpeg(frame, self.jpeg_quality) if frame is not None else None
+        upload = jpeg if x == 1 else None
+        key = PoseKey(inputs.slot, *pose) if pose is not None else None
         stamp_s = inputs.frame_stamp_ns / 1e9 if inputs.frame_stamp_ns is not None and frame is not None \
             else float("nan")
         row = self.ledger.record(inputs.slot, x, power_w, len(upload) if upload is not None else None, gain,

@@ -65,6 +65,12 @@ def test_robot_books_the_measured_gain_or_the_expected_one():
     # a deep fade costs more energy for the same bits
     fade = core.run_slot(SlotInputs(12, frame, 1_200_000_000, pose, (1, 0.0), 3.2e-9))
     assert fade.row.energy_j > 10 * measured.row.energy_j
+    # the in-slot rule decides at the measured gain, and at the expected one when the radio said nothing
+    mean = link.mean_gain(pose[:2])
+    assert core.run_slot(SlotInputs(13, frame, 1_300_000_000, pose, (0, 0.0), None, 0.5 * mean)).x == 1
+    assert core.run_slot(SlotInputs(14, frame, 1_400_000_000, pose, (1, 0.0), None, 2.0 * mean)).x == 0
+    assert core.run_slot(SlotInputs(15, frame, 1_500_000_000, pose, (0, 0.0), 4.0 * mean, 2.0 * mean)).x == 1
+    assert core.run_slot(SlotInputs(16, frame, 1_600_000_000, pose, (1, 0.0), None, None)).x == 1  # no rule: plan
 
 
 def test_planner_uses_statistics_unless_it_is_the_oracle():
