@@ -146,18 +146,14 @@ def aligned_timer(node: Node, period_s: float, phase_s: float, callback: Callabl
     """Call ``callback`` every ``period_s`` at ROS times ≡ ``phase_s`` (mod ``period_s``), e.g. 1 ms after
     every slot start — instead of polling a clock at 200 Hz (each rclpy wake-up costs ~0.5 ms of CPU).
 
-    A one-shot timer waits for the first such instant, then starts the periodic timer from there: rcl
-    timers fire at ``start + k·period`` and never early, so every call is at or just after its instant
-    (late only by the executor's wake-up). The callback should still work out *which* slot is due from the
-    clock, as a late call must do the right thing anyway."""
-    period_ns, phase_ns = int(round(period_s * 1e9)), int(round(phase_s * 1e9)) % int(round(period_s * 1e9))
-    now_ns = node.get_clock().now().nanoseconds
-    wait_ns = (phase_ns - now_ns) % period_ns or period_ns
-    state: dict[str, Any] = {}
+    Blocks the caller (a node's constructor) until the next such instant (< ``period_s``), then starts
+    one periodic timer: rcl timers fire at ``start + k·period`` and never early, so every call is at or
+    just after its instant (late by the executor's wake-up). The callback should still work out *which*
+    slot is due from the clock, as a late call must do the right thing anyway."""
+    import time
 
-    def start() -> None:
-        state["once"].cancel()  # (not destroyed inside its own callback)
-        state["periodic"] = node.create_timer(period_s, callback)
-        callback()
-
-    state["once"] = node.create_timer(wait_ns / 1e9, start)
+    period_ns = int(round(period_s * 1e9))
+    phase_ns = int(round(phase_s * 1e9)) % period_ns
+    wait_ns = (phase_ns - node.get_clock().now().nanoseconds) % period_ns
+    time.sleep(wait_ns / 1e9)
+    node.create_timer(period_s, callback)
