@@ -116,7 +116,7 @@ class SchedulerNode(Node):
         image_slot_loss = declare(self, "image_slot_loss", -1.0, "MR loss an image slot leaves (its JPEG); −1 = "
                                   "the seed loss map's image_loss (measured on the mapping round), 0 without one",
                                   min_value=-1.0, max_value=1.0, read_only=True)
-        margin_quantile = declare(self, "margin_quantile", 0.4, "Learned margin: predictions × this quantile of "
+        margin_quantile = declare(self, "margin_quantile", 0.6, "Learned margin: predictions × this quantile of "
                                   "measured / predicted L over the last 30 image slots (0 = off)",
                                   min_value=0.0, max_value=1.0, read_only=True)
         burst_tau = declare(self, "burst_time_constant_slots", 25.0, "How fast a measured burst of L fades into "
