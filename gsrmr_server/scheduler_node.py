@@ -22,6 +22,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
+import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
@@ -136,6 +137,13 @@ class SchedulerNode(Node):
         from gsrmr_server.scheduling import exact
 
         self.get_logger().info(f"knapsack kernel ready in {exact.warm_up():.2f} s")
+        if self.method != "exact":  # the method's own first call too (APO imports CVXPY: ~1 s)
+            from gsrmr_server.scheduling import Problem, solve
+
+            t0 = time.perf_counter()
+            solve(Problem(channel_gain=np.array([1e-6, 2e-6, 3e-6, 4e-6]), gs_loss=np.array([0.04, 0.01, 0.03, 0.02]),
+                          loss_threshold=0.012), self.method, **json.loads(self.solver_options))
+            self.get_logger().info(f"method {self.method} ready in {time.perf_counter() - t0:.2f} s")
         loss_map = LossMap(prior=prior)
         for candidate in (Path(self.state_dir, "loss_map.json") if self.state_dir else None,
                           Path(loss_map_file) if loss_map_file else None):
