@@ -23,6 +23,8 @@ import numpy as np
 from gsrmr_common import link_model as link
 from gsrmr_common.channel import ChannelModel
 
+DEEP_FADE_FRACTION = 0.02  # slots in the worst 2 % of fades never send an image
+
 
 def rician_power_samples(k_factor: float, n: int = 4096, seed: int = 0) -> np.ndarray:
     """Sorted draws of the Rician small-scale power |h|² (factor ``k_factor``), normalised to mean 1 — the
@@ -43,20 +45,29 @@ def gain_thresholds(mean_gain: np.ndarray, loss: np.ndarray, loss_cap: float, co
                     samples: np.ndarray, min_image_prob: float | np.ndarray = 0.0) -> tuple[np.ndarray, float, float]:
     """(g*_t per slot, λ, expected loss of the rule) for a horizon with loss budget ``loss_cap`` (Σ, not
     mean). ``samples``: :func:`rician_power_samples`. All keys when the whole predicted loss fits
-    (λ = 0, g* = +inf); all images when nothing fits (λ = +inf, g* = 0).
+    (λ = 0, g* = +inf); images in all but the deepest fades when nothing fits (λ = +inf).
+
+    Slots whose fade is among the deepest ``DEEP_FADE_FRACTION`` never send an image (the threshold is at
+    least that quantile of m_t·|h|²), even when nothing fits (λ = +inf).
 
     ``min_image_prob`` (exploration): every slot with L_t > 0 sends an image at least when its fade is in
     the best ``min_image_prob`` fraction (g*_t capped at that quantile of m_t·|h|²) — cheap images that
     keep measuring L_t where the predictions may be wrong (a scalar, or one fraction per slot). The
     expected loss returned includes it."""
-    thresholds, lam, expected_loss = _price(mean_gain, loss, loss_cap, coeff_j, samples)
-    prob = np.broadcast_to(np.clip(np.asarray(min_image_prob, np.float64), 0.0, 1.0), thresholds.shape)
-    if not np.any(prob > 0):
-        return thresholds, lam, expected_loss
+    thresholds, lam, _ = _price(mean_gain, loss, loss_cap, coeff_j, samples)
     m = np.asarray(mean_gain, np.float64)
     L = np.maximum(np.asarray(loss, np.float64), 0.0)
+    # never an image in the deepest fades (bottom DEEP_FADE_FRACTION): with K = 1 one such image can cost
+    # more than the rest of a run together (seen live: λ = ∞ after an overspend, an image at 0.2 % of the
+    # mean gain, 90 % of the run's energy); the key it sends instead costs L_t once
+    floor = float(np.quantile(samples, DEEP_FADE_FRACTION)) * m
+    thresholds = np.where(L > 0, np.maximum(thresholds, floor), thresholds)
+    prob = np.broadcast_to(np.clip(np.asarray(min_image_prob, np.float64), 0.0, 1.0), thresholds.shape)
+    if not np.any(prob > 0):
+        p_key = np.searchsorted(samples, np.where(np.isinf(thresholds), np.inf, thresholds / m)) / samples.size
+        return thresholds, lam, float(np.sum(L * p_key))
     q = np.where(prob > 0, np.quantile(samples, 1.0 - prob), np.inf)
-    capped = np.where(L > 0, np.minimum(thresholds, q * m), thresholds)
+    capped = np.where(L > 0, np.maximum(np.minimum(thresholds, q * m), floor), thresholds)
     p_key = np.searchsorted(samples, np.where(np.isinf(capped), np.inf, capped / m)) / samples.size
     return capped, lam, float(np.sum(L * p_key))
 
