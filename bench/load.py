@@ -1,27 +1,42 @@
-"""Load benchmark: N namespaced robots uploading at 1/τ to ONE server process for D seconds.
+"""Load benchmark: N robots uploading at 1/τ to ONE server process for D seconds.
 
-Layout (two processes, one isolated ROS domain, localhost discovery):
+Two modes (``--core``, the default, and ``--dds``):
 
-* server process (this one): N :class:`~gsrmr_server.server_node.ServerNode` instances, one per
-  namespace ``/r0 … /r{N-1}``, spun by one ``MultiThreadedExecutor`` (``--threads``);
-* robot process (``--role robots``, started by this script): N :class:`~gsrmr_robot.robot_node.RobotNode`
-  instances in the same namespaces plus, per robot, a feeder publishing a synthetic camera frame
+* **core** (default): this process holds N :class:`~gsrmr_robot.uplink_core.UplinkCore` instances (a synthetic
+  W×H camera frame and a slow odometry circle each; no schedule, so every robot uploads its JPEG and pose
+  key every slot, the heaviest uplink) and N :class:`~gsrmr_server.slot_core.ServerCore` instances (each with its
+  own :class:`~gsrmr_server.uplink.UplinkAssembler` and model copy, built as the server node builds them:
+  ``bench/core_path.py``). Every slot start (+1 ms, the robot's phase) the robots decide; a pool of
+  ``--threads`` workers composes each robot's slot (one robot's slots in order, never two at once — like a
+  node's single callback group). Per slot: compose time (take → m̂ → its JPEG, ms) and latency (m̂ and its
+  JPEG ready − slot start, ms); ``missed`` = slots not ready within τ (composed late, or still queued at the
+  end). This is the workstation's composition capacity without DDS, transport, or a second process: the
+  default because it is what the issue asks the cores for, it is repeatable on a shared machine and it needs
+  no ROS. Nothing is recorded, as in ``--dds`` (the nodes have no ``record_dir`` there).
+* **dds** (``--dds``): the deployed layout, two processes in one isolated ROS domain (localhost discovery).
+  The server process (this one) spins N :class:`~gsrmr_server.server_node.ServerNode` instances, one per
+  namespace ``/r0 … /r{N-1}``, with one ``MultiThreadedExecutor`` (``--threads``); the robot process
+  (``--role robots``, started by this script) runs N :class:`~gsrmr_robot.robot_node.RobotNode` instances
+  in the same namespaces plus, per robot, a feeder publishing a synthetic camera frame
   (``camera/image_raw``, rgb8 W×H) and odometry (``odom``, a slow circle) at 1/τ. No schedule is
-  published, so every robot uploads its JPEG and pose key every slot (the heaviest uplink).
+  published, so every robot uploads its JPEG and pose key every slot. Per slot and robot the server's own
+  latency (MR image published − slot start, ms) is collected; drops are the slots whose key did not
+  arrive in time (``missing_key``), slots composed without the uploaded image (``no_image``: every robot
+  uploads one per slot), uploads that arrived after their slot (``late``) and slots the server skipped.
 
-Per slot and robot the server's own latency (MR image published − slot start, ms) is collected; drops
-are the slots whose key did not arrive in time (``missing_key``), slots composed without the uploaded
-image (``no_image``: every robot uploads one per slot), uploads that arrived after their slot (``late``)
-and slots the server skipped. Prints one table row per run and the median over
-``--repeats`` runs.
+Prints one table row per run, then the median and the worst (per column) over ``--repeats`` runs; the
+header gives the configuration and the machine's load average when the benchmark started.
 
-    .venv/bin/python bench/load.py                      # 10 robots, 10 Hz, 60 s, 160×120
+    .venv/bin/python bench/load.py                            # core: 10 robots, 10 Hz, 60 s, 160×120
     .venv/bin/python bench/load.py --robots 4 --duration-s 20
+    .venv/bin/python bench/load.py --dds                      # DDS: 10 RobotNodes → 10 ServerNodes
+    .venv/bin/python bench/load.py --dds --robots 4 --duration-s 20
 """
 
 from __future__ import annotations
 
 import argparse
+from collections import deque
 import json
 import math
 import os
@@ -173,14 +188,98 @@ def run_servers(args: argparse.Namespace, model_path: Path) -> dict:
     return result
 
 
+def run_cores(args: argparse.Namespace, model_path: Path) -> dict:
+    """One core-mode run: N robot cores and N server cores in this process, paced at 1/τ, no ROS."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from core_path import RobotSide, ServerSide, deliver, intrinsics, synthetic_frames
+    import psutil
+
+    from gsrmr_common.wire import slot_ns
+
+    camera = intrinsics(args.width, args.height)
+    slot_len_ns = slot_ns(args.slot_s)
+    servers = [ServerSide(model_path, camera, slot_s=args.slot_s, measure_loss=True) for _ in range(args.robots)]
+    robots = [RobotSide(args.slot_s) for _ in range(args.robots)]
+    frames = [synthetic_frames(args.width, args.height, 1, seed=i, noise=40)[0] for i in range(args.robots)]
+    lock, stop = threading.Lock(), threading.Event()
+    pending: list[deque] = [deque() for _ in range(args.robots)]  # (slot, uploads, ledger row, arrival ns)
+    busy = [False] * args.robots
+    done: list[tuple[int, float, float, str]] = []  # (slot, compose ms, latency ms, source)
+
+    def drain(r: int) -> None:
+        """Robot r's queued slots in order (uploads go into its assembler here: one thread per robot at a time)."""
+        server = servers[r]
+        while not stop.is_set():
+            with lock:
+                if not pending[r]:
+                    busy[r] = False
+                    return
+                k, uploads, ledger, arrival_ns = pending[r].popleft()
+            deliver(server.uplink, uploads, arrival_ns, slot_len_ns)
+            out, ms = server.process(k, ledger, t0_slot=k_first)
+            source = str(out.composed.source)
+            done.append((k, ms, (time.time_ns() - k * slot_len_ns) / 1e6, source))
+        with lock:
+            busy[r] = False
+
+    n_warm, n_run = round(args.warmup_s / args.slot_s), round(args.duration_s / args.slot_s)
+    k_first = time.time_ns() // slot_len_ns + 2
+    k_meas, k_end = k_first + n_warm, k_first + n_warm + n_run
+    proc = psutil.Process()
+    pool = ThreadPoolExecutor(max_workers=args.threads, thread_name_prefix="compose")
+    try:
+        for k in range(k_first, k_end + 1):
+            wait_ns = k * slot_len_ns + 1_000_000 - time.time_ns()  # the robots run 1 ms into the slot
+            if wait_ns > 0:
+                time.sleep(wait_ns / 1e9)
+            if k == k_meas:
+                cpu0, t0 = proc.cpu_times(), time.monotonic()
+            if k == k_end:  # the last measured slot's deadline
+                break
+            t = (k - k_first) * args.slot_s
+            pose = (math.cos(0.2 * t), math.sin(0.2 * t), 0.2 * t + math.pi / 2)
+            for r, robot in enumerate(robots):
+                decision = robot.run_slot(k, frames[r], k * slot_len_ns, pose)
+                item = (k, robot.uploads(decision), decision.row if decision.publish_row else None, time.time_ns())
+                with lock:
+                    pending[r].append(item)
+                    start, busy[r] = not busy[r], True
+                if start:
+                    pool.submit(drain, r)
+        wall = time.monotonic() - t0
+        cpu1 = proc.cpu_times()
+    finally:
+        stop.set()
+        pool.shutdown(wait=True, cancel_futures=True)
+    measured = [d for d in done if k_meas <= d[0] < k_end]
+    expected = args.robots * n_run
+    compose = np.asarray([d[1] for d in measured]) if measured else np.full(1, np.nan)
+    lat = np.asarray([d[2] for d in measured]) if measured else np.full(1, np.nan)
+    on_time = int(np.sum(lat <= 1e3 * args.slot_s))
+    sources = {k: sum(1 for d in measured if d[3] == k) for k in ("image", "render", "fallback", "none")}
+    return {"robots": args.robots, "wall_s": round(wall, 1), "slots": len(measured), "slots_expected": expected,
+            "on_time": on_time, "missed": expected - on_time,
+            "compose_p50_ms": float(np.percentile(compose, 50)), "compose_p95_ms": float(np.percentile(compose, 95)),
+            "compose_p99_ms": float(np.percentile(compose, 99)),
+            "p50_ms": float(np.percentile(lat, 50)), "p95_ms": float(np.percentile(lat, 95)),
+            "p99_ms": float(np.percentile(lat, 99)), "max_ms": float(lat.max()), "sources": sources,
+            "server_cpu_s_per_s": round((cpu1.user + cpu1.system - cpu0.user - cpu0.system) / wall, 2)}
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--role", choices=("bench", "robots"), default="bench")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--core", dest="dds", action="store_false", help="slot cores in this process (default)")
+    mode.add_argument("--dds", action="store_true", help="RobotNodes in another process → ServerNodes over DDS")
+    p.set_defaults(dds=False)
     p.add_argument("--robots", type=int, default=10)
     p.add_argument("--duration-s", type=float, default=60.0)
-    p.add_argument("--warmup-s", type=float, default=8.0)
-    p.add_argument("--repeats", type=int, default=3, help="runs; the table ends with their median")
-    p.add_argument("--threads", type=int, default=4, help="server MultiThreadedExecutor threads")
+    p.add_argument("--warmup-s", type=float, default=None, help="before measuring (default 8 s --dds, 2 s core)")
+    p.add_argument("--repeats", type=int, default=3, help="runs; the table ends with their median and worst")
+    p.add_argument("--threads", type=int, default=4, help="server threads (MultiThreadedExecutor with --dds, "
+                   "compose workers in core mode)")
     p.add_argument("--width", type=int, default=160)
     p.add_argument("--height", type=int, default=120)
     p.add_argument("--slot-s", type=float, default=0.1, help="τ (must match the nodes' slot_s default)")
@@ -188,32 +287,50 @@ def main() -> int:
     args = p.parse_args()
     if args.role == "robots":
         return run_robots(args.robots, args.width, args.height, args.slot_s)
-    os.environ["ROS_DOMAIN_ID"] = str(random.Random(os.getpid()).randrange(1, 101))
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    if args.warmup_s is None:
+        args.warmup_s = 8.0 if args.dds else 2.0
+    load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
     sys.path.insert(0, str(REPO / "test"))
+    sys.path.insert(0, str(REPO / "bench"))
     from stack_harness import make_point_model
 
     model = make_point_model(Path(tempfile.mkdtemp(prefix="gsrmr-load-")), n=args.gaussians)
-    print(f"# load: {args.robots} robots × {1 / args.slot_s:g} Hz (image + key every slot) → 1 server process "
-          f"({args.robots} ServerNodes, {args.threads} threads), {args.width}×{args.height}, "
-          f"{args.gaussians} Gaussians, {args.duration_s:g} s after {args.warmup_s:g} s warm-up, "
-          f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}, {os.cpu_count()} CPUs")
-    cols = ("robots", "slots", "slots_expected", "on_time", "p50_ms", "p95_ms", "p99_ms", "max_ms", "missing_key",
-            "no_image", "late", "skipped", "server_cpu_s_per_s")
+    if args.dds:
+        os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid()).randrange(1, 101)))
+        os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+        print(f"# load (--dds): {args.robots} robots × {1 / args.slot_s:g} Hz (image + key every slot) → 1 server "
+              f"process ({args.robots} ServerNodes, {args.threads} threads), {args.width}×{args.height}, "
+              f"{args.gaussians} Gaussians, {args.duration_s:g} s after {args.warmup_s:g} s warm-up, "
+              f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}, {os.cpu_count()} CPUs, load average {load} "
+              f"(1/5/15 min) at start")
+        run = run_servers
+        cols = ("robots", "slots", "slots_expected", "on_time", "p50_ms", "p95_ms", "p99_ms", "max_ms",
+                "missing_key", "no_image", "late", "skipped", "server_cpu_s_per_s")
+    else:
+        print(f"# load (core): {args.robots} robots × {1 / args.slot_s:g} Hz (image + key every slot; UplinkCore → "
+              f"UplinkAssembler → ServerCore in 1 process, no ROS), {args.threads} compose threads, "
+              f"{args.width}×{args.height}, {args.gaussians} Gaussians, {args.duration_s:g} s after "
+              f"{args.warmup_s:g} s warm-up, {os.cpu_count()} CPUs, load average {load} (1/5/15 min) at start")
+        run = run_cores
+        cols = ("robots", "slots", "slots_expected", "on_time", "missed", "compose_p50_ms", "compose_p95_ms",
+                "compose_p99_ms", "p50_ms", "p95_ms", "p99_ms", "max_ms", "server_cpu_s_per_s")
     print("| run | " + " | ".join(cols) + " |")
     print("|" + "---|" * (len(cols) + 1))
     results = []
     for r in range(args.repeats):
-        res = run_servers(args, model)
+        res = run(args, model)
         results.append(res)
         print(f"| {r + 1} | " + " | ".join(f"{res[c]:.1f}" if isinstance(res[c], float) else str(res[c])
                                           for c in cols) + " |", flush=True)
         print("#   sources: " + json.dumps(res["sources"]), flush=True)
     if args.repeats > 1:
+        higher_is_better = ("slots", "on_time")
         med = {c: float(np.median([r[c] for r in results])) for c in cols}
+        worst = {c: (min if c in higher_is_better else max)(r[c] for r in results) for c in cols}
         print("| median | " + " | ".join(f"{med[c]:.1f}" for c in cols) + " |")
+        print("| worst | " + " | ".join(f"{worst[c]:.1f}" if isinstance(worst[c], float) else str(worst[c])
+                                        for c in cols) + " |")
     return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())

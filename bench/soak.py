@@ -1,16 +1,25 @@
-"""Soak benchmark: 10,000 slots through one ServerNode, faster than real time; resident-memory growth.
+"""Soak benchmark: 10,000 slots through the slot cores (or one ServerNode), faster than real time; RSS growth.
 
-A :class:`~gsrmr_server.server_node.ServerNode` (rclpy, in this process, recording CSV + MCAP to a temp
-dir) is driven slot by slot without waiting for the slot clock: for slot k the robot's pose key (a slow
-circle in ``map``) and, in every ``--image-every``-th slot, a 160×120 JPEG go through the uplink fault
-injector of :mod:`gsrmr_sim.fault_relay` (default rates: 10 % drops, 3 % each other fault) into the
-node's :class:`~gsrmr_server.uplink.UplinkAssembler`, then :meth:`ServerNode.process_slot` composes,
-publishes and records the slot. Resident set size (psutil, MiB) is sampled every ``--sample-every``
-slots; growth is measured from the sample after ``--warmup`` slots to the end (the acceptance bound
-is 5 %).
+Every slot k (without waiting for the slot clock) the robot's uplink core
+(:meth:`UplinkCore.run_slot <gsrmr_robot.uplink_core.UplinkCore.run_slot>`) takes a synthetic 160×120 camera
+frame and the odometry pose (a slow circle in ``map``) and decides the slot: an image slot every
+``--image-every``-th slot (the schedule entry it is given), a pose key every slot, its energy-ledger row.
+The uploads go through the uplink fault injector of :mod:`gsrmr_sim.fault_relay` (default rates: 10 % drops,
+3 % each other fault) into an :class:`~gsrmr_server.uplink.UplinkAssembler`; the ledger row reaches the
+server untouched (as on ``gsrmr/ledger``). Then, by default (pure path, no rclpy context, node or DDS;
+wiring in ``bench/core_path.py``): :meth:`ServerCore.process <gsrmr_server.slot_core.ServerCore.process>`
+composes the slot, its JPEG is encoded, :meth:`ServerCore.score` measures it against the true frame (off
+with ``--no-score``) and a :class:`~gsrmr_server.recording.RunRecorder` writes CSV + MCAP to a temp dir.
+With ``--node``: the same uploads go into a whole rclpy :class:`~gsrmr_server.server_node.ServerNode` in
+this process (ledger row and true frame through its callbacks, ``evaluate_ground_truth`` unless
+``--no-score``) and :meth:`ServerNode.process_slot` composes, publishes and records — to soak the ROS layer.
 
-    .venv/bin/python bench/soak.py                  # 10,000 slots
+Resident set size (psutil, MiB) is sampled every ``--sample-every`` slots; growth is measured from the
+sample after ``--warmup`` slots to the end (the acceptance bound is 5 %; exit status 1 above it).
+
+    .venv/bin/python bench/soak.py                  # 10,000 slots, slot cores (no ROS)
     .venv/bin/python bench/soak.py --slots 2000
+    .venv/bin/python bench/soak.py --node           # 10,000 slots through one ServerNode
 """
 
 from __future__ import annotations
@@ -25,102 +34,125 @@ import sys
 import tempfile
 import time
 
-import numpy as np
-
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "test"))
+sys.path.insert(0, str(REPO / "bench"))
 
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--node", action="store_true", help="drive a whole rclpy ServerNode instead of the slot cores")
     p.add_argument("--slots", type=int, default=10_000)
     p.add_argument("--warmup", type=int, default=1000, help="slots before the baseline RSS sample")
     p.add_argument("--sample-every", type=int, default=1000)
-    p.add_argument("--image-every", type=int, default=2, help="upload the JPEG every n-th slot")
+    p.add_argument("--image-every", type=int, default=2, help="schedule an image every n-th slot")
+    p.add_argument("--no-score", action="store_true", help="do not measure m̂ against the true frame")
     p.add_argument("--width", type=int, default=160)
     p.add_argument("--height", type=int, default=120)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--gaussians", type=int, default=300, help="size of the (untrained) GS model; the soak "
                    "measures memory, so a small model keeps 10,000 slots short")
     args = p.parse_args()
-    os.environ["ROS_DOMAIN_ID"] = str(random.Random(os.getpid()).randrange(1, 101))
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    if args.node:
+        os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid()).randrange(1, 101)))
+        os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
+    from core_path import CAMERA_FRAME, RobotSide, ServerSide, deliver, intrinsics, synthetic_frames
     import psutil
-    import rclpy
-    from rclpy.parameter import Parameter
     from stack_harness import make_point_model
 
-    from gsrmr_common.camera import Intrinsics
-    from gsrmr_common.jpeg import encode_jpeg
-    from gsrmr_common.ros_wire import camera_info_from_intrinsics
-    from gsrmr_common.wire import PoseKey
-    from gsrmr_server.server_node import ServerNode
-    from gsrmr_sim.fault_relay import FaultInjector, FaultRates, Upload
+    from gsrmr_common.link_model import SLOT_S
+    from gsrmr_common.wire import slot_ns
+    from gsrmr_sim.fault_relay import FaultInjector, FaultRates
 
     tmp = Path(tempfile.mkdtemp(prefix="gsrmr-soak-"))
     model = make_point_model(tmp, n=args.gaussians)
-    rclpy.init()
-    node = ServerNode(parameter_overrides=[Parameter("model_path", value=str(model)),
-                                           Parameter("record_dir", value=str(tmp / "rec"))])
-    node.use_camera_info(camera_info_from_intrinsics(Intrinsics.from_fov(args.width, args.height, math.radians(70)),
-                                                     0, "camera_optical_frame"))  # what the robot relays
-    rng = np.random.default_rng(args.seed)
-    yy, xx = np.mgrid[0:args.height, 0:args.width]
-    frame = np.stack([xx * 255 // args.width, yy * 255 // args.height, (xx + yy) % 256], axis=2)
-    jpegs = [encode_jpeg(np.clip(frame + rng.integers(0, 30, frame.shape), 0, 255).astype(np.uint8), 80)
-             for _ in range(8)]
-    slot_ns = node._slot_len_ns
-    injector = FaultInjector(FaultRates(), seed=args.seed, slot_s=slot_ns / 1e9)
-    k0 = time.time_ns() // slot_ns
-    node._t0_slot = k0
+    camera = intrinsics(args.width, args.height)
+    score = not args.no_score
+    slot_len_ns = slot_ns(SLOT_S)
+    k0 = time.time_ns() // slot_len_ns
+    if args.node:
+        import rclpy
+        from rclpy.parameter import Parameter
+
+        from gsrmr_common.ros_wire import camera_info_from_intrinsics, image_to_msg, ledger_to_msg
+        from gsrmr_server.server_node import ServerNode
+
+        rclpy.init()
+        node = ServerNode(parameter_overrides=[Parameter("model_path", value=str(model)),
+                                               Parameter("record_dir", value=str(tmp / "rec")),
+                                               Parameter("evaluate_ground_truth", value=score)])
+        node.use_camera_info(camera_info_from_intrinsics(camera, 0, CAMERA_FRAME))  # what the robot relays
+        assert node._slot_len_ns == slot_len_ns, "the node's slot_s differs from SLOT_S"
+        node._t0_slot = k0
+        uplink = node.uplink
+
+        def server_slot(k: int, ledger, frame) -> None:
+            if ledger is not None:
+                node._on_ledger(ledger_to_msg(ledger))  # what gsrmr/ledger delivers
+            if score:
+                node._on_camera(image_to_msg(frame, k * slot_len_ns, CAMERA_FRAME))  # camera/image_raw
+            node.process_slot(k)
+    else:
+        server = ServerSide(model, camera, slot_s=SLOT_S, record_dir=str(tmp / "rec"))
+        uplink = server.uplink
+
+        def server_slot(k: int, ledger, frame) -> None:
+            server.process(k, ledger, t0_slot=k0, truth=frame if score else None)
+
+    robot = RobotSide(SLOT_S)
+    frames = synthetic_frames(args.width, args.height, 8, args.seed)
+    injector = FaultInjector(FaultRates(), seed=args.seed, slot_s=SLOT_S)
     proc = psutil.Process()
     samples: list[tuple[int, float, float]] = []  # (slots done, rss MiB, seconds)
 
-    def deliver(uploads: list[Upload], now_ns: int) -> None:
-        now_slot = now_ns // slot_ns
-        for up in uploads:
-            slot = (up.stamp_ns + slot_ns // 2) // slot_ns
-            if up.kind == "key":
-                node.uplink.on_key(PoseKey(slot, *up.data), now_slot, now_ns)
-            else:
-                node.uplink.on_image(slot, up.data, now_slot, now_ns)
-
-    print(f"# soak: {args.slots} slots, image every {args.image_every}, {args.width}×{args.height}, "
-          f"{args.gaussians} Gaussians, recording to {tmp / 'rec'}, fault rates {FaultRates()}")
+    load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
+    path = "one rclpy ServerNode (--node)" if args.node else "slot cores, no ROS (UplinkCore → ServerCore)"
+    print(f"# soak: {args.slots} slots through {path}, image every {args.image_every}, {args.width}×{args.height}, "
+          f"{args.gaussians} Gaussians, score {'on' if score else 'off'}, recording to {tmp / 'rec'}, "
+          f"fault rates {FaultRates()}")
+    print(f"# machine: {os.cpu_count()} CPUs, load average {load} (1/5/15 min) at start")
     t0 = time.perf_counter()
     for i in range(args.slots):
         k = k0 + i
         t = 0.1 * i
         pose = (2.0 * math.cos(0.05 * t), 2.0 * math.sin(0.05 * t), 0.05 * t + math.pi / 2)
-        t_send = k * slot_ns + 1_000_000
-        deliver(injector.due(t_send), t_send)
-        deliver(injector.push(Upload("key", k * slot_ns, pose, "map"), t_send), t_send)
-        if i % args.image_every == 0:
-            deliver(injector.push(Upload("image", k * slot_ns, jpegs[i % len(jpegs)]), t_send), t_send)
-        t_compose = k * slot_ns + 30_000_000
-        deliver(injector.due(t_compose), t_compose)
-        node.process_slot(k)
+        frame = frames[i % len(frames)]
+        start = k * slot_len_ns
+        decision = robot.run_slot(k, frame, start, pose, (int(i % args.image_every == 0), float("nan")))
+        t_send = start + 1_000_000
+        deliver(uplink, injector.due(t_send), t_send, slot_len_ns)
+        for up in robot.uploads(decision):
+            deliver(uplink, injector.push(up, t_send), t_send, slot_len_ns)
+        t_compose = start + 30_000_000
+        deliver(uplink, injector.due(t_compose), t_compose, slot_len_ns)
+        server_slot(k, decision.row if decision.publish_row else None, frame)
         done = i + 1
         if done == args.warmup or done % args.sample_every == 0 or done == args.slots:
             gc.collect()
             samples.append((done, proc.memory_info().rss / 2**20, time.perf_counter() - t0))
             print(f"#   {done:6d} slots  rss {samples[-1][1]:7.1f} MiB  {samples[-1][2]:6.1f} s", flush=True)
-    node.on_shutdown()
+    if args.node:
+        node.on_shutdown()
+        composed = node.slots_done
+    else:
+        server.close()
+        composed = server.slots_done
     base = next(s for s in samples if s[0] >= args.warmup)
     final = samples[-1]
     growth = (final[1] - base[1]) / base[1]
-    faults = dict(node.uplink.faults)
+    faults = {str(f): n for f, n in uplink.faults.items()}
     print("| slots | composed | rss after warm-up MiB | rss end MiB | growth % | slots/s | faults counted |")
     print("|---|---|---|---|---|---|---|")
-    print(f"| {args.slots} | {node.slots_done} | {base[1]:.1f} | {final[1]:.1f} | {100 * growth:+.2f} | "
+    print(f"| {args.slots} | {composed} | {base[1]:.1f} | {final[1]:.1f} | {100 * growth:+.2f} | "
           f"{args.slots / final[2]:.0f} | {sum(faults.values())} |")
     print(f"# faults: {faults}")
     print(f"# injected: {dict(sorted(injector.injected.items()))}")
     print(f"# acceptance (growth <= 5 %): {'PASS' if growth <= 0.05 else 'FAIL'}")
-    node.destroy_node()
-    rclpy.try_shutdown()
+    if args.node:
+        node.destroy_node()
+        rclpy.try_shutdown()
     return 0 if growth <= 0.05 else 1
 
 

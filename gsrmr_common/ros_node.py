@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 import math
 import sys
-from typing import Any
+from typing import Any, TypeVar
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
@@ -19,6 +19,9 @@ from rclpy.node import Node
 from gsrmr_common.camera import CameraMount
 from gsrmr_common.interrupts import CLEANUP, POLICY, RUNNING, START
 from gsrmr_common.link_model import LinkBudget
+from gsrmr_common.node_params import NodeParameters
+
+P = TypeVar("P", bound=NodeParameters)
 
 
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, *, threads: int = 1) -> int:
@@ -85,6 +88,20 @@ def declare(node: Node, name: str, default: Any, description: str, *, min_value:
             hi_f = float(max_value) if max_value is not None else sys.float_info.max
             descriptor.floating_point_range = [FloatingPointRange(from_value=lo_f, to_value=hi_f, step=0.0)]
     return node.declare_parameter(name, default, descriptor).value
+
+
+def declare_parameters(node: Node, params_cls: type[P]) -> P:
+    """Declare every ROS parameter of the dataclass ``params_cls`` (its :func:`~gsrmr_common.node_params.ros_parameter`
+    fields, in order: name, default and descriptor) and return an instance of the values it starts with.
+
+    Raises ValueError (``"parameter <why>"``) for a start-up value the class's rules refuse. Fields that are
+    no ROS parameter (a nested LinkBudget …) keep their defaults: declare them with their own helpers."""
+    values = {}
+    for f, spec in params_cls.specs():
+        default = list(f.default) if isinstance(f.default, tuple) else f.default
+        values[f.name] = declare(node, f.name, default, spec.description, min_value=spec.min_value,
+                                 max_value=spec.max_value, read_only=spec.read_only, constraints=spec.constraints)
+    return params_cls().with_values(values)
 
 
 def diagnostics_msg(node: Node, *, name: str, hardware_id: str, values: dict[str, object],

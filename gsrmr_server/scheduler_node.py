@@ -10,10 +10,16 @@ Publishes: ``gsrmr/schedule`` (std_msgs/Float64MultiArray, layout in :mod:`gsrmr
 reliable, transient local, depth 1), ``/diagnostics``.
 The last schedule and the loss map are saved in ``state_dir`` (when set) after every plan, and loaded
 at start, so a restarted scheduler resumes from its last schedule.
+
+Parameters: :class:`~gsrmr_server.scheduler_params.SchedulerParameters` (``self.params``); a change is
+checked in the on-set callback (read-only ones, values out of range or of the wrong type, an unknown
+``method``, ``solver_options`` that are no JSON object are refused with the reason) and applied in the
+post-set callback.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 import json
 import math
 from pathlib import Path
@@ -25,11 +31,11 @@ from geometry_msgs.msg import Vector3Stamped
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
-from gsrmr_common.link_model import IMAGE_BITS, KEY_BITS, SLOT_S
-from gsrmr_common.ros_node import declare, declare_link_budget, diagnostics_msg, run_node
+from gsrmr_common.ros_node import declare_link_budget, declare_parameters, diagnostics_msg, run_node
 from gsrmr_common.ros_wire import (
     SCHEDULE_QOS,
     UPLINK_QOS,
@@ -40,20 +46,9 @@ from gsrmr_common.ros_wire import (
     schedule_to_msg,
 )
 from gsrmr_common.wire import CHANNEL_TOPIC, ScheduleMsg, slot_ns, slot_start_ns
-from gsrmr_server.horizon import LOSS_MODELS, OnlinePlanner, PlanResult, RoutePredictor
+from gsrmr_server.horizon import OnlinePlanner, PlanResult, RoutePredictor
 from gsrmr_server.loss_map import LossMap
-from gsrmr_server.scheduling import METHODS
-
-PLANNING_PARAMS = {"loss_threshold", "horizon", "method", "solver_options", "image_bits", "pose_bits",
-                   "drift_threshold", "drift_window", "loss_margin"}
-
-
-def route_waypoints(flat: list[float]) -> list[tuple[float, float]]:
-    """``[x0, y0, x1, y1, ...]`` (map, metres) → waypoints; a clear error for an unusable route."""
-    if len(flat) < 6 or len(flat) % 2 or not all(math.isfinite(v) for v in flat):
-        raise ValueError("parameter route_waypoints_m must be ≥ 3 finite (x, y) pairs [x0, y0, x1, y1, ...] in "
-                         f"map [m] (a route file: config/routes/*.yaml), got {flat}")
-    return [(float(flat[i]), float(flat[i + 1])) for i in range(0, len(flat), 2)]
+from gsrmr_server.scheduler_params import PLANNING_PARAMETERS, SchedulerParameters
 
 
 class SchedulerNode(Node):
@@ -61,109 +56,41 @@ class SchedulerNode(Node):
 
     def __init__(self, **node_kwargs) -> None:
         super().__init__("gsrmr_scheduler", **node_kwargs)
-        self.slot_s = declare(self, "slot_s", SLOT_S, "Slot length τ [s]", min_value=0.01, max_value=10.0,
-                              read_only=True)
-        self.loss_threshold = declare(self, "loss_threshold", 0.03, "Average MR-loss budget L_th",
-                                      min_value=0.0, max_value=1.0)
-        self.horizon = declare(self, "horizon", 100, "Slots per plan", min_value=1, max_value=100_000)
-        self.method = declare(self, "method", "exact", f"Scheduling method, one of {', '.join(METHODS)}",
-                              constraints=f"one of {list(METHODS)}")
-        self.solver_options = declare(self, "solver_options", "{}", "JSON object of options passed to the "
-                                      "solver (e.g. {\"time_limit_s\": 0.05} or {\"iterations\": 10})")
-        self.image_bits = declare(self, "image_bits", IMAGE_BITS, "Image size I assumed by the plan [bit]",
-                                  min_value=1.0, max_value=1e9)
-        self.pose_bits = declare(self, "pose_bits", KEY_BITS, "Pose-key size S [bit]", min_value=1.0, max_value=1e6)
-        self.replan_period_s = declare(self, "replan_period_s", 2.0, "Replan this often [s]", min_value=0.1,
-                                       max_value=3600.0)
-        self.drift_threshold = declare(self, "drift_threshold", 0.02, "Replan when the mean |measured − "
-                                       "predicted| loss over drift_window samples exceeds this", min_value=0.0,
-                                       max_value=1.0)
-        self.drift_window = declare(self, "drift_window", 3, "Samples in the drift test", min_value=1,
-                                    max_value=1000)
-        self.loss_margin = declare(self, "loss_margin", 0.0, "Plan for loss_threshold·(1 − loss_margin): a fixed "
-                                   "back-off on top of the learned margin (margin_quantile)",
-                                   min_value=0.0, max_value=0.99)
-        route_flat = list(declare(self, "route_waypoints_m", [0.0], "The robot's route loop, predicted along: "
-                                  "[x0, y0, x1, y1, ...] in map [m], ≥ 3 points (config/routes/*.yaml)",
-                                  read_only=True))
-        route_speed_mps = declare(self, "route_speed_mps", 0.3, "Nominal speed along the route [m/s]",
-                                  min_value=1e-3, max_value=10.0, read_only=True)
-        waypoints = route_waypoints(route_flat)
-        loss_map_file = declare(self, "loss_map_file", "", "Seed loss map (JSON from a previous run)",
-                                read_only=True)
-        prior = declare(self, "loss_prior", 0.05, "Predicted loss where the map knows nothing", min_value=0.0,
-                        max_value=1.0, read_only=True)
-        self.state_dir = declare(self, "state_dir", "", "Save/restore the last schedule and loss map here",
-                                 read_only=True)
-        self.link = declare_link_budget(self)
-        self.in_slot_decision = declare(self, "in_slot_decision", True, "Add per-slot gain thresholds to the "
-                                        "schedule: the robot sends an image only if the gain it measures in the "
-                                        "slot reaches it (a price on the loss budget; off with oracle_channel)",
-                                        read_only=True)
-        self.explore = declare(self, "explore_image_fraction", 0.1, "In-slot rule: send an image at least when the "
-                               "slot's fade is in this best fraction (cheap images that keep measuring L_t)",
-                               min_value=0.0, max_value=1.0, read_only=True)
-        self.calibrate = declare(self, "calibrate_loss_map", True, "Scale the loss map's predictions by the "
-                                 "median measured/predicted ratio of the last image slots", read_only=True)
-        self.oracle_channel = declare(self, "oracle_channel", False, "Plan with the simulator's future channel "
-                                      "realisation (learnt from radio/channel_gain; simulation only, an upper "
-                                      "bound — a deployment plans with the channel's statistics)", read_only=True)
-        loss_model = declare(self, "loss_model", "burst", "L_t predictor: 'burst' (seed map × an online "
-                             "correction that decays from the last measurement, gsrmr_server.loss_predictor) or "
-                             "'map' (seed map × a quantile of measured/predicted)",
-                             constraints=f"one of {list(LOSS_MODELS)}", read_only=True)
-        if loss_model not in LOSS_MODELS:
-            raise ValueError(f"parameter loss_model must be one of {list(LOSS_MODELS)}, got {loss_model!r}")
-        image_slot_loss = declare(self, "image_slot_loss", -1.0, "MR loss an image slot leaves (its JPEG); −1 = "
-                                  "the seed loss map's image_loss (measured on the mapping round), 0 without one",
-                                  min_value=-1.0, max_value=1.0, read_only=True)
-        margin_quantile = declare(self, "margin_quantile", 0.6, "Learned margin: predictions × this quantile of "
-                                  "measured / predicted L over the last 30 image slots (0 = off)",
-                                  min_value=0.0, max_value=1.0, read_only=True)
-        burst_tau = declare(self, "burst_time_constant_slots", 25.0, "How fast a measured burst of L fades into "
-                            "the run's average in the prediction [slots]", min_value=0.1, max_value=1e6,
-                            read_only=True)
-        probe_gap = declare(self, "probe_gap_slots", 16, "In-slot rule: after this many slots without an image "
-                            "any fade at or above the median one sends an image (0 = off)", min_value=0,
-                            max_value=100_000, read_only=True)
-        round_slots = declare(self, "round_slots", 0, "Slots of an operating round (T) whose mean loss must meet "
-                              "L_th: the round starts when the reported pose first moves (0 = no rounds: a "
-                              "running mean)", min_value=0, max_value=10_000_000, read_only=True)
-        self._check_options(self.solver_options)
-
-        self._slot_len_ns = slot_ns(self.slot_s)
+        self.params: SchedulerParameters = replace(declare_parameters(self, SchedulerParameters),
+                                                   link=declare_link_budget(self))
+        p = self.params
+        self._slot_len_ns = slot_ns(p.slot_s)
         # Load the compiled knapsack kernel now (1–2 s from the numba cache, ~8 s cold) rather than in the
         # first replan, so the first schedule follows start-up at once.
         from gsrmr_server.scheduling import exact
 
         self.get_logger().info(f"knapsack kernel ready in {exact.warm_up():.2f} s")
-        if self.method != "exact":  # the method's own first call too (APO imports CVXPY: ~1 s)
+        if p.method != "exact":  # the method's own first call too (APO imports CVXPY: ~1 s)
             from gsrmr_server.scheduling import Problem, solve
 
             t0 = time.perf_counter()
             solve(Problem(channel_gain=np.array([1e-6, 2e-6, 3e-6, 4e-6]), gs_loss=np.array([0.04, 0.01, 0.03, 0.02]),
-                          loss_threshold=0.012), self.method, **json.loads(self.solver_options))
-            self.get_logger().info(f"method {self.method} ready in {time.perf_counter() - t0:.2f} s")
-        loss_map = LossMap(prior=prior)
-        for candidate in (Path(self.state_dir, "loss_map.json") if self.state_dir else None,
-                          Path(loss_map_file) if loss_map_file else None):
+                          loss_threshold=0.012), p.method, **p.options)
+            self.get_logger().info(f"method {p.method} ready in {time.perf_counter() - t0:.2f} s")
+        loss_map = LossMap(prior=p.loss_prior)
+        for candidate in (Path(p.state_dir, "loss_map.json") if p.state_dir else None,
+                          Path(p.loss_map_file) if p.loss_map_file else None):
             if candidate is not None and candidate.exists():
                 loss_map = LossMap.load(candidate)
                 self.get_logger().info(f"loss map loaded from {candidate} ({len(loss_map.cells)} cells)")
                 break
-        self.planner = OnlinePlanner(RoutePredictor(waypoints, route_speed_mps), loss_map,
-                                     self.link, slot_s=self.slot_s, image_bits=self.image_bits,
-                                     pose_bits=self.pose_bits, loss_threshold=self.loss_threshold,
-                                     horizon=self.horizon, method=self.method,
-                                     options=json.loads(self.solver_options),
-                                     drift_threshold=self.drift_threshold, drift_window=self.drift_window,
-                                     loss_margin=self.loss_margin, oracle_channel=self.oracle_channel,
-                                     in_slot_decision=self.in_slot_decision, rician_k=self.link.rician_k,
-                                     calibrate=self.calibrate, explore_image_fraction=self.explore,
-                                     loss_model=loss_model, margin_quantile=margin_quantile,
-                                     burst_time_constant_slots=burst_tau, probe_gap_slots=probe_gap,
-                                     round_slots=round_slots,
-                                     image_slot_loss=(image_slot_loss if image_slot_loss >= 0
+        self.planner = OnlinePlanner(RoutePredictor(p.waypoints, p.route_speed_mps), loss_map,
+                                     p.link, slot_s=p.slot_s, image_bits=p.image_bits,
+                                     pose_bits=p.pose_bits, loss_threshold=p.loss_threshold,
+                                     horizon=p.horizon, method=p.method, options=p.options,
+                                     drift_threshold=p.drift_threshold, drift_window=p.drift_window,
+                                     loss_margin=p.loss_margin, oracle_channel=p.oracle_channel,
+                                     in_slot_decision=p.in_slot_decision, rician_k=p.link.rician_k,
+                                     calibrate=p.calibrate_loss_map, explore_image_fraction=p.explore_image_fraction,
+                                     loss_model=p.loss_model, margin_quantile=p.margin_quantile,
+                                     burst_time_constant_slots=p.burst_time_constant_slots,
+                                     probe_gap_slots=p.probe_gap_slots, round_slots=p.round_slots,
+                                     image_slot_loss=(p.image_slot_loss if p.image_slot_loss >= 0
                                                       else loss_map.image_loss or 0.0))
         self._lock = threading.RLock()
         self._pose: tuple[float, float, float] | None = None
@@ -177,14 +104,14 @@ class SchedulerNode(Node):
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(Vector3Stamped, "uplink/pose_key", self._on_key, UPLINK_QOS)
         self.create_subscription(Float64MultiArray, "gsrmr/loss_sample", self._on_loss, UPLINK_QOS)
-        if self.oracle_channel:
+        if p.oracle_channel:
             self.create_subscription(Float64MultiArray, CHANNEL_TOPIC, self._on_channel, 10)
         self.create_subscription(Float64MultiArray, "gsrmr/ledger", self._on_ledger, UPLINK_QOS)
         self.create_service(Trigger, "gsrmr/replan", self._on_replan)
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._apply)
         self._restore()
-        self.create_timer(self.replan_period_s, lambda: self._request("period"))
+        self._replan_timer = self.create_timer(p.replan_period_s, lambda: self._request("period"))
         self.create_timer(0.02, self._tick)
         self.create_timer(1.0, self._publish_diagnostics)
 
@@ -209,37 +136,31 @@ class SchedulerNode(Node):
             self._request("channel round start")
 
     # ---------------------------------------------------------------- parameters
-    @staticmethod
-    def _check_options(text: str) -> str | None:
-        try:
-            value = json.loads(text)
-        except json.JSONDecodeError as err:
-            return f"solver_options is not JSON: {err}"
-        return None if isinstance(value, dict) else "solver_options must be a JSON object"
-
-    def _validate(self, params) -> SetParametersResult:
-        for p in params:
-            if p.name == "method" and p.value not in METHODS:
-                return SetParametersResult(successful=False,
-                                           reason=f"method {p.value!r} is not one of {list(METHODS)}")
-            if p.name == "solver_options":
-                reason = self._check_options(p.value)
-                if reason:
-                    return SetParametersResult(successful=False, reason=reason)
+    def _validate(self, params: list[Parameter]) -> SetParametersResult:
+        """On-set: refuse a change :class:`SchedulerParameters` gives a reason for (type, range, read-only,
+        method, solver_options); change nothing."""
+        for param in params:
+            reason = SchedulerParameters.change_problem(param.name, param.value)
+            if reason:
+                return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
 
-    def _apply(self, params) -> None:
-        changed = [p.name for p in params if p.name in PLANNING_PARAMS]
-        if not changed:
-            return
+    def _apply(self, params: list[Parameter]) -> None:
+        """Post-set: take the accepted values into ``self.params``; hand planning ones to the planner and
+        request a replan; re-time the replan timer for ``replan_period_s``."""
+        names = {param.name for param in params}
+        changed = [param.name for param in params if param.name in PLANNING_PARAMETERS]
         with self._lock:
-            for p in params:
-                if p.name == "solver_options":
-                    self.planner.options = json.loads(p.value)
-                elif p.name in PLANNING_PARAMS:
-                    setattr(self.planner, p.name, p.value)
-                    setattr(self, p.name, p.value)
-        self._request("parameters: " + ", ".join(changed))
+            self.params = self.params.with_values({param.name: param.value for param in params})
+            for name in changed:
+                if name == "solver_options":
+                    self.planner.options = self.params.options
+                else:
+                    setattr(self.planner, name, getattr(self.params, name))
+        if "replan_period_s" in names:
+            self._replan_timer.timer_period_ns = round(self.params.replan_period_s * 1e9)
+        if changed:
+            self._request("parameters: " + ", ".join(changed))
 
     # ---------------------------------------------------------------- inputs
     def _on_key(self, msg: Vector3Stamped) -> None:
@@ -327,9 +248,9 @@ class SchedulerNode(Node):
 
     # ---------------------------------------------------------------- state
     def _save(self, schedule: ScheduleMsg) -> None:
-        if not self.state_dir:
+        if not self.params.state_dir:
             return
-        state = Path(self.state_dir)
+        state = Path(self.params.state_dir)
         state.mkdir(parents=True, exist_ok=True)
         tmp = state / "schedule.json.tmp"
         tmp.write_text(json.dumps({"data": schedule.to_data()}))
@@ -341,10 +262,11 @@ class SchedulerNode(Node):
         stats.replace(state / "plan_stats.json")
 
     def _restore(self) -> None:
-        if not self.state_dir or not Path(self.state_dir, "schedule.json").exists():
+        state_dir = self.params.state_dir
+        if not state_dir or not Path(state_dir, "schedule.json").exists():
             return
         try:
-            sched = ScheduleMsg.from_data(json.loads(Path(self.state_dir, "schedule.json").read_text())["data"])
+            sched = ScheduleMsg.from_data(json.loads(Path(state_dir, "schedule.json").read_text())["data"])
         except (ValueError, KeyError, json.JSONDecodeError) as err:
             self.get_logger().warning(f"saved schedule ignored: {err}")
             return
@@ -353,7 +275,7 @@ class SchedulerNode(Node):
             self.planner._active = sched
             self.planner.seq = sched.seq
             self._pub.publish(schedule_to_msg(sched))
-            self.get_logger().info(f"resumed schedule seq {sched.seq} from {self.state_dir}")
+            self.get_logger().info(f"resumed schedule seq {sched.seq} from {state_dir}")
 
     def _publish_diagnostics(self) -> None:
         r = self.last

@@ -27,6 +27,10 @@ Publishes: ``mr/image`` (sensor_msgs/Image rgb8, frame ``camera_optical_frame``,
 ``mr/image/compressed`` (JPEG), ``gsrmr/loss_sample`` (std_msgs/Float64MultiArray
 ``[slot, a_m, b_m, theta_rad, loss]``: the measured GS loss L_t of an image slot), ``/diagnostics``.
 Records ``slots.csv`` and MCAP into ``record_dir`` when set.
+
+Parameters: :class:`~gsrmr_server.server_params.ServerParameters` (``self.params``); a change is checked in
+the on-set callback (read-only ones and values out of range or of the wrong type are refused with the reason)
+and applied in the post-set callback.
 """
 
 from __future__ import annotations
@@ -40,15 +44,22 @@ import threading
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, Vector3Stamped
 import numpy as np
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray
 
 from gsrmr_common.camera import Intrinsics
-from gsrmr_common.link_model import SLOT_S
-from gsrmr_common.ros_node import declare, declare_camera_mount, declare_link_budget, diagnostics_msg, run_node
+from gsrmr_common.ros_node import (
+    declare_camera_mount,
+    declare_link_budget,
+    declare_parameters,
+    diagnostics_msg,
+    run_node,
+)
 from gsrmr_common.ros_wire import (
     CAMERA_INFO_QOS,
     IMAGE_UPLOAD_QOS,
@@ -67,19 +78,17 @@ from gsrmr_common.ros_wire import (
 from gsrmr_common.wire import (
     MAX_COMPRESSED_BYTES,
     LedgerRow,
-    PoseKey,
     ScheduleMsg,
     UplinkFault,
     slot_index,
     slot_ns,
     slot_start_ns,
 )
-from gsrmr_server.compose import MRComposer
-from gsrmr_server.mr.content import AgentsView, load_mr_content
 from gsrmr_server.recording import TOPIC_CAMERA_INFO, RunRecorder
-from gsrmr_server.slot_core import ServerCore, match_frame
+from gsrmr_server.server_params import ServerParameters
+from gsrmr_server.slot_core import build_server_core, count_composition_faults, match_frame
 from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.uplink import SlotUploads, UplinkAssembler
+from gsrmr_server.uplink import UplinkAssembler
 
 # Intrinsics of the start-up warm-up render (compiles the kernels before any camera_info arrives).
 WARM_UP_INTRINSICS = Intrinsics.from_fov(32, 24, 1.2)
@@ -104,59 +113,21 @@ class ServerNode(Node):
 
     def __init__(self, **node_kwargs) -> None:
         super().__init__("gsrmr_server", **node_kwargs)
-        self.slot_s = declare(self, "slot_s", SLOT_S, "Slot length τ [s]; must equal the robot's", min_value=0.01,
-                              max_value=10.0, read_only=True)
-        self.process_delay_s = declare(self, "process_delay_s", 0.03, "Compose slot k at the latest this "
-                                       "long after its start [s], earlier once its uploads are complete "
-                                       "(uploads arriving after composition are counted late)", min_value=0.0,
-                                       max_value=5.0)
-        model_path = declare(self, "model_path", "", "Gaussian-splatting model (.ply, 3DGS layout)",
-                             read_only=True)
-        mr_content = declare(self, "mr_content", "sandbox", "MR content: the virtual agents and their lights "
-                             "(name in config/mr or a YAML path)", read_only=True)
-        background = list(declare(self, "background_rgb", [0.5, 0.55, 0.6], "Colour where the GS model has no "
-                                  "density (its training background), linear RGB in [0, 1]", read_only=True))
-        mount = declare_camera_mount(self)
-        self.measure_loss = declare(self, "measure_loss", True, "Render Φ(s_t) in image slots and publish "
-                                    "the measured GS loss")
-        self.evaluate = declare(self, "evaluate_ground_truth", False, "Simulation only: compare m̂_t with the "
-                                "true m_t built from camera/image_raw", read_only=True)
-        hindsight_q = declare(self, "hindsight_jpeg_quality", 0, "Simulation only, with evaluate_ground_truth: "
-                              "also measure what the other choice would have given in each slot (GS render, "
-                              "and the true frame as a JPEG of this quality = the robot's) for the hindsight "
-                              "optimum; 0 = off", min_value=0, max_value=100, read_only=True)
-        self.link = declare_link_budget(self)
-        record_dir = declare(self, "record_dir", "", "Write slots.csv and MCAP here ('' = off)", read_only=True)
-        self.jpeg_quality = declare(self, "jpeg_quality", 85, "JPEG quality of mr/image/compressed",
-                                    min_value=1, max_value=100)
-        self.max_backlog_slots = declare(self, "max_backlog_slots", 30, "Slots the node may fall behind and "
-                                         "still compose every missed one (late); further behind it skips "
-                                         "ahead and counts skipped_slots", min_value=1, max_value=100_000)
-        render_threads = declare(self, "render_threads", 1, "CPU threads of the GS render (0 = every core); one "
-                                 "thread is steadier when other processes share the cores", min_value=0,
-                                 max_value=256, read_only=True)
-        self.add_post_set_parameters_callback(self._apply_parameters)
-
-        if len(background) != 3 or not all(0.0 <= c <= 1.0 for c in background):
-            raise ValueError("parameter background_rgb must be 3 numbers in [0, 1]")
-        if not model_path:
-            raise ValueError("parameter model_path is required (a 3DGS .ply)")
-        model = GaussianModel.load_ply(model_path)
-        content = load_mr_content(mr_content)
+        self.params: ServerParameters = replace(declare_parameters(self, ServerParameters),
+                                                camera_mount=declare_camera_mount(self), link=declare_link_budget(self))
+        p = self.params
         # Render intrinsics: none until the robot's camera_info arrives (use_camera_info).
         self.intrinsics: Intrinsics | None = None
-        self.composer = MRComposer(model, AgentsView(content), WARM_UP_INTRINSICS, mount,
-                                   tuple(float(c) for c in background), render_threads=render_threads or None)
         # Warm-up: the first render compiles/loads the rasterizer and the ray caster (~1.5 s); doing it
         # before the slot clock starts keeps the first slots on time instead of skipping the ones that
         # elapsed meanwhile.
-        self.composer.compose(SlotUploads(0), PoseKey(0, 0.0, 0.0, 0.0), 0.0, measure_loss=False)
-        self.core = ServerCore(self.composer, self.jpeg_quality, self.measure_loss, slot_s=self.slot_s,
-                               bandwidth_hz=self.link.bandwidth_hz, noise_w=self.link.noise_w,
-                               hindsight_jpeg_quality=hindsight_q or None)
-        self._slot_len_ns = slot_ns(self.slot_s)
+        self.core = build_server_core(p, GaussianModel.load_ply(p.model_path), WARM_UP_INTRINSICS)
+        self.composer = self.core.composer
+        self._slot_len_ns = slot_ns(p.slot_s)
         self.uplink = UplinkAssembler()
         self._lock = threading.Lock()
+        self.add_on_set_parameters_callback(self._validate)
+        self.add_post_set_parameters_callback(self._after_set)
         self._schedule: ScheduleMsg | None = None
         self._ledger: dict[int, LedgerRow] = {}
         self._cmd: tuple[float, float] | None = None
@@ -167,7 +138,7 @@ class ServerNode(Node):
         self.sources: dict[str, int] = {}
         self.latencies_ms: deque[float] = deque(maxlen=1000)
         self.stage_ms: dict[str, deque[float]] = {}
-        self.recorder = RunRecorder(record_dir) if record_dir else None
+        self.recorder = RunRecorder(p.record_dir) if p.record_dir else None
         self.eval_rows: list[dict] = []
         self.camera_info: CameraInfo | None = None  # last one received
         self.camera_info_status = "waiting for camera_info"
@@ -190,19 +161,30 @@ class ServerNode(Node):
         self.create_subscription(Twist, "cmd_vel", self._on_cmd, 10, callback_group=io)
         self.create_subscription(CameraInfo, "uplink/camera_info", self.use_camera_info, CAMERA_INFO_QOS,
                                  callback_group=io)
-        if self.evaluate:
+        if p.evaluate_ground_truth:
             self.create_subscription(Image, "camera/image_raw", self._on_camera, qos_profile_sensor_data,
                                      callback_group=io)
         self.create_timer(0.01, self._tick)  # 10 ms: a slot is composed ≤ 10 ms after it is complete or due
         self.create_timer(1.0, self._publish_diagnostics)
-        self.get_logger().info(f"server: model {model_path} ({model.num_gaussians} Gaussians), MR content "
-                               f"{content.name} ({len(content.agents)} agents); waiting for uplink/camera_info")
+        content = self.composer.virtual.content
+        self.get_logger().info(f"server: model {p.model_path} ({self.composer.model.num_gaussians} Gaussians), MR "
+                               f"content {content.name} ({len(content.agents)} agents); waiting for uplink/camera_info")
 
-    def _apply_parameters(self, params) -> None:
-        """Live parameters (ranges were checked by their descriptors; read-only ones cannot change)."""
-        for p in params:
-            if p.name in ("process_delay_s", "measure_loss", "jpeg_quality", "max_backlog_slots"):
-                setattr(self, p.name, p.value)
+    def _validate(self, params: list[Parameter]) -> SetParametersResult:
+        """On-set: refuse a change :class:`ServerParameters` gives a reason for (type, range, read-only);
+        change nothing."""
+        for param in params:
+            reason = ServerParameters.change_problem(param.name, param.value)
+            if reason:
+                return SetParametersResult(successful=False, reason=reason)
+        return SetParametersResult(successful=True)
+
+    def _after_set(self, params: list[Parameter]) -> None:
+        """Post-set: take the accepted values (:data:`~gsrmr_server.server_params.LIVE_PARAMETERS`) into
+        ``self.params`` and the slot core; ``process_delay_s`` and ``max_backlog_slots`` act from the next tick."""
+        with self._lock:
+            self.params = self.params.with_values({param.name: param.value for param in params})
+            self.core.jpeg_quality, self.core.measure_loss = self.params.jpeg_quality, self.params.measure_loss
 
     # ---------------------------------------------------------------- inputs
     def _now_slot(self) -> tuple[int, int]:
@@ -299,7 +281,8 @@ class ServerNode(Node):
         if self.intrinsics is None:  # the slot clock starts with the robot's calibration
             return
         now_ns = self.get_clock().now().nanoseconds
-        due = (now_ns - round(self.process_delay_s * 1e9)) // self._slot_len_ns
+        params = self.params
+        due = (now_ns - round(params.process_delay_s * 1e9)) // self._slot_len_ns
         if self._next_slot is None:
             self._next_slot = due + 1
             self._t0_slot = due + 1
@@ -307,7 +290,7 @@ class ServerNode(Node):
         if due < self._next_slot and not (self._next_slot <= now_ns // self._slot_len_ns
                                           and self._uploads_complete(self._next_slot)):
             return
-        if due > self._next_slot + self.max_backlog_slots:  # far behind (suspended, clock jump): skip ahead
+        if due > self._next_slot + params.max_backlog_slots:  # far behind (suspended, clock jump): skip ahead
             self.uplink.count(UplinkFault.SKIPPED_SLOTS)
             self._next_slot = due
         slot = self._next_slot
@@ -331,28 +314,25 @@ class ServerNode(Node):
             expected = bool(ledger.x) if ledger is not None else (None if entry is None else bool(entry[0]))
             uploads = self.uplink.take(slot, image_expected=expected)
             best = self.uplink.best_pose(slot)
-            frames = list(self._frames) if self.evaluate else []
-        time_s = (slot - (self._t0_slot or slot)) * self.slot_s
-        self.core.jpeg_quality, self.core.measure_loss = self.jpeg_quality, self.measure_loss
+            frames = list(self._frames) if self.params.evaluate_ground_truth else []
+        time_s = (slot - (self._t0_slot or slot)) * self.params.slot_s
         out = self.core.process(uploads, best, time_s=time_s, stamp_s=start_ns / 1e9, ledger=ledger,
                                 scheduled_x=entry[0] if entry else None)
         result = out.composed
         for stage, ms in result.timings_ms.items():
             self.stage_ms.setdefault(stage, deque(maxlen=1000)).append(ms)
-        for fault in result.faults:
-            if fault not in uploads.faults:
-                self.uplink.count(fault)
+        count_composition_faults(self.uplink, uploads, out)
         self._pub_mr.publish(image_to_msg(out.mr_u8, start_ns, "camera_optical_frame"))
         latency_ms = (self.get_clock().now().nanoseconds - start_ns) / 1e6
         self.latencies_ms.append(latency_ms)
         compressed = compressed_to_msg(out.jpeg, start_ns, "camera_optical_frame")
         self._pub_mr_c.publish(compressed)
         self.slots_done += 1
-        self.slots_on_time += int(latency_ms <= 1e3 * self.slot_s)
+        self.slots_on_time += int(latency_ms <= 1e3 * self.params.slot_s)
         self.sources[result.source] = self.sources.get(result.source, 0) + 1
         if out.loss_sample is not None:
             self._pub_loss.publish(loss_sample_to_msg(out.loss_sample))
-        if self.evaluate:
+        if self.params.evaluate_ground_truth:
             self.core.score(out, match_frame(frames, ledger, start_ns))
         if self.recorder is not None:
             self.recorder.write_slot(replace(out.row, latency_ms=latency_ms), compressed, self._cmd,

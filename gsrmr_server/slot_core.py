@@ -19,14 +19,18 @@ import math
 
 import numpy as np
 
+from gsrmr_common.camera import Intrinsics
 from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.link_model import BANDWIDTH_HZ, NOISE_W, SLOT_S, required_power_w
 from gsrmr_common.metrics import image_quality
 from gsrmr_common.wire import POSE_KEY_BITS, LedgerRow, LossSample, PoseKey
 from gsrmr_server.compose import ComposedSlot, MRComposer, to_u8
 from gsrmr_server.mr.blend import jpeg_mr_loss, mr_image
+from gsrmr_server.mr.content import AgentsView, load_mr_content
+from gsrmr_server.server_params import ServerParameters
 from gsrmr_server.slot_row import SlotRow
-from gsrmr_server.uplink import SlotUploads
+from gsrmr_server.splatting.model import GaussianModel
+from gsrmr_server.uplink import SlotUploads, UplinkAssembler
 
 
 @dataclass
@@ -122,6 +126,27 @@ class ServerCore:
         outcome.row = replace(outcome.row, loss=quality["loss"], psnr_db=quality["psnr_db"], ssim=quality["ssim"],
                               **extra)
         return outcome
+
+
+def build_server_core(params: ServerParameters, model: GaussianModel, intrinsics: Intrinsics, *,
+                      warm_up: bool = True) -> ServerCore:
+    """The slot core as :class:`~gsrmr_server.server_node.ServerNode` builds it from its parameters (MR content,
+    background, camera mount, render threads, JPEG quality, link), at the render ``intrinsics``; ``warm_up``
+    composes one slot first (compiles the rasterizer and the ray caster, ~1.5 s cold)."""
+    composer = MRComposer(model, AgentsView(load_mr_content(params.mr_content)), intrinsics, params.camera_mount,
+                          tuple(params.background_rgb), render_threads=params.render_threads_or_all)  # type: ignore[arg-type]
+    if warm_up:
+        composer.compose(SlotUploads(0), PoseKey(0, 0.0, 0.0, 0.0), 0.0, measure_loss=False)
+    return ServerCore(composer, params.jpeg_quality, params.measure_loss, slot_s=params.slot_s,
+                      bandwidth_hz=params.link.bandwidth_hz, noise_w=params.link.noise_w,
+                      hindsight_jpeg_quality=params.hindsight_jpeg_quality_or_off)
+
+
+def count_composition_faults(uplink: UplinkAssembler, uploads: SlotUploads, outcome: SlotOutcome) -> None:
+    """Count in ``uplink`` the faults found while composing (refused JPEGs) that the uploads did not carry."""
+    for fault in outcome.composed.faults:
+        if fault not in uploads.faults:
+            uplink.count(fault)
 
 
 def truth_quality(result: ComposedSlot, mr_u8: np.ndarray, frame: np.ndarray) -> dict[str, float] | None:

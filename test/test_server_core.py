@@ -131,10 +131,16 @@ def test_server_catches_up_a_short_stall_and_skips_ahead_only_past_the_backlog_b
         assert composed[-1] == now["ns"] // slot_ns and composed[20] == composed[-1]
         # The bound is a live parameter; out of range is refused.
         assert node.set_parameters([Parameter("max_backlog_slots", value=100)])[0].successful
-        assert node.max_backlog_slots == 100
+        assert node.params.max_backlog_slots == 100
         assert not node.set_parameters([Parameter("max_backlog_slots", value=0)])[0].successful
         assert node.set_parameters([Parameter("process_delay_s", value=0.05)])[0].successful
-        assert node.process_delay_s == 0.05
+        assert node.params.process_delay_s == 0.05
+        assert not node.set_parameters([Parameter("jpeg_quality", value=90.0)])[0].successful  # wrong type
+        read_only = node.set_parameters([Parameter("render_threads", value=2)])[0]
+        assert not read_only.successful and "read-only" in read_only.reason
+        assert node.params.render_threads == 1 and node.params.jpeg_quality == 85
+        assert node.set_parameters([Parameter("jpeg_quality", value=70)])[0].successful
+        assert node.params.jpeg_quality == node.core.jpeg_quality == 70
         # A slot is composed before its deadline once its uploads are complete (no schedule: key + image).
         slot = node._next_slot
         now["ns"] = slot * slot_ns + 1_000_000  # 1 ms into the slot, 49 ms before its deadline

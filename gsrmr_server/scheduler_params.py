@@ -1,0 +1,137 @@
+"""The scheduler node's parameters (:class:`SchedulerParameters`): names, defaults, descriptors and rules (pure,
+no ROS; no renderer either: see the import contracts in pyproject.toml).
+
+:class:`gsrmr_server.scheduler_node.SchedulerNode` declares them, refuses a change
+:meth:`SchedulerParameters.change_problem` gives a reason for (on-set callback) and applies an accepted one by
+replacing its ``params`` (post-set callback): a change of a :data:`PLANNING_PARAMETERS` one updates the planner
+and requests a replan, ``replan_period_s`` re-times the replan timer; the others are read-only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import json
+import math
+from typing import Any
+
+from gsrmr_common.link_model import IMAGE_BITS, KEY_BITS, SLOT_S, LinkBudget
+from gsrmr_common.node_params import NodeParameters, ros_parameter
+from gsrmr_server.horizon import LOSS_MODELS
+from gsrmr_server.scheduling import METHODS
+
+# Live parameters the plan depends on: a change updates the planner (same attribute names; solver_options →
+# options) and requests a replan.
+PLANNING_PARAMETERS = frozenset({"loss_threshold", "horizon", "method", "solver_options", "image_bits", "pose_bits",
+                                 "drift_threshold", "drift_window", "loss_margin"})
+
+
+def route_waypoints(flat: list[float] | tuple[float, ...]) -> list[tuple[float, float]]:
+    """``[x0, y0, x1, y1, ...]`` (map, metres) → waypoints; a clear error for an unusable route."""
+    reason = route_problem(flat)
+    if reason:
+        raise ValueError(f"parameter {reason}")
+    return [(float(flat[i]), float(flat[i + 1])) for i in range(0, len(flat), 2)]
+
+
+def route_problem(flat: list[float] | tuple[float, ...]) -> str | None:
+    """Why ``flat`` is no usable route (≥ 3 finite (x, y) pairs), or None."""
+    if len(flat) < 6 or len(flat) % 2 or not all(math.isfinite(v) for v in flat):
+        return ("route_waypoints_m must be ≥ 3 finite (x, y) pairs [x0, y0, x1, y1, ...] in map [m] (a route "
+                f"file: config/routes/*.yaml), got {list(flat)}")
+    return None
+
+
+def solver_options_problem(text: str) -> str | None:
+    """Why ``text`` is not a JSON object of solver options, or None."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as err:
+        return f"solver_options is not JSON: {err}"
+    return None if isinstance(value, dict) else "solver_options must be a JSON object"
+
+
+@dataclass(frozen=True)
+class SchedulerParameters(NodeParameters):
+    """Every parameter of the scheduler node (ROS names; units in the names)."""
+
+    slot_s: float = ros_parameter(SLOT_S, "Slot length τ [s]", min_value=0.01, max_value=10.0, read_only=True)
+    loss_threshold: float = ros_parameter(0.03, "Average MR-loss budget L_th", min_value=0.0, max_value=1.0)
+    horizon: int = ros_parameter(100, "Slots per plan", min_value=1, max_value=100_000)
+    method: str = ros_parameter("exact", f"Scheduling method, one of {', '.join(METHODS)}",
+                                constraints=f"one of {list(METHODS)}")
+    solver_options: str = ros_parameter("{}", "JSON object of options passed to the solver (e.g. "
+                                        "{\"time_limit_s\": 0.05} or {\"iterations\": 10})")
+    image_bits: float = ros_parameter(IMAGE_BITS, "Image size I assumed by the plan [bit]", min_value=1.0,
+                                      max_value=1e9)
+    pose_bits: float = ros_parameter(KEY_BITS, "Pose-key size S [bit]", min_value=1.0, max_value=1e6)
+    replan_period_s: float = ros_parameter(2.0, "Replan this often [s]", min_value=0.1, max_value=3600.0)
+    drift_threshold: float = ros_parameter(0.02, "Replan when the mean |measured − predicted| loss over "
+                                           "drift_window samples exceeds this", min_value=0.0, max_value=1.0)
+    drift_window: int = ros_parameter(3, "Samples in the drift test", min_value=1, max_value=1000)
+    loss_margin: float = ros_parameter(0.0, "Plan for loss_threshold·(1 − loss_margin): a fixed back-off on top "
+                                       "of the learned margin (margin_quantile)", min_value=0.0, max_value=0.99)
+    route_waypoints_m: tuple[float, ...] = ros_parameter(
+        (0.0,), "The robot's route loop, predicted along: [x0, y0, x1, y1, ...] in map [m], ≥ 3 points "
+        "(config/routes/*.yaml)", read_only=True)
+    route_speed_mps: float = ros_parameter(0.3, "Nominal speed along the route [m/s]", min_value=1e-3,
+                                           max_value=10.0, read_only=True)
+    loss_map_file: str = ros_parameter("", "Seed loss map (JSON from a previous run)", read_only=True)
+    loss_prior: float = ros_parameter(0.05, "Predicted loss where the map knows nothing", min_value=0.0,
+                                      max_value=1.0, read_only=True)
+    state_dir: str = ros_parameter("", "Save/restore the last schedule and loss map here", read_only=True)
+    in_slot_decision: bool = ros_parameter(
+        True, "Add per-slot gain thresholds to the schedule: the robot sends an image only if the gain it "
+        "measures in the slot reaches it (a price on the loss budget; off with oracle_channel)", read_only=True)
+    explore_image_fraction: float = ros_parameter(
+        0.1, "In-slot rule: send an image at least when the slot's fade is in this best fraction (cheap images "
+        "that keep measuring L_t)", min_value=0.0, max_value=1.0, read_only=True)
+    calibrate_loss_map: bool = ros_parameter(
+        True, "Scale the loss map's predictions by the median measured/predicted ratio of the last image slots",
+        read_only=True)
+    oracle_channel: bool = ros_parameter(
+        False, "Plan with the simulator's future channel realisation (learnt from radio/channel_gain; "
+        "simulation only, an upper bound — a deployment plans with the channel's statistics)", read_only=True)
+    loss_model: str = ros_parameter(
+        "burst", "L_t predictor: 'burst' (seed map × an online correction that decays from the last "
+        "measurement, gsrmr_server.loss_predictor) or 'map' (seed map × a quantile of measured/predicted)",
+        constraints=f"one of {list(LOSS_MODELS)}", read_only=True)
+    image_slot_loss: float = ros_parameter(
+        -1.0, "MR loss an image slot leaves (its JPEG); −1 = the seed loss map's image_loss (measured on the "
+        "mapping round), 0 without one", min_value=-1.0, max_value=1.0, read_only=True)
+    margin_quantile: float = ros_parameter(
+        0.6, "Learned margin: predictions × this quantile of measured / predicted L over the last 30 image "
+        "slots (0 = off)", min_value=0.0, max_value=1.0, read_only=True)
+    burst_time_constant_slots: float = ros_parameter(
+        25.0, "How fast a measured burst of L fades into the run's average in the prediction [slots]",
+        min_value=0.1, max_value=1e6, read_only=True)
+    probe_gap_slots: int = ros_parameter(
+        16, "In-slot rule: after this many slots without an image any fade at or above the median one sends an "
+        "image (0 = off)", min_value=0, max_value=100_000, read_only=True)
+    round_slots: int = ros_parameter(
+        0, "Slots of an operating round (T) whose mean loss must meet L_th: the round starts when the reported "
+        "pose first moves (0 = no rounds: a running mean)", min_value=0, max_value=10_000_000, read_only=True)
+    # Declared read-only by gsrmr_common.ros_node.declare_link_budget (config/link.yaml).
+    link: LinkBudget = field(default_factory=LinkBudget)
+
+    @classmethod
+    def rule(cls, name: str, value: Any) -> str | None:
+        """``method`` and ``loss_model`` from their lists, ``solver_options`` a JSON object, the route usable."""
+        if name == "method" and value not in METHODS:
+            return f"method {value!r} is not one of {list(METHODS)}"
+        if name == "loss_model" and value not in LOSS_MODELS:
+            return f"loss_model must be one of {list(LOSS_MODELS)}, got {value!r}"
+        if name == "solver_options":
+            return solver_options_problem(value)
+        if name == "route_waypoints_m":
+            return route_problem(value)
+        return None
+
+    @property
+    def options(self) -> dict[str, Any]:
+        """``solver_options`` parsed: keyword arguments of the solver."""
+        return json.loads(self.solver_options)
+
+    @property
+    def waypoints(self) -> list[tuple[float, float]]:
+        """``route_waypoints_m`` as (x, y) pairs in map [m]."""
+        return route_waypoints(self.route_waypoints_m)

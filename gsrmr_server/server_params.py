@@ -1,0 +1,71 @@
+"""The server node's parameters (:class:`ServerParameters`): names, defaults, descriptors and rules (pure, no ROS).
+
+:class:`gsrmr_server.server_node.ServerNode` declares them, refuses a change :meth:`ServerParameters.change_problem`
+gives a reason for (on-set callback) and applies an accepted one by replacing its ``params`` (post-set callback).
+Live: ``process_delay_s``, ``measure_loss``, ``jpeg_quality``, ``max_backlog_slots``; the others are read-only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from gsrmr_common.camera import CameraMount
+from gsrmr_common.link_model import SLOT_S, LinkBudget
+from gsrmr_common.node_params import NodeParameters, ros_parameter
+
+LIVE_PARAMETERS = frozenset({"process_delay_s", "measure_loss", "jpeg_quality", "max_backlog_slots"})
+
+
+@dataclass(frozen=True)
+class ServerParameters(NodeParameters):
+    """Every parameter of the server node (ROS names; units in the names)."""
+
+    slot_s: float = ros_parameter(SLOT_S, "Slot length τ [s]; must equal the robot's", min_value=0.01,
+                                  max_value=10.0, read_only=True)
+    process_delay_s: float = ros_parameter(
+        0.03, "Compose slot k at the latest this long after its start [s], earlier once its uploads are "
+        "complete (uploads arriving after composition are counted late)", min_value=0.0, max_value=5.0)
+    model_path: str = ros_parameter("", "Gaussian-splatting model (.ply, 3DGS layout)", read_only=True)
+    mr_content: str = ros_parameter("sandbox", "MR content: the virtual agents and their lights (name in "
+                                    "config/mr or a YAML path)", read_only=True)
+    background_rgb: tuple[float, ...] = ros_parameter(
+        (0.5, 0.55, 0.6), "Colour where the GS model has no density (its training background), linear RGB in "
+        "[0, 1]", read_only=True)
+    measure_loss: bool = ros_parameter(True, "Render Φ(s_t) in image slots and publish the measured GS loss")
+    evaluate_ground_truth: bool = ros_parameter(False, "Simulation only: compare m̂_t with the true m_t built "
+                                                "from camera/image_raw", read_only=True)
+    hindsight_jpeg_quality: int = ros_parameter(
+        0, "Simulation only, with evaluate_ground_truth: also measure what the other choice would have given in "
+        "each slot (GS render, and the true frame as a JPEG of this quality = the robot's) for the hindsight "
+        "optimum; 0 = off", min_value=0, max_value=100, read_only=True)
+    record_dir: str = ros_parameter("", "Write slots.csv and MCAP here ('' = off)", read_only=True)
+    jpeg_quality: int = ros_parameter(85, "JPEG quality of mr/image/compressed", min_value=1, max_value=100)
+    max_backlog_slots: int = ros_parameter(
+        30, "Slots the node may fall behind and still compose every missed one (late); further behind it skips "
+        "ahead and counts skipped_slots", min_value=1, max_value=100_000)
+    render_threads: int = ros_parameter(
+        1, "CPU threads of the GS render (0 = every core); one thread is steadier when other processes share "
+        "the cores", min_value=0, max_value=256, read_only=True)
+    # Declared read-only by gsrmr_common.ros_node.declare_camera_mount / declare_link_budget (config/*.yaml).
+    camera_mount: CameraMount = field(default_factory=CameraMount)
+    link: LinkBudget = field(default_factory=LinkBudget)
+
+    @classmethod
+    def rule(cls, name: str, value: Any) -> str | None:
+        """``model_path`` is required; ``background_rgb`` is 3 numbers in [0, 1]."""
+        if name == "model_path" and not value:
+            return "model_path is required (a 3DGS .ply)"
+        if name == "background_rgb" and (len(value) != 3 or not all(0.0 <= c <= 1.0 for c in value)):
+            return "background_rgb must be 3 numbers in [0, 1]"
+        return None
+
+    @property
+    def render_threads_or_all(self) -> int | None:
+        """``render_threads`` as the renderer takes it: None = every core."""
+        return self.render_threads or None
+
+    @property
+    def hindsight_jpeg_quality_or_off(self) -> int | None:
+        """``hindsight_jpeg_quality`` as the slot core takes it: None = off."""
+        return self.hindsight_jpeg_quality or None

@@ -1,0 +1,203 @@
+"""The server's and the scheduler's parameter dataclasses (pure, no ROS): declared names, defaults, ranges
+and read-only flags, the rules their nodes' on-set callbacks refuse a change with, and copies with new values.
+"""
+
+from __future__ import annotations
+
+from dataclasses import FrozenInstanceError
+import json
+import math
+import subprocess
+import sys
+
+import pytest
+
+from gsrmr_common.camera import CameraMount
+from gsrmr_common.link_model import LinkBudget
+from gsrmr_server.scheduler_params import PLANNING_PARAMETERS, SchedulerParameters, route_waypoints
+from gsrmr_server.server_params import LIVE_PARAMETERS, ServerParameters
+
+# name: (default, (min, max) or None, read_only) — what the nodes declared before the parameters became a
+# dataclass (launch files, config/*.yaml and `ros2 param set` depend on them).
+SERVER_DECLARED = {
+    "slot_s": (0.1, (0.01, 10.0), True),
+    "process_delay_s": (0.03, (0.0, 5.0), False),
+    "model_path": ("", None, True),
+    "mr_content": ("sandbox", None, True),
+    "background_rgb": ([0.5, 0.55, 0.6], None, True),
+    "measure_loss": (True, None, False),
+    "evaluate_ground_truth": (False, None, True),
+    "hindsight_jpeg_quality": (0, (0, 100), True),
+    "record_dir": ("", None, True),
+    "jpeg_quality": (85, (1, 100), False),
+    "max_backlog_slots": (30, (1, 100_000), False),
+    "render_threads": (1, (0, 256), True),
+}
+SCHEDULER_DECLARED = {
+    "slot_s": (0.1, (0.01, 10.0), True),
+    "loss_threshold": (0.03, (0.0, 1.0), False),
+    "horizon": (100, (1, 100_000), False),
+    "method": ("exact", None, False),
+    "solver_options": ("{}", None, False),
+    "image_bits": (67200.0, (1.0, 1e9), False),
+    "pose_bits": (192.0, (1.0, 1e6), False),
+    "replan_period_s": (2.0, (0.1, 3600.0), False),
+    "drift_threshold": (0.02, (0.0, 1.0), False),
+    "drift_window": (3, (1, 1000), False),
+    "loss_margin": (0.0, (0.0, 0.99), False),
+    "route_waypoints_m": ([0.0], None, True),
+    "route_speed_mps": (0.3, (1e-3, 10.0), True),
+    "loss_map_file": ("", None, True),
+    "loss_prior": (0.05, (0.0, 1.0), True),
+    "state_dir": ("", None, True),
+    "in_slot_decision": (True, None, True),
+    "explore_image_fraction": (0.1, (0.0, 1.0), True),
+    "calibrate_loss_map": (True, None, True),
+    "oracle_channel": (False, None, True),
+    "loss_model": ("burst", None, True),
+    "image_slot_loss": (-1.0, (-1.0, 1.0), True),
+    "margin_quantile": (0.6, (0.0, 1.0), True),
+    "burst_time_constant_slots": (25.0, (0.1, 1e6), True),
+    "probe_gap_slots": (16, (0, 100_000), True),
+    "round_slots": (0, (0, 10_000_000), True),
+}
+
+
+def declared(cls) -> dict[str, tuple]:
+    defaults = cls().ros_values()
+    return {f.name: (defaults[f.name], None if spec.min_value is None else (spec.min_value, spec.max_value),
+                     spec.read_only) for f, spec in cls.specs()}
+
+
+@pytest.mark.parametrize(("cls", "want"), [(ServerParameters, SERVER_DECLARED),
+                                           (SchedulerParameters, SCHEDULER_DECLARED)])
+def test_defaults_ranges_and_read_only_flags_are_the_declared_ones(cls, want):
+    got = declared(cls)
+    assert list(got) == list(want)  # the declaration order too
+    for name, (default, rng, read_only) in want.items():
+        assert got[name] == (default, rng, read_only), name
+        assert type(got[name][0]) is type(default), name  # the ROS type: 0.0 is a double, 0 an integer
+        assert cls.problem(name, default) in (None, "model_path is required (a 3DGS .ply)",
+                                              "route_waypoints_m must be ≥ 3 finite (x, y) pairs [x0, y0, x1, y1, "
+                                              "...] in map [m] (a route file: config/routes/*.yaml), got [0.0]")
+
+
+def test_nested_link_budget_and_camera_mount_default_to_theirs():
+    assert ServerParameters().link == LinkBudget() == SchedulerParameters().link
+    assert ServerParameters().camera_mount == CameraMount()
+    assert ServerParameters.problem("bandwidth_hz", -1.0) is None  # declared (read-only) by their own helpers
+
+
+def test_live_and_read_only_parameters():
+    assert ServerParameters.read_only_names() == set(SERVER_DECLARED) - LIVE_PARAMETERS
+    assert {"process_delay_s", "measure_loss", "jpeg_quality", "max_backlog_slots"} == LIVE_PARAMETERS
+    live = set(SCHEDULER_DECLARED) - SchedulerParameters.read_only_names()
+    assert live == PLANNING_PARAMETERS | {"replan_period_s"}
+
+
+@pytest.mark.parametrize(("name", "value", "reason"), [
+    ("jpeg_quality", 0, "jpeg_quality must be in [1, 100], got 0"),
+    ("jpeg_quality", 101, "in [1, 100]"),
+    ("jpeg_quality", 85.0, "jpeg_quality must be an integer"),
+    ("jpeg_quality", True, "must be an integer"),
+    ("process_delay_s", -0.01, "process_delay_s must be in [0.0, 5.0]"),
+    ("process_delay_s", 5.5, "in [0.0, 5.0]"),
+    ("process_delay_s", math.nan, "in [0.0, 5.0]"),
+    ("process_delay_s", "0.1", "must be a number"),
+    ("max_backlog_slots", 0, "in [1, 100000]"),
+    ("measure_loss", 1, "measure_loss must be a bool"),
+    ("background_rgb", [0.5, 0.5], "background_rgb must be 3 numbers in [0, 1]"),
+    ("background_rgb", [0.5, 1.5, 0.0], "3 numbers in [0, 1]"),
+    ("background_rgb", "grey", "must be a list of numbers"),
+    ("model_path", "", "model_path is required"),
+    ("render_threads", 257, "in [0, 256]"),
+])
+def test_server_problem_refuses_with_a_reason(name, value, reason):
+    got = ServerParameters.problem(name, value)
+    assert got is not None and reason in got, got
+
+
+@pytest.mark.parametrize(("name", "value"), [
+    ("jpeg_quality", 1), ("jpeg_quality", 100), ("process_delay_s", 0.0), ("process_delay_s", 5.0),
+    ("process_delay_s", 1), ("max_backlog_slots", 100_000), ("measure_loss", False),
+    ("background_rgb", [0.0, 1.0, 0.25]), ("model_path", "/tmp/scene.ply"), ("render_threads", 0),
+])
+def test_server_problem_accepts_valid_values(name, value):
+    assert ServerParameters.problem(name, value) is None
+
+
+def test_change_problem_refuses_read_only_parameters_and_passes_live_ones_to_problem():
+    assert "render_threads is read-only" in ServerParameters.change_problem("render_threads", 2)
+    assert "slot_s is read-only" in ServerParameters.change_problem("slot_s", 0.1)
+    assert "read-only" in SchedulerParameters.change_problem("loss_model", "map")
+    assert ServerParameters.change_problem("jpeg_quality", 70) is None
+    assert "in [1, 100]" in ServerParameters.change_problem("jpeg_quality", 500)
+    assert SchedulerParameters.change_problem("use_sim_time", True) is None  # not ours: rclpy's
+
+
+@pytest.mark.parametrize(("name", "value", "reason"), [
+    ("method", "bogus", "method 'bogus' is not one of"),
+    ("solver_options", "{not json", "solver_options is not JSON"),
+    ("solver_options", "[1, 2]", "solver_options must be a JSON object"),
+    ("loss_threshold", -0.5, "loss_threshold must be in [0.0, 1.0]"),
+    ("horizon", 0, "horizon must be in [1, 100000]"),
+    ("horizon", 10.0, "horizon must be an integer"),
+    ("loss_margin", 0.995, "in [0.0, 0.99]"),
+    ("loss_model", "oracle", "loss_model must be one of ['map', 'burst']"),
+    ("route_waypoints_m", [0.0, 0.0, 1.0, 0.0], "route_waypoints_m must be ≥ 3 finite (x, y) pairs"),
+    ("route_waypoints_m", [0.0, 0.0, 1.0, 0.0, 1.0], "≥ 3 finite"),
+    ("route_waypoints_m", [0.0, 0.0, 1.0, 0.0, 1.0, math.inf], "≥ 3 finite"),
+    ("replan_period_s", 0.05, "in [0.1, 3600.0]"),
+])
+def test_scheduler_problem_refuses_with_a_reason(name, value, reason):
+    got = SchedulerParameters.problem(name, value)
+    assert got is not None and reason in got, got
+
+
+@pytest.mark.parametrize(("name", "value"), [
+    ("method", "exact"), ("solver_options", '{"time_limit_s": 0.05}'), ("loss_threshold", 0.0),
+    ("horizon", 1), ("loss_model", "map"), ("route_waypoints_m", [0.0, 0.0, 1.0, 0.0, 1.0, 1.0]),
+    ("image_bits", 1e9), ("replan_period_s", 0.5),
+])
+def test_scheduler_problem_accepts_valid_values(name, value):
+    assert SchedulerParameters.problem(name, value) is None
+
+
+def test_with_values_returns_a_new_instance_with_the_change():
+    before = ServerParameters()
+    after = before.with_values({"jpeg_quality": 70, "process_delay_s": 0, "background_rgb": [0.0, 0.0, 0.0],
+                                "use_sim_time": True})
+    assert (after.jpeg_quality, after.process_delay_s, after.background_rgb) == (70, 0.0, (0.0, 0.0, 0.0))
+    assert isinstance(after.process_delay_s, float)
+    assert after is not before and before == ServerParameters() and before.jpeg_quality == 85
+    assert after.link == before.link
+    with pytest.raises(FrozenInstanceError):
+        after.jpeg_quality = 50  # type: ignore[misc]
+    with pytest.raises(ValueError, match=r"^parameter jpeg_quality must be in \[1, 100\]"):
+        before.with_values({"jpeg_quality": 0})
+    with pytest.raises(ValueError, match=r"^parameter model_path is required \(a 3DGS \.ply\)$"):
+        before.with_values({"model_path": ""})
+
+
+def test_scheduler_with_values_and_derived_values():
+    p = SchedulerParameters().with_values({"solver_options": '{"iterations": 10}', "method": "apo",
+                                           "route_waypoints_m": [0, 0, 2, 0, 2, 1]})
+    assert (p.options, p.method) == ({"iterations": 10}, "apo")
+    assert p.route_waypoints_m == (0.0, 0.0, 2.0, 0.0, 2.0, 1.0)
+    assert p.waypoints == [(0.0, 0.0), (2.0, 0.0), (2.0, 1.0)] == route_waypoints(p.route_waypoints_m)
+    assert SchedulerParameters().with_values({"loss_threshold": 0.5}).loss_threshold == 0.5
+    with pytest.raises(ValueError, match="not one of"):
+        p.with_values({"method": "bogus"})
+    with pytest.raises(ValueError, match=r"^parameter route_waypoints_m must be ≥ 3 finite"):
+        route_waypoints([0.0])
+
+
+def test_parameter_modules_import_no_ros_and_the_scheduler_one_no_renderer():
+    code = ("import json, sys; import gsrmr_server.server_params, gsrmr_server.scheduler_params; "
+            "print(json.dumps(sorted(sys.modules)))")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    modules = set(json.loads(result.stdout.splitlines()[-1]))
+    assert "gsrmr_server.scheduler_params" in modules
+    assert sorted(m for m in modules if m.split(".")[0] in ("rclpy", "rcl_interfaces", "torch")) == []
+    assert sorted(m for m in modules if m.startswith(("gsrmr_server.splatting", "gsrmr_server.compose"))) == []
