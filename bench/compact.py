@@ -70,10 +70,10 @@ def scaled(cams: list[Camera], width: int, height: int) -> list[Camera]:
 def sandbox_inputs(args: argparse.Namespace) -> tuple[GaussianModel, list, list, TrainConfig, float]:
     """The demo's model and its dataset split (built like ``make demo``, cached in the demo's cache)."""
     from gsrmr_common.nerfstudio import read_dataset
-    from gsrmr_sim.demo import ensure_model
+    from gsrmr_sim.models import live_model, live_recipe
 
     t0 = time.process_time()
-    built = ensure_model("sandbox", REPO / ".cache" / "gsrmr", frames=144, train_seconds=75.0, width=160)
+    built = live_model(live_recipe("sandbox"), REPO / ".cache" / "gsrmr", max_psnr_drop_db=None)
     cpu = float(built.info.get("cpu_s") or (time.process_time() - t0))
     train, test = holdout_split(read_dataset(built.folder / "round1"), 8)
     cfg = TrainConfig(resolution=160, sh_degree=built.model.sh_degree)

@@ -157,3 +157,19 @@ class LinkBudget:
                          noise_w: float) -> float:
         """Minimum power to carry ``bits`` in one slot (:func:`required_power_w`)."""
         return float(required_power_w(bits, gain, slot_s, bandwidth_hz, noise_w))
+
+
+def link_budget_from_parameters(params: dict) -> LinkBudget:
+    """The :class:`LinkBudget` a ``config/link.yaml`` parameter mapping describes (``ros__parameters``:
+    ``bandwidth_hz``, ``noise_dbm``, ``pathloss_db_at_1m``, ``pathloss_exponent``, ``rician_k``,
+    ``server_position_m`` [x, y] m, ``channel_seed``); missing keys take the defaults."""
+    d = LinkBudget()
+    noise_w = 10 ** (float(params["noise_dbm"]) / 10) / 1e3 if "noise_dbm" in params else d.noise_w
+    server = params.get("server_position_m", d.server_position_m)
+    if len(server) != 2:
+        raise ValueError("server_position_m must be [x_m, y_m]")
+    return LinkBudget(float(params.get("bandwidth_hz", d.bandwidth_hz)), noise_w,
+                      float(params.get("pathloss_db_at_1m", d.pathloss_db_at_1m)),
+                      float(params.get("pathloss_exponent", d.pathloss_exponent)),
+                      float(params.get("rician_k", d.rician_k)), (float(server[0]), float(server[1])),
+                      int(params.get("channel_seed", d.channel_seed)))

@@ -30,12 +30,8 @@ import random
 import signal
 import sys
 import time
-from typing import TYPE_CHECKING
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from gsrmr_sim.models import BuiltModel
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -44,35 +40,19 @@ def _log(msg: str) -> None:
     print(f"[demo {time.strftime('%H:%M:%S')}] {msg}", flush=True)
 
 
-def ensure_model(scene_name: str, cache: Path, *, frames: int, train_seconds: float, width: int,
-                 budget: int = 100_000, max_psnr_drop_db: float | None = None) -> BuiltModel:
-    """Round-1 dataset → trained GS model (.ply), built once per scene/settings (:mod:`gsrmr_sim.models`);
-    with ``max_psnr_drop_db``, compacted to the smallest model within that held-out PSNR loss (cached too)."""
-    from gsrmr_server.splatting.train import TrainConfig
-    from gsrmr_sim.models import ModelRecipe, build_model, compact_built
-
-    recipe = ModelRecipe(scene=scene_name, frames=frames, config=TrainConfig(resolution=width, sh_degree=0,
-                                                                            budget=budget),
-                         iterations=100_000, time_budget_s=train_seconds, holdout_every=8)
-    built = build_model(recipe, cache=cache, log=_log)
-    if max_psnr_drop_db is None:
-        return built
-    return compact_built(built, recipe, max_psnr_drop_db, log=_log)
-
-
 def ensure_survey(scene_name: str, model_path: Path, slots: int, round_index: int = 1) -> Path:
     """Seed loss map JSON (cached beside the model): L_t of the model along the route's slot poses against
     the world of round ``round_index`` — 1, the mapping round (what exists before round 2: its frames and
     the model; the default), or 2, a rehearsal of the very round being scored (the ``--oracle`` mode)."""
     from gsrmr_server.splatting.model import GaussianModel
     from gsrmr_sim.sim_stack import config_dir, robot_jpeg_quality
-    from gsrmr_sim.survey import gs_losses, loss_map_from
+    from gsrmr_sim.survey import SURVEY_VERSION, gs_losses, loss_map_from
     from gsrmr_sim.world.recorder import Round2Record, record_round2
     from gsrmr_sim.world.scene import load_scene
 
     quality = robot_jpeg_quality(str(config_dir() / "robot.yaml"))  # what an image slot leaves (JPEG)
     # L_t depends on the model; the image-slot loss on the robot's JPEG quality
-    out = model_path.parent / f"loss_map_{model_path.stem}_{slots}_round{round_index}_q{quality}.json"
+    out = model_path.parent / f"loss_map_{model_path.stem}_{slots}_round{round_index}_q{quality}_v{SURVEY_VERSION}.json"
     if out.exists():
         _log(f"loss-map seed cached: {out}")
         return out
@@ -81,7 +61,7 @@ def ensure_survey(scene_name: str, model_path: Path, slots: int, round_index: in
     rec_dir = record_round2(scene, model_path.parent / f"survey_round{round_index}_{slots}", slots=slots,
                             round_index=round_index)
     losses = gs_losses(Round2Record(rec_dir), GaussianModel.load_ply(model_path), scene.background,
-                       jpeg_quality=quality)
+                       mr_content=scene.mr_content, jpeg_quality=quality)
     seed = loss_map_from(losses)
     seed.save(out)
     values = np.array([s.loss for s in losses])
@@ -263,7 +243,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--cache", default=str(REPO / ".cache" / "gsrmr"))
     ap.add_argument("--out", default="", help="report folder (default reports/demo-<time>)")
     ap.add_argument("--frames", type=int, default=0, help="round-1 frames H (0 = the scene's)")
-    ap.add_argument("--train-seconds", type=float, default=75.0)
+    ap.add_argument("--train-seconds", type=float, default=None,
+                    help="GS training wall-time budget (default: the scene's model.train_iterations or "
+                         "model.train_seconds, else 75 s)")
+    ap.add_argument("--train-iterations", type=int, default=None, help="GS training steps (deterministic)")
     ap.add_argument("--train-width", type=int, default=160)
     ap.add_argument("--budget", type=int, default=100_000,
                     help="Gaussian budget of the trained model: render time per slot grows with it (sandbox, "
@@ -288,9 +271,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = Path(args.out or REPO / "reports" / f"demo-{time.strftime('%Y%m%d-%H%M%S')}")
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
-    built = ensure_model(args.scene, Path(args.cache), frames=args.frames or scene.frames,
-                         train_seconds=args.train_seconds, width=args.train_width, budget=args.budget,
-                         max_psnr_drop_db=None if args.no_compact else args.max_psnr_drop_db)
+    from gsrmr_sim.models import live_model, live_recipe
+
+    recipe = live_recipe(args.scene, frames=args.frames or None, train_seconds=args.train_seconds,
+                         iterations=args.train_iterations, width=args.train_width, budget=args.budget)
+    built = live_model(recipe, Path(args.cache), max_psnr_drop_db=None if args.no_compact else args.max_psnr_drop_db,
+                       log=_log)
     model = built.path
     seed = ensure_survey(args.scene, model, slots, round_index=2 if args.oracle else 1)
     _log(f"round 2: {slots} slots in real time ({slots * scene.slot_s:.1f} s) over DDS, L_th = {args.loss_threshold}")

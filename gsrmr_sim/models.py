@@ -157,3 +157,39 @@ def compact_built(built: BuiltModel, recipe: ModelRecipe, max_psnr_drop_db: floa
     (built.folder / f"model-compact-{tag}.tmp.ply").replace(path)
     info_path.write_text(json.dumps(info, indent=1))
     return BuiltModel(result.model, built.folder, info, path.name)
+
+
+#: The live system's model recipe defaults (``gsrmr-demo``): train at 160 px wide (the round-1 frames are
+#: recorded at the scene camera's size, 320×240, which is also where the model is rendered live), SH degree 0,
+#: at most 100k Gaussians, then compacted within 0.3 dB of held-out PSNR.
+LIVE_TRAIN_WIDTH_PX = 160
+LIVE_BUDGET = 100_000
+LIVE_MAX_PSNR_DROP_DB = 0.3
+DEFAULT_TRAIN_SECONDS = 75.0
+
+
+def live_recipe(scene_name: str, *, frames: int | None = None, train_seconds: float | None = None,
+                iterations: int | None = None, width: int = LIVE_TRAIN_WIDTH_PX,
+                budget: int = LIVE_BUDGET) -> ModelRecipe:
+    """The recipe of the model the live system renders (``gsrmr-demo``, ``gsrmr-experiments``).
+
+    Training stops after ``iterations`` steps (deterministic: the learning-rate schedule and densification
+    follow the count) or after ``train_seconds`` of wall time (then the model depends on the machine);
+    with neither, the scene's ``model.train_iterations`` / ``model.train_seconds`` apply (default 75 s)."""
+    scene = load_scene(scene_name)
+    if iterations is None and train_seconds is None:
+        iterations, train_seconds = scene.model_iterations, scene.model_train_seconds
+        if iterations is None and train_seconds is None:
+            train_seconds = DEFAULT_TRAIN_SECONDS
+    config = TrainConfig(resolution=width, sh_degree=0, budget=budget)
+    if iterations is not None:  # the schedule scaled to the count
+        config = replace(config, iterations=iterations, densify_until=min(config.densify_until, (2 * iterations) // 3))
+    return ModelRecipe(scene=scene_name, frames=frames or scene.frames, config=config,
+                       iterations=iterations or 100_000, time_budget_s=train_seconds, holdout_every=8)
+
+
+def live_model(recipe: ModelRecipe, cache: str | Path, *, max_psnr_drop_db: float | None = LIVE_MAX_PSNR_DROP_DB,
+               log: Callable[[str], None] = print) -> BuiltModel:
+    """Build (or load) ``recipe``'s model and, with ``max_psnr_drop_db``, its compacted version (cached)."""
+    built = build_model(recipe, cache=cache, log=log)
+    return built if max_psnr_drop_db is None else compact_built(built, recipe, max_psnr_drop_db, log=log)

@@ -19,6 +19,7 @@ from typing import Any
 
 import yaml
 
+from gsrmr_common.link_model import LinkBudget, link_budget_from_parameters
 from gsrmr_sim.world.kinematics import start_pose
 from gsrmr_sim.world.scene import load_scene
 
@@ -69,6 +70,20 @@ def robot_jpeg_quality(robot_yaml: str) -> int:
         if quality is not None:
             return int(quality)
     return 80
+
+
+def link_budget(link_yaml: str, channel_seed: int | None = None) -> LinkBudget:
+    """The uplink a ``link.yaml`` describes (the robot's, the scheduler's and the simulated radio's), with
+    ``channel_seed`` overriding its fading seed (as ``gsrmr-demo --channel-seed`` does)."""
+    import yaml
+
+    data = yaml.safe_load(Path(link_yaml).read_text()) or {}
+    params: dict[str, Any] = {}
+    for section in data.values():
+        params.update((section or {}).get("ros__parameters", {}))
+    if channel_seed is not None:
+        params["channel_seed"] = int(channel_seed)
+    return link_budget_from_parameters(params)
 
 
 def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", loss_threshold: float = 0.03,

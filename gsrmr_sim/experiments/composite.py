@@ -1,17 +1,19 @@
-"""The MR images a schedule actually produces, and their loss/PSNR/SSIM against the true m_t.
+"""The MR images a schedule actually produces, composed and scored by the live slot core, and how far their
+loss is from the schedule's plan.
 
-Per slot t with delivered content (``Schedule.delivered``):
+Per slot t with delivered content (``Schedule.delivered``), :class:`gsrmr_sim.offline_server.OfflineServer`
+runs the server's own path (uplink assembler → :class:`~gsrmr_server.slot_core.ServerCore`):
 
-* ``image`` — the server has r_t: m̂_t = d_t⊙r_t + (1−d_t)⊙v_t = m_t (the paper's lossless image
-  upload; JPEG coding loss is measured separately in the JPEG trade-off);
-* ``key``   — the server renders Φ(s_t): m̂_t = d_t⊙Φ(s_t) + (1−d_t)⊙v_t;
-* ``none``  — nothing arrived (MaxRate/Fairness can starve a slot): the server renders Φ at the last
-  pose it knows (the pose of the latest delivered slot, or the route start s_0 if none yet) and
-  composites it with the current v_t through d_t. This matches the scheduling library's default
-  ``undelivered_loss="gs"`` in spirit, but is measured, not assumed (a stale pose costs more than L_t).
+* ``image`` — the robot's JPEG of r_t at its configured quality (plus its pose key): m̂_t carries J_t;
+* ``key``   — Φ at the pose the robot *reports* (its odometry), not the true s_t the plan's L_t assumed;
+* ``none``  — nothing arrived (MaxRate/Fairness can starve a slot): the live fallback, Φ at the uplink
+  assembler's best pose (the last key, extrapolated at the recent velocity).
 
-Metrics use :func:`gsrmr_common.metrics.image_quality` (loss = 0.8·L1 + 0.2·(1 − SSIM), PSNR capped at
-:data:`gsrmr_common.metrics.PSNR_CAP_DB` for identical images) and are averaged over the T slots.
+The plan (the paper's model, which the offline solvers optimise) charges ``(1/T)·Σ_{key, none} L_t`` and
+nothing for image slots. :class:`CompositeResult` splits the measured mean loss into that plan plus three
+measured parts: ``jpeg`` (image slots' loss), ``pose`` (key slots: measured − L_t) and ``fallback`` (undelivered
+slots: measured − L_t). Metrics: :func:`gsrmr_common.metrics.image_quality` of the published 8-bit m̂ (loss =
+0.8·L1 + 0.2·(1 − SSIM)); PSNR pooled over slots and per-slot mean (docs/experiments.md, "Metrics").
 """
 
 from __future__ import annotations
@@ -20,22 +22,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gsrmr_common.metrics import image_quality, pooled_psnr_db
-from gsrmr_server.mr.blend import mr_image
+from gsrmr_common.metrics import pooled_psnr_db
 from gsrmr_server.scheduling.problem import IMAGE, KEY, NONE
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.render import render
-from gsrmr_sim.world import Round2Record
+from gsrmr_sim.offline_server import OfflineServer
 
 
 @dataclass
 class CompositeResult:
-    """Per-slot metrics of the composited MR images (arrays of length T) and their means."""
+    """Per-slot metrics of the composited MR images (arrays of length T), their means and the split of the
+    mean loss against the plan (see the module docstring)."""
 
     loss: np.ndarray
     psnr_db: np.ndarray
     ssim: np.ndarray
     delivered: list[str]
+    plan_loss: float  # (1/T)·Σ_{key, none} L_t
+    jpeg_loss: float  # (1/T)·Σ_image measured loss
+    pose_loss: float  # (1/T)·Σ_key (measured − L_t)
+    fallback_loss: float  # (1/T)·Σ_none (measured − L_t)
 
     @property
     def mean_loss(self) -> float:
@@ -57,60 +61,35 @@ class CompositeResult:
         """Mean per-slot SSIM."""
         return float(np.mean(self.ssim))
 
+    @property
+    def parts_sum(self) -> float:
+        """plan + jpeg + pose + fallback (equals :attr:`mean_loss` up to rounding)."""
+        return self.plan_loss + self.jpeg_loss + self.pose_loss + self.fallback_loss
+
 
 class Compositor:
-    """Builds m̂_t for any delivery pattern of one round-2 record; caches GS renders per pose slot."""
+    """Scores any delivery pattern of one recorded round with the live slot core (renders cached)."""
 
-    def __init__(self, record: Round2Record, model: GaussianModel, background: tuple[float, float, float]) -> None:
-        self.record = record
-        self.model = model
-        self.background = background
-        self._gs: dict[int, np.ndarray] = {}
-        self._q: dict[tuple[int, int | None], tuple[float, float, float]] = {}
-
-    def gs_view(self, pose_slot: int) -> np.ndarray:
-        """Φ(s_k) rendered at the camera of slot ``pose_slot`` (H×W×3 float in [0, 1]), cached."""
-        if pose_slot not in self._gs:
-            self._gs[pose_slot] = render(self.model, self.record.camera(pose_slot), self.background).rgb
-        return self._gs[pose_slot]
-
-    def pose_slots(self, delivered: list[str]) -> list[int | None]:
-        """For each slot, which slot's pose the server renders at (None = it has the image)."""
-        out: list[int | None] = []
-        last = 0
-        for t, d in enumerate(delivered):
-            if d == IMAGE:
-                out.append(None)
-                last = t
-            elif d == KEY:
-                out.append(t)
-                last = t
-            elif d == NONE:
-                out.append(last)
-            else:
-                raise ValueError(f"slot {t}: unknown delivery {d!r}")
-        return out
-
-    def mr_images(self, delivered: list[str], t: int, pose_slots: list[int | None] | None = None
-                  ) -> tuple[np.ndarray, np.ndarray]:
-        """(m_t, m̂_t) of slot t under ``delivered``."""
-        ps = pose_slots if pose_slots is not None else self.pose_slots(delivered)
-        rec = self.record[t]
-        truth = mr_image(rec.image, rec.virtual, rec.mask)
-        k = ps[t]
-        got = truth if k is None else mr_image(self.gs_view(k), rec.virtual, rec.mask)
-        return truth, got
+    def __init__(self, server: OfflineServer, gs_loss: np.ndarray) -> None:
+        """``gs_loss``: the plan's L_t (key slot at the true pose, as the solvers were given it)."""
+        self.server = server
+        self.gs_loss = np.asarray(gs_loss, np.float64)
 
     def evaluate(self, delivered: list[str]) -> CompositeResult:
-        """Per-slot loss/PSNR/SSIM of m̂_t against m_t."""
-        if len(delivered) != len(self.record):
-            raise ValueError(f"delivered has {len(delivered)} slots, record has {len(self.record)}")
-        ps = self.pose_slots(delivered)
-        loss, psnr_db, ssim = (np.zeros(len(delivered)) for _ in range(3))
-        for t in range(len(delivered)):
-            if (t, ps[t]) not in self._q:  # the same (slot, pose) pair always gives the same image
-                truth, got = self.mr_images(delivered, t, ps)
-                q = image_quality(truth, got)
-                self._q[(t, ps[t])] = (q["loss"], q["psnr_db"], q["ssim"])
-            loss[t], psnr_db[t], ssim[t] = self._q[(t, ps[t])]
-        return CompositeResult(loss, psnr_db, ssim, list(delivered))
+        """Per-slot loss/PSNR/SSIM of m̂_t against m_t and the split against the plan."""
+        if len(delivered) != len(self.server):
+            raise ValueError(f"delivered has {len(delivered)} slots, record has {len(self.server)}")
+        q = self.server.evaluate(list(delivered))
+        loss = np.array([s.loss for s in q])
+        kind = np.array(delivered)
+        n = float(len(delivered))
+        lt = self.gs_loss
+        img, key, none = kind == IMAGE, kind == KEY, kind == NONE
+        return CompositeResult(loss, np.array([s.psnr_db for s in q]), np.array([s.ssim for s in q]), list(delivered),
+                               plan_loss=float(lt[key | none].sum() / n), jpeg_loss=float(loss[img].sum() / n),
+                               pose_loss=float((loss[key] - lt[key]).sum() / n),
+                               fallback_loss=float((loss[none] - lt[none]).sum() / n))
+
+    def images(self, delivered: list[str], t: int) -> tuple[np.ndarray, np.ndarray]:
+        """(m_t, m̂_t) of slot t under ``delivered`` (float in [0, 1])."""
+        return self.server.images(delivered, t)

@@ -1,16 +1,23 @@
-"""Experiment data per scene: round 1 → trained GS model, round 2 → per-slot GS loss L_t, channel gains.
+"""Experiment data per scene, made by the live pipeline: the live model, round 2 at the live camera, L_t and
+J_t from the live slot core, the simulator's channel realisation, the poses the robot would report.
 
-The model is built by the one model pipeline (:func:`gsrmr_sim.models.build_model`, cached under
-``cache/<scene>-<key>/`` where ``key`` hashes the scene file and the recipe :meth:`DataSettings.recipe`
-makes, so a changed setting never reuses a stale model); beside it::
+* **Model**: the one ``gsrmr-demo`` renders (:func:`gsrmr_sim.models.live_recipe`: round-1 frames at the
+  scene camera's size, training at 160 px, compacted within 0.3 dB), cached under ``<cache>/<scene>-<key>/``
+  — the demo's cache by default, so the two share one model.
+* **Round 2**: T slots at the scene camera's size (320×240: the live resolution), recorded beside the model::
 
-    round1/, model.ply, train.json      gsrmr_sim.models.build_model
-    round2-T<slots>-s<seed>/            T operating slots (r_t, v_t, d_t, s_t)    gsrmr_sim.world.record_round2
-    losses-T<slots>-s<seed>.npz         per slot: gs_loss, gs_psnr_db, gs_ssim    gsrmr_sim.survey.gs_losses
+      round2-T<slots>-s<seed>/                  gsrmr_sim.world.record_round2 (r_t, v_t, d_t, s_t)
+      losses-T<slots>-s<seed>-q<q>-v<v>.npz    per slot: L_t, its PSNR/SSIM, J_t    gsrmr_sim.survey.gs_losses
 
-Channel: ``|h_t|²`` from :class:`gsrmr_server.scheduling.ChannelModel` (paper Rician model, ρ0 = −30 dB,
-α = 3, K = 1, seeded by ``channel_seed``) at the robot–server distance of each round-2 slot: robot at
-(a_t, b_t, 0) m in the map frame, server at the scene's ``server.position`` (x, y, z) m.
+* **L_t** (what the offline solvers are given, as in the paper): the live core's loss of a key-only slot
+  rendered at the *true* pose; **J_t**: the loss of an image slot (the robot's JPEG at its configured
+  quality), both through :class:`gsrmr_sim.offline_server.OfflineServer`.
+* **Channel** ``g_t = |h_t|²``: the simulator's realisation (:class:`gsrmr_sim.world.true_channel.TrueChannel`
+  rule, :meth:`gsrmr_common.link_model.LinkBudget.gain`): the fading of round slot k drawn from
+  (``channel_seed``, k), the path loss at the robot's true (a_t, b_t) against ``config/link.yaml``'s server
+  position — the channel a ``gsrmr-demo --channel-seed`` run with the same seed sees.
+* **Reported poses**: the LIMO odometry replayed along the drive (:mod:`gsrmr_sim.world.reported_pose`);
+  key slots are scored at these.
 """
 
 from __future__ import annotations
@@ -23,43 +30,33 @@ import time
 
 import numpy as np
 
-from gsrmr_server.scheduling import ChannelModel, Problem
+from gsrmr_common.link_model import LinkBudget
+from gsrmr_server.scheduling import Problem
 from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.train import TrainConfig
-from gsrmr_sim.models import ModelRecipe, build_model
-from gsrmr_sim.world import Round2Record, Scene, load_scene, record_round2, with_resolution
+from gsrmr_sim.models import LIVE_BUDGET, LIVE_MAX_PSNR_DROP_DB, LIVE_TRAIN_WIDTH_PX, live_model, live_recipe
+from gsrmr_sim.offline_server import OfflineServer
+from gsrmr_sim.sim_stack import config_dir, link_budget, robot_jpeg_quality
+from gsrmr_sim.survey import SURVEY_VERSION, gs_losses
+from gsrmr_sim.world import Round2Record, Scene, load_scene, record_round2
+from gsrmr_sim.world.kinematics import drive_route, start_pose
+from gsrmr_sim.world.reported_pose import pose_errors, reported_poses
 
 
 @dataclass(frozen=True)
 class DataSettings:
-    """How one scene's data is built (image size in pixels, counts, training budget, seeds)."""
+    """How one scene's data is built. ``None`` takes the live system's value (scene file, config/*.yaml)."""
 
     scene: str = "sandbox"
-    width: int = 160
-    height: int = 120
-    frames: int = 144  # H, round-1 frames
-    slots: int = 288  # T, round-2 slots
-    train_iterations: int = 1500
-    train_seconds: float = 480.0  # wall-time cap of the GS training (whichever comes first)
-    init_points: int = 20_000
-    sh_degree: int = 1
-    eval_every: int = 200
-    holdout_every: int = 8
-    seed: int = 0  # round-2 start jitter seed and trainer seed
-    channel_seed: int = 1
-
-    def recipe(self) -> ModelRecipe:
-        """How this scene's model is built (recording size, frames, seed and the training schedule)."""
-        iters = int(self.train_iterations)
-        background = tuple(load_scene(self.scene).background)
-        cfg = TrainConfig(iterations=iters, sh_degree=self.sh_degree, init_points=self.init_points, seed=self.seed,
-                          densify_from=min(300, iters // 5), densify_until=(2 * iters) // 3,
-                          densify_interval=max(10, min(100, iters // 20)), sh_increase_interval=max(1, iters // 4),
-                          opacity_reset_interval=max(3000, iters + 1), checkpoint_every=0,
-                          background=background)  # type: ignore[arg-type]
-        return ModelRecipe(scene=self.scene, frames=self.frames, width=self.width, height=self.height,
-                           seed=self.seed, config=cfg, time_budget_s=self.train_seconds,
-                           holdout_every=self.holdout_every, eval_every=self.eval_every)
+    frames: int | None = None  # H, round-1 frames (None: the scene's)
+    slots: int | None = None  # T, round-2 slots (None: the scene's)
+    train_iterations: int | None = None  # GS training steps (None: the scene's model.train_iterations …)
+    train_seconds: float | None = None  # … or wall-time budget (None: the scene's, else 75 s)
+    train_width: int = LIVE_TRAIN_WIDTH_PX  # px, the training resolution (frames are recorded at the camera's)
+    budget: int = LIVE_BUDGET  # max Gaussians
+    max_psnr_drop_db: float | None = LIVE_MAX_PSNR_DROP_DB  # compaction tolerance (None: the trained model)
+    jpeg_quality: int | None = None  # the robot's JPEG quality (None: config/robot.yaml's)
+    seed: int = 0  # round-2 start jitter seed
+    channel_seed: int | None = None  # fading realisation (None: config/link.yaml's)
 
 
 @dataclass
@@ -71,63 +68,98 @@ class SceneData:
     folder: Path
     model: GaussianModel
     record: Round2Record
-    gs_loss: np.ndarray  # L_t (dimensionless MR loss)
+    gs_loss: np.ndarray  # L_t (3DGS image loss of the key-slot composite at the true pose)
     gs_psnr_db: np.ndarray
     gs_ssim: np.ndarray
-    distance_m: np.ndarray
+    image_loss: np.ndarray  # J_t (loss of the image-slot composite: the robot's JPEG)
+    distance_m: np.ndarray  # robot–server distance (m, planar, ≥ the link's minimum)
     channel_gain: np.ndarray  # |h_t|² (dimensionless)
-    train: dict  # train.json content
+    reported_poses: np.ndarray  # T×3 the robot's odometry poses in map (m, m, rad)
+    pose_error: dict[str, float]  # reported vs true: position (m) and heading (rad), mean and max
+    server: OfflineServer  # the live slot core over this record (scores any delivery pattern)
+    train: dict  # train.json content (the trained model's history)
+    model_info: dict  # the model used: train.json, or the compaction's record
+    link: LinkBudget
+    jpeg_quality: int
 
     @property
     def background(self) -> tuple[float, float, float]:
         """GS render background colour (RGB in [0, 1])."""
         return tuple(self.scene.background)  # type: ignore[return-value]
 
+    @property
+    def heldout_psnr_db(self) -> float:
+        """Held-out PSNR (dB) of the model used, at its training resolution."""
+        return float(self.model_info.get("heldout_psnr_db", float("nan")))
+
     def problem(self, loss_threshold: float, **kwargs) -> Problem:
-        """P_GS with the paper's link constants (τ 0.1 s, I 67.2 kbit, S 192 bit, B 1 MHz, σ² −60 dBm)."""
+        """P_GS with the link constants (τ 0.1 s, I 67.2 kbit, S 192 bit, B 1 MHz, σ² −60 dBm) and L_t."""
         return Problem(channel_gain=self.channel_gain, gs_loss=self.gs_loss, loss_threshold=loss_threshold,
-                       slot_s=self.record.slot_s, **kwargs)
+                       slot_s=self.record.slot_s, bandwidth_hz=self.link.bandwidth_hz, noise_w=self.link.noise_w,
+                       **kwargs)
 
 
-def distances_m(record: Round2Record) -> np.ndarray:
-    """Robot (a_t, b_t, 0) → server distance (m) for every slot of a round-2 record."""
-    poses = record.poses
-    srv = np.asarray(record.server_position_m, dtype=np.float64)
-    robot = np.zeros((poses.shape[0], srv.size))
-    robot[:, :2] = poses[:, :2]
-    return np.maximum(np.linalg.norm(robot - srv, axis=1), 1e-3)
+def channel_gains(link: LinkBudget, positions_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(distance_m, g_k) of round slots k = 0 … len−1 at the robot's true planar positions (map, m): the
+    simulator's realisation (:meth:`LinkBudget.gain`)."""
+    xy = np.asarray(positions_xy, np.float64).reshape(-1, 2)
+    dist = np.array([link.distance_m(p) for p in xy])
+    gains = np.array([link.gain(k, p) for k, p in enumerate(xy)])
+    return dist, gains
 
 
 def build_scene_data(settings: DataSettings, cache: str | Path, log: Callable[[str], None] = print) -> SceneData:
-    """Build (or load from ``cache``) the model, round-2 record, L_t and channel gains of one scene."""
-    scene = with_resolution(load_scene(settings.scene), settings.width, settings.height)
-    built = build_model(settings.recipe(), cache=cache, log=log)
-    folder, model, info = built.folder, built.model, built.info
-    tag = f"T{settings.slots}-s{settings.seed}"
+    """Build (or load from ``cache``) the model, round-2 record, L_t/J_t and channel gains of one scene."""
+    scene = load_scene(settings.scene)
+    recipe = live_recipe(settings.scene, frames=settings.frames, train_seconds=settings.train_seconds,
+                         iterations=settings.train_iterations, width=settings.train_width, budget=settings.budget)
+    built = live_model(recipe, cache, max_psnr_drop_db=settings.max_psnr_drop_db, log=log)
+    folder, model = built.folder, built.model
+    train = built.info if settings.max_psnr_drop_db is None else _json(folder / "train.json")
+    slots = int(settings.slots or scene.slots)
+    quality = settings.jpeg_quality or robot_jpeg_quality(str(config_dir() / "robot.yaml"))
+    link = link_budget(str(config_dir() / "link.yaml"), settings.channel_seed)
+    tag = f"T{slots}-s{settings.seed}"
     r2 = folder / f"round2-{tag}"
     if not (r2 / "index.json").exists():
         if r2.exists():
             shutil.rmtree(r2)
         t0 = time.perf_counter()
-        record_round2(scene, folder / f"round2-{tag}.tmp", slots=settings.slots, seed=settings.seed)
-        (folder / f"round2-{tag}.tmp").replace(r2)
-        log(f"{settings.scene}: round 2 recorded ({settings.slots} slots, {time.perf_counter() - t0:.1f} s)")
+        tmp = folder / f"round2-{tag}.tmp"
+        shutil.rmtree(tmp, ignore_errors=True)
+        record_round2(scene, tmp, slots=slots, seed=settings.seed)
+        tmp.replace(r2)
+        log(f"{settings.scene}: round 2 recorded ({slots} slots at {scene.camera.intrinsics.width}×"
+            f"{scene.camera.intrinsics.height}, {time.perf_counter() - t0:.1f} s)")
     record = Round2Record(r2)
-    loss_path = folder / f"losses-{tag}.npz"
+    drive = drive_route(scene.route, slots, scene.slot_s, pose0=start_pose(scene.route, scene.route.start_jitter_m,
+                                                                          settings.seed))
+    if not np.allclose(drive.poses, record.poses, atol=1e-9):
+        raise RuntimeError(f"{r2}: the recorded poses are not the route's drive (stale cache?)")
+    reported = reported_poses(drive, scene.slot_s)
+    server = OfflineServer(record, model, mr_content=scene.mr_content, background_rgb=tuple(scene.background),
+                           jpeg_quality=quality, reported_poses=reported)
+    loss_path = folder / f"losses-{tag}-{Path(built.ply_name).stem}-q{quality}-v{SURVEY_VERSION}.npz"
     if loss_path.exists():
         with np.load(loss_path) as z:
-            loss, psnr_db, ssim = z["gs_loss"], z["gs_psnr_db"], z["gs_ssim"]
+            loss, psnr_db, ssim, jloss = z["gs_loss"], z["gs_psnr_db"], z["gs_ssim"], z["image_loss"]
     else:
-        from gsrmr_sim.survey import gs_losses
-
         t0 = time.perf_counter()
-        sl = gs_losses(record, model, tuple(scene.background))
-        loss = np.array([s.loss for s in sl])
-        psnr_db = np.array([s.psnr_db for s in sl])
-        ssim = np.array([s.ssim for s in sl])
-        np.savez(folder / f"losses-{tag}.tmp.npz", gs_loss=loss, gs_psnr_db=psnr_db, gs_ssim=ssim)
-        (folder / f"losses-{tag}.tmp.npz").replace(loss_path)
-        log(f"{settings.scene}: L_t surveyed (mean {loss.mean():.4f}, {time.perf_counter() - t0:.1f} s)")
-    dist = distances_m(record)
-    gains = ChannelModel(seed=settings.channel_seed).gains(dist)
-    return SceneData(settings, scene, folder, model, record, np.maximum(loss, 0.0), psnr_db, ssim, dist, gains, info)
+        sl = gs_losses(record, model, tuple(scene.background), mr_content=scene.mr_content, jpeg_quality=quality,
+                       server=server)
+        loss, psnr_db, ssim, jloss = (np.array([getattr(s, k) for s in sl])
+                                      for k in ("loss", "psnr_db", "ssim", "image_loss"))
+        tmp_path = loss_path.with_suffix(".tmp.npz")
+        np.savez(tmp_path, gs_loss=loss, gs_psnr_db=psnr_db, gs_ssim=ssim, image_loss=jloss)
+        tmp_path.replace(loss_path)
+        log(f"{settings.scene}: L_t surveyed by the live slot core (mean {loss.mean():.4f}; image slots J_t "
+            f"mean {jloss.mean():.4f} at JPEG q{quality}; {time.perf_counter() - t0:.1f} s)")
+    dist, gains = channel_gains(link, record.poses[:, :2])
+    return SceneData(settings, scene, folder, model, record, np.maximum(loss, 0.0), psnr_db, ssim, jloss, dist, gains,
+                     reported, pose_errors(reported, record.poses), server, train, built.info, link, quality)
+
+
+def _json(path: Path) -> dict:
+    import json
+
+    return json.loads(path.read_text())

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from gsrmr_common.metrics import image_quality
-from gsrmr_server.scheduling import Schedule, solve
+from gsrmr_server.scheduling import Problem, Schedule, solve
 from gsrmr_sim.experiments.composite import Compositor
 from gsrmr_sim.experiments.data import SceneData
 from gsrmr_sim.experiments.plots import plt, save_fig, write_csv
@@ -25,6 +25,8 @@ FIG4B_METHODS = ("robomr", "ranking", "rounding", "search", "exchange", "maxrate
 TABLE1_METHODS = ("fairness", "maxrate", "apo", "exact")
 PAPER_LTH = (0.02, 0.025, 0.03, 0.035, 0.04)
 TABLE1_LTH = (0.02, 0.025, 0.03, 0.035)
+#: Ours beside Table 1: APO planned with each image slot's JPEG loss (:func:`jpeg_aware_problem`).
+APO_JPEG = "apo_jpeg"
 
 
 @dataclass(frozen=True)
@@ -140,18 +142,37 @@ def fig4b(data: SceneData, sols: dict[float, dict[str, Schedule]], cfg: PaperCon
     return {"per_threshold": per}
 
 
+def jpeg_aware_problem(data: SceneData, loss_threshold: float) -> Problem | None:
+    """Ours, not the paper's: P_GS with image slots charged their JPEG loss J_t, as the live planner does.
+    Σ_t [(1−x_t)·L_t + x_t·J_t] ≤ T·L_th  ⇔  Σ_t (1−x_t)·(L_t − J_t) ≤ T·L_th − Σ_t J_t; slots with
+    L_t < J_t get L_t − J_t clipped at 0 (conservative). None when even uploading every image exceeds L_th."""
+    j = np.nan_to_num(data.image_loss, nan=0.0)
+    cap = loss_threshold - float(j.mean())
+    if cap <= 0:
+        return None
+    return Problem(channel_gain=data.channel_gain, gs_loss=np.maximum(data.gs_loss - j, 0.0), loss_threshold=cap,
+                   slot_s=data.record.slot_s, bandwidth_hz=data.link.bandwidth_hz, noise_w=data.link.noise_w)
+
+
 def table1(data: SceneData, sols: dict[float, dict[str, Schedule]], cfg: PaperConfig, comp: Compositor,
            out: Path) -> dict[str, Any]:
-    """Loss/PSNR/SSIM of the MR images actually composited under each method's schedule."""
+    """Loss/PSNR/SSIM of the MR images the live slot core composes under each method's schedule, and the
+    split of each measured loss against the plan (:class:`~gsrmr_sim.experiments.composite.CompositeResult`)."""
     rows, per = [], {}
     for lth in cfg.table_thresholds:
         per[f"{lth:g}"] = {}
-        for m in TABLE1_METHODS:
-            s = sols[lth][m]
+        scheds = {m: sols[lth][m] for m in TABLE1_METHODS}
+        pj = jpeg_aware_problem(data, lth)
+        if pj is not None:
+            scheds[APO_JPEG] = solve(pj, "apo", iterations=cfg.apo_iterations)
+        for m, s in scheds.items():
             r = comp.evaluate(s.delivered)
             per[f"{lth:g}"][m] = {"loss": r.mean_loss, "psnr_db": r.pooled_psnr_db,
                                   "psnr_slot_mean_db": r.mean_psnr_db, "ssim": r.mean_ssim,
                                   "energy_j": s.energy_j, "predicted_loss": s.mean_loss,
+                                  "plan_loss": r.plan_loss, "jpeg_loss": r.jpeg_loss, "pose_loss": r.pose_loss,
+                                  "fallback_loss": r.fallback_loss, "composited_minus_plan": r.mean_loss - r.plan_loss,
+                                  "parts_sum": r.parts_sum, "images": int(sum(d == "image" for d in s.delivered)),
                                   "undelivered": int(sum(d == "none" for d in s.delivered))}
             rows.append({"scene": data.settings.scene, "loss_threshold": lth, "method": m, **per[f"{lth:g}"][m]})
         d = per[f"{lth:g}"]
@@ -163,15 +184,31 @@ def table1(data: SceneData, sols: dict[float, dict[str, Schedule]], cfg: PaperCo
 
 
 def table1_markdown(t1: dict[str, Any]) -> str:
-    """Table 1 in the paper's layout (Loss | PSNR | SSIM, Fairness/MaxRate/APO/Exact; PSNR pooled over slots)."""
-    ms = TABLE1_METHODS
+    """Table 1 in the paper's layout (Loss | PSNR | SSIM, Fairness/MaxRate/APO/Exact, then ours: APO planned
+    with the JPEG loss; PSNR pooled over slots), every value measured on the live core's composites."""
+    first = next(iter(t1["per_threshold"].values()), {})
+    ms = TABLE1_METHODS + ((APO_JPEG,) if APO_JPEG in first else ())
     head = "| L_th | " + " | ".join(f"loss {m}" for m in ms) + " | " + " | ".join(f"PSNR {m}" for m in ms) + \
         " | " + " | ".join(f"SSIM {m}" for m in ms) + " |"
     lines = [head, "|" + "---|" * (1 + 3 * len(ms))]
     for lth, d in t1["per_threshold"].items():
-        lines.append(f"| {lth} | " + " | ".join(f"{d[m]['loss']:.4f}" for m in ms) + " | " +
-                     " | ".join(f"{d[m]['psnr_db']:.2f}" for m in ms) + " | " +
-                     " | ".join(f"{d[m]['ssim']:.3f}" for m in ms) + " |")
+        cell = {m: d.get(m) for m in ms}
+        lines.append(f"| {lth} | " + " | ".join(f"{c['loss']:.4f}" if c else "–" for c in cell.values()) + " | " +
+                     " | ".join(f"{c['psnr_db']:.2f}" if c else "–" for c in cell.values()) + " | " +
+                     " | ".join(f"{c['ssim']:.3f}" if c else "–" for c in cell.values()) + " |")
+    return "\n".join(lines)
+
+
+def loss_split_markdown(t1: dict[str, Any], methods: tuple[str, ...] = ("apo", "exact", APO_JPEG)) -> str:
+    """Measured loss against the plan: plan (Σ L_t of key/none slots) + JPEG + pose + fallback parts."""
+    lines = ["| L_th | method | images | plan loss | + JPEG (image slots) | + pose (key slots) | + fallback | "
+             "= composed loss |", "|---|---|---|---|---|---|---|---|"]
+    for lth, d in t1["per_threshold"].items():
+        for m in methods:
+            if m in d:
+                r = d[m]
+                lines.append(f"| {lth} | {m} | {r['images']} | {r['plan_loss']:.4f} | {r['jpeg_loss']:+.4f} | "
+                             f"{r['pose_loss']:+.5f} | {r['fallback_loss']:+.4f} | {r['loss']:.4f} |")
     return "\n".join(lines)
 
 
@@ -199,7 +236,6 @@ def fig5(data: SceneData, sols: dict[float, dict[str, Schedule]], cfg: PaperConf
     lth = cfg.convergence_threshold
     apo, robogs = sols[lth]["apo"], sols[lth]["robogs"]
     slots = _strip_slots(data.gs_loss, cfg.strip_slots)
-    ps_apo, ps_gs = comp.pose_slots(apo.delivered), comp.pose_slots(robogs.delivered)
     n = len(slots)
     fig = plt.figure(figsize=(2.2 * n + 3.2, 6.2))
     gsp = fig.add_gridspec(3, n + 1, width_ratios=[1.6] + [1] * n)
@@ -216,8 +252,8 @@ def fig5(data: SceneData, sols: dict[float, dict[str, Schedule]], cfg: PaperConf
     axm.legend(fontsize=6, loc="lower left")
     rows = []
     for j, t in enumerate(slots):
-        truth, gs_img = comp.mr_images(robogs.delivered, t, ps_gs)
-        _, apo_img = comp.mr_images(apo.delivered, t, ps_apo)
+        truth, gs_img = comp.images(robogs.delivered, t)
+        _, apo_img = comp.images(apo.delivered, t)
         q_gs, q_apo = image_quality(truth, gs_img), image_quality(truth, apo_img)
         rows.append({"label": "ABCDEFGHIJ"[j], "slot": t, "gs_loss": q_gs["loss"], "gs_psnr_db": q_gs["psnr_db"],
                      "apo_delivered": apo.delivered[t], "apo_loss": q_apo["loss"], "apo_psnr_db": q_apo["psnr_db"]})
@@ -255,13 +291,11 @@ def sensitivity(data: SceneData, cfg: PaperConfig, out: Path, scales: tuple[floa
     Same channel, same schedulers (APO with N = ``apo_iterations``, and exact); only ``gs_loss`` is
     scaled. Answers "how good must the GS model be for the paper's 10×/100× savings" on our route.
     """
-    from gsrmr_server.scheduling import Problem
-
     rows = []
     for sc in scales:
         for lth in cfg.thresholds:
             p = Problem(channel_gain=data.channel_gain, gs_loss=data.gs_loss * sc, loss_threshold=lth,
-                        slot_s=data.record.slot_s)
+                        slot_s=data.record.slot_s, bandwidth_hz=data.link.bandwidth_hz, noise_w=data.link.noise_w)
             e_mr = solve(p, "robomr").energy_j
             apo = solve(p, "apo", iterations=cfg.apo_iterations)
             ex = solve(p, "exact", time_limit_s=cfg.exact_time_limit_s)

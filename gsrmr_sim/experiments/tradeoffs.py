@@ -20,9 +20,9 @@ from gsrmr_common.camera import Camera
 from gsrmr_common.jpeg import decode_jpeg, encode_jpeg
 from gsrmr_common.metrics import image_quality, psnr
 from gsrmr_server.mr.blend import mr_image
-from gsrmr_server.scheduling import ChannelModel, Problem, Schedule, solve
+from gsrmr_server.scheduling import Problem, Schedule, solve
 from gsrmr_server.splatting.render import render
-from gsrmr_sim.experiments.data import SceneData
+from gsrmr_sim.experiments.data import SceneData, channel_gains
 from gsrmr_sim.experiments.plots import plt, save_fig, write_csv
 
 
@@ -63,13 +63,14 @@ def scheduler_tradeoff(data: SceneData, sols_at_lth: dict[str, Schedule], cfg: T
                "gap_to_exact_pct": _gap_pct(s.energy_j, ex.energy_j)} for m, s in sols_at_lth.items()]
     write_csv(out / "tradeoff_scheduler_methods.csv", rows_m)
     rows_t = []
-    dist = data.distance_m
-    for k, t_n in enumerate(cfg.horizons):
-        reps = int(np.ceil(t_n / dist.size))
-        d = np.tile(dist, reps)[:t_n]
+    xy = data.record.poses[:, :2]
+    for t_n in cfg.horizons:
+        reps = int(np.ceil(t_n / len(xy)))
         loss = np.tile(data.gs_loss, reps)[:t_n]
-        g = ChannelModel(seed=data.settings.channel_seed + 100 + k).gains(d)
-        pt = Problem(channel_gain=g, gs_loss=loss, loss_threshold=cfg.loss_threshold, slot_s=data.record.slot_s)
+        # laps repeated: round slot k at the k-th pose of the repeated route, its own fading draw (seed, k)
+        _, g = channel_gains(data.link, np.tile(xy, (reps, 1))[:t_n])
+        pt = Problem(channel_gain=g, gs_loss=loss, loss_threshold=cfg.loss_threshold, slot_s=data.record.slot_s,
+                     bandwidth_hz=data.link.bandwidth_hz, noise_w=data.link.noise_w)
         res = {}
         for m in cfg.horizon_methods:
             opts = {"time_limit_s": cfg.exact_time_limit_s} if m == "exact" else {}

@@ -32,13 +32,15 @@ def unicycle_step(pose: tuple[float, float, float], v_mps: float, omega_rps: flo
 
 @dataclass
 class Drive:
-    """A headless drive: per-slot times (s), poses (N×3: a_m, b_m, theta_rad), controls (N×2) and progress."""
+    """A headless drive: per-slot times (s), poses (N×3: a_m, b_m, theta_rad), controls (N×2: the first
+    of each slot), progress, and every controller step's control (N×substeps×2: v_mps, omega_rps)."""
 
     times_s: np.ndarray
     poses: np.ndarray
     controls: np.ndarray
     progress_m: np.ndarray
     loop_length_m: float
+    step_controls: np.ndarray
 
 
 def has_moved(pose: tuple[float, float, float], rest: tuple[float, float, float], *, min_move_m: float = 0.01,
@@ -73,7 +75,7 @@ def drive_route(route: Route, slots: int, slot_s: float, *, pose0: tuple[float, 
     pose = pose0 if pose0 is not None else start_pose(route)
     s = 0.0
     dt = slot_s / substeps
-    times, poses, controls, progress = [], [], [], []
+    times, poses, controls, progress, fine = [], [], [], [], []
     v = w = 0.0
     for k in range(slots):
         times.append(k * slot_s)
@@ -83,9 +85,11 @@ def drive_route(route: Route, slots: int, slot_s: float, *, pose0: tuple[float, 
             v, w, s = ctrl.command(path, pose, s)
             if j == 0:
                 controls.append((v, w))
+            fine.append((v, w))
             pose = unicycle_step(pose, v, w, dt)
     return Drive(np.asarray(times), np.asarray(poses, dtype=np.float64).reshape(-1, 3),
-                 np.asarray(controls, dtype=np.float64).reshape(-1, 2), np.asarray(progress), path.length_m)
+                 np.asarray(controls, dtype=np.float64).reshape(-1, 2), np.asarray(progress), path.length_m,
+                 np.asarray(fine, dtype=np.float64).reshape(slots, substeps, 2))
 
 
 def lap_time_s(route: Route, dt_s: float = 0.01, max_s: float = 600.0) -> float:

@@ -121,6 +121,8 @@ class Scene:
     server_position_m: tuple[float, float, float] = (10.0, 0.0, 1.0)
     points: PointsWorld | None = None
     source: str = ""
+    model_iterations: int | None = None  # GS training of the live model: a fixed step count (deterministic) …
+    model_train_seconds: float | None = None  # … or a wall-time budget (s); neither: 75 s
 
     def state_at(self, round_index: int, t_s: float) -> WorldState:
         """Objects, lights and illumination regions of the real world at round time ``t_s``."""
@@ -207,7 +209,7 @@ def _event(value: Any, path: str, objects: dict[str, Shape], lights: set[str]) -
 
 
 _TOP_KEYS = {"name", "camera", "slot_s", "slots", "frames", "ambient", "background", "room", "lights",
-             "objects", "mr_content", "route", "events", "server", "points"}
+             "objects", "mr_content", "route", "events", "server", "points", "model"}
 
 
 def parse_scene(data: Any, source: str = "", base_dir: Path | None = None) -> Scene:
@@ -279,10 +281,16 @@ def parse_scene(data: Any, source: str = "", base_dir: Path | None = None) -> Sc
                                    integer=True)),
             fill_passes=int(_num(pm.get("fill_passes", 2), "points.fill_passes", lo=0, hi=8, integer=True)),
         )
+    model = _mapping(m.get("model") or {}, "model", {"train_iterations", "train_seconds"})
+    model_iterations = (int(_num(model["train_iterations"], "model.train_iterations", lo=1, integer=True))
+                        if "train_iterations" in model else None)
+    model_seconds = _num(model["train_seconds"], "model.train_seconds", positive=True) \
+        if "train_seconds" in model else None
     return Scene(name=name, camera=camera, route=route, slot_s=slot_s, slots=slots, frames=frames,
                  ambient=ambient, background=background, room=room, lights=lights,  # type: ignore[arg-type]
                  objects=objects, mr_content=mr_content, events=events,
-                 server_position_m=server_pos, points=points, source=source)  # type: ignore[arg-type]
+                 server_position_m=server_pos, points=points, source=source,  # type: ignore[arg-type]
+                 model_iterations=model_iterations, model_train_seconds=model_seconds)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -1,0 +1,65 @@
+"""The pose the robot would report along a headless drive: the LIMO's odometry, replayed offline (pure).
+
+In the live stack the mock base (:mod:`gsrmr_sim.limo.mock`) integrates its true pose with the velocity
+it applied and streams that velocity (0x221, quantised by the wire format) and its yaw (0x323, 0.01°) to
+the base driver, whose :class:`~gsrmr_robot.limo.odometry.Odometry2D` integrates them into ``odom``; the
+robot maps ``odom`` into ``map`` from where it stood at start (:func:`~gsrmr_robot.uplink_core.odom_to_map`).
+:func:`reported_poses` replays that chain along a :class:`~gsrmr_sim.world.kinematics.Drive` (one feedback
+frame per controller step), so the error between the reported and the true pose is the one the simulated
+world makes: wire quantisation of velocity and yaw, and the driver's midpoint integration of the exact arcs.
+What the simulator does not model — host receive-time jitter, wheel slip — is absent here too.
+
+Poses are (a_m, b_m, theta_rad) of ``base_link`` in ``map`` (REP-103).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from gsrmr_robot.limo import protocol as proto
+from gsrmr_robot.limo.kinematics import feedback_to_body
+from gsrmr_robot.limo.odometry import Odometry2D
+from gsrmr_robot.uplink_core import odom_to_map
+from gsrmr_sim.world.kinematics import Drive, unicycle_step
+
+
+def _wire(msg):
+    """``msg`` as the driver decodes it after one trip over the serial wire (quantised fields)."""
+    return proto.decode_message(proto.decode_frame(proto.encode_message(msg)))
+
+
+def reported_poses(drive: Drive, slot_s: float) -> np.ndarray:
+    """T×3 poses the robot reports at each slot start of ``drive`` (true start pose ``drive.poses[0]``)."""
+    steps = drive.step_controls.shape[1]
+    dt = slot_s / steps
+    start = tuple(float(v) for v in drive.poses[0])
+    odo = Odometry2D(heading_source="imu")
+    true = start
+    now = 0.0
+    out = np.zeros_like(drive.poses)
+
+    def feed(v_mps: float, w_radps: float) -> None:
+        yaw = math.atan2(math.sin(true[2]), math.cos(true[2]))
+        odo.update_imu_yaw(_wire(proto.ImuEuler(yaw, 0.0, 0.0)).yaw_rad)
+        state = _wire(proto.MotionState(v_mps, w_radps, 0.0, 0.0))
+        odo.update_velocity(feedback_to_body(proto.MotionMode.DIFF, state), now)
+
+    feed(0.0, 0.0)
+    for t in range(drive.poses.shape[0]):
+        p = odo.pose
+        out[t] = odom_to_map(start, p.x_m, p.y_m, p.yaw_rad)
+        for v, w in drive.step_controls[t]:
+            true = unicycle_step(true, float(v), float(w), dt)
+            now += dt
+            feed(float(v), float(w))
+    return out
+
+
+def pose_errors(reported: np.ndarray, true: np.ndarray) -> dict[str, float]:
+    """Position (m) and heading (rad) error of ``reported`` against ``true`` (both T×3): mean and max."""
+    d = np.hypot(reported[:, 0] - true[:, 0], reported[:, 1] - true[:, 1])
+    h = np.abs(np.arctan2(np.sin(reported[:, 2] - true[:, 2]), np.cos(reported[:, 2] - true[:, 2])))
+    return {"position_mean_m": float(d.mean()), "position_max_m": float(d.max()),
+            "heading_mean_rad": float(h.mean()), "heading_max_rad": float(h.max())}
