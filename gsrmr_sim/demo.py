@@ -247,9 +247,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="GS training wall-time budget (default: the scene's model.train_iterations or "
                          "model.train_seconds, else 75 s)")
     ap.add_argument("--train-iterations", type=int, default=None, help="GS training steps (deterministic)")
-    ap.add_argument("--train-width", type=int, default=160)
-    ap.add_argument("--budget", type=int, default=100_000,
-                    help="Gaussian budget of the trained model: render time per slot grows with it (sandbox, "
+    ap.add_argument("--train-width", type=int, default=None,
+                    help="GS training width in px (default: the scene's model.train_width_px, else 160)")
+    ap.add_argument("--budget", type=int, default=None,
+                    help="Gaussian budget of the trained model (default: the scene's model.budget, else 100k): "
+                         "render time per slot grows with it (sandbox, "
                          "75 s of training: 100k → 37.3 dB held out, 30 ms/render; 200k → 36.8 dB, 44 ms)")
     ap.add_argument("--max-psnr-drop-db", type=float, default=0.3,
                     help="compact the trained model to the smallest one within this held-out PSNR loss "

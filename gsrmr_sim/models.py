@@ -169,23 +169,30 @@ DEFAULT_TRAIN_SECONDS = 75.0
 
 
 def live_recipe(scene_name: str, *, frames: int | None = None, train_seconds: float | None = None,
-                iterations: int | None = None, width: int = LIVE_TRAIN_WIDTH_PX,
-                budget: int = LIVE_BUDGET) -> ModelRecipe:
+                iterations: int | None = None, width: int | None = None, budget: int | None = None) -> ModelRecipe:
     """The recipe of the model the live system renders (``gsrmr-demo``, ``gsrmr-experiments``).
 
-    Training stops after ``iterations`` steps (deterministic: the learning-rate schedule and densification
-    follow the count) or after ``train_seconds`` of wall time (then the model depends on the machine);
-    with neither, the scene's ``model.train_iterations`` / ``model.train_seconds`` apply (default 75 s)."""
+    Round-1 frames at the scene camera's size (the live render size); training at ``width`` px (SH degree 0,
+    at most ``budget`` Gaussians). Training stops after ``iterations`` steps (deterministic: the learning-rate
+    decay and densification follow the count, no opacity reset, held-out PSNR every 500 steps) or after
+    ``train_seconds`` of wall time (then the model depends on the machine). Anything not given comes from
+    the scene's ``model`` section (scene YAML), else 75 s at 160 px with 100k Gaussians."""
     scene = load_scene(scene_name)
     if iterations is None and train_seconds is None:
         iterations, train_seconds = scene.model_iterations, scene.model_train_seconds
         if iterations is None and train_seconds is None:
             train_seconds = DEFAULT_TRAIN_SECONDS
+    width = width or scene.model_train_width_px or LIVE_TRAIN_WIDTH_PX
+    budget = budget or scene.model_budget or LIVE_BUDGET
     config = TrainConfig(resolution=width, sh_degree=0, budget=budget)
+    if scene.model_init_points:
+        config = replace(config, init_points=scene.model_init_points)
     if iterations is not None:  # the schedule scaled to the count
-        config = replace(config, iterations=iterations, densify_until=min(config.densify_until, (2 * iterations) // 3))
+        config = replace(config, iterations=iterations, densify_until=min(config.densify_until, (2 * iterations) // 3),
+                         opacity_reset_interval=max(config.opacity_reset_interval, iterations + 1))
     return ModelRecipe(scene=scene_name, frames=frames or scene.frames, config=config,
-                       iterations=iterations or 100_000, time_budget_s=train_seconds, holdout_every=8)
+                       iterations=iterations or 100_000, time_budget_s=train_seconds, holdout_every=8,
+                       eval_every=500 if iterations is not None else 0)
 
 
 def live_model(recipe: ModelRecipe, cache: str | Path, *, max_psnr_drop_db: float | None = LIVE_MAX_PSNR_DROP_DB,

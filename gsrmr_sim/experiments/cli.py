@@ -61,7 +61,7 @@ def data_summary(d: SceneData, thresholds: Sequence[float]) -> dict[str, Any]:
     p = d.problem(0.03)
     ok = p.image_ok & p.key_ok
     k = d.record.intrinsics
-    return {"width": k.width, "height": k.height, "train_width": s.train_width,
+    return {"width": k.width, "height": k.height, "train_width": d.train.get("config", {}).get("resolution"),
             "frames": d.train.get("train_frames", 0) + d.train.get("heldout_frames", 0), "slots": len(d.record),
             "train_iterations": hist[-1]["iteration"] if hist else None, "train_wall_s": d.train.get("wall_s"),
             "heldout_psnr_db": d.heldout_psnr_db, "gaussians": d.model.num_gaussians,

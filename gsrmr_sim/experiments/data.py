@@ -33,7 +33,7 @@ import numpy as np
 from gsrmr_common.link_model import LinkBudget
 from gsrmr_server.scheduling import Problem
 from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_sim.models import LIVE_BUDGET, LIVE_MAX_PSNR_DROP_DB, LIVE_TRAIN_WIDTH_PX, live_model, live_recipe
+from gsrmr_sim.models import LIVE_MAX_PSNR_DROP_DB, live_model, live_recipe
 from gsrmr_sim.offline_server import OfflineServer
 from gsrmr_sim.sim_stack import config_dir, link_budget, robot_jpeg_quality
 from gsrmr_sim.survey import SURVEY_VERSION, gs_losses
@@ -51,8 +51,9 @@ class DataSettings:
     slots: int | None = None  # T, round-2 slots (None: the scene's)
     train_iterations: int | None = None  # GS training steps (None: the scene's model.train_iterations …)
     train_seconds: float | None = None  # … or wall-time budget (None: the scene's, else 75 s)
-    train_width: int = LIVE_TRAIN_WIDTH_PX  # px, the training resolution (frames are recorded at the camera's)
-    budget: int = LIVE_BUDGET  # max Gaussians
+    train_width: int | None = None  # px, the training resolution (None: the scene's, else 160; frames are
+    #                                 recorded at the camera's size)
+    budget: int | None = None  # max Gaussians (None: the scene's, else 100k)
     max_psnr_drop_db: float | None = LIVE_MAX_PSNR_DROP_DB  # compaction tolerance (None: the trained model)
     jpeg_quality: int | None = None  # the robot's JPEG quality (None: config/robot.yaml's)
     seed: int = 0  # round-2 start jitter seed

@@ -123,6 +123,9 @@ class Scene:
     source: str = ""
     model_iterations: int | None = None  # GS training of the live model: a fixed step count (deterministic) …
     model_train_seconds: float | None = None  # … or a wall-time budget (s); neither: 75 s
+    model_train_width_px: int | None = None  # training resolution (None: 160 px)
+    model_budget: int | None = None  # max Gaussians (None: 100k)
+    model_init_points: int | None = None  # Gaussians initialised from round-1 depth (None: the trainer's 30k)
 
     def state_at(self, round_index: int, t_s: float) -> WorldState:
         """Objects, lights and illumination regions of the real world at round time ``t_s``."""
@@ -281,16 +284,21 @@ def parse_scene(data: Any, source: str = "", base_dir: Path | None = None) -> Sc
                                    integer=True)),
             fill_passes=int(_num(pm.get("fill_passes", 2), "points.fill_passes", lo=0, hi=8, integer=True)),
         )
-    model = _mapping(m.get("model") or {}, "model", {"train_iterations", "train_seconds"})
-    model_iterations = (int(_num(model["train_iterations"], "model.train_iterations", lo=1, integer=True))
-                        if "train_iterations" in model else None)
+    model = _mapping(m.get("model") or {}, "model", {"train_iterations", "train_seconds", "train_width_px",
+                                                     "budget", "init_points"})
+
+    def model_int(key: str, lo: int) -> int | None:
+        return int(_num(model[key], f"model.{key}", lo=lo, integer=True)) if key in model else None
+
     model_seconds = _num(model["train_seconds"], "model.train_seconds", positive=True) \
         if "train_seconds" in model else None
     return Scene(name=name, camera=camera, route=route, slot_s=slot_s, slots=slots, frames=frames,
                  ambient=ambient, background=background, room=room, lights=lights,  # type: ignore[arg-type]
                  objects=objects, mr_content=mr_content, events=events,
                  server_position_m=server_pos, points=points, source=source,  # type: ignore[arg-type]
-                 model_iterations=model_iterations, model_train_seconds=model_seconds)
+                 model_iterations=model_int("train_iterations", 1), model_train_seconds=model_seconds,
+                 model_train_width_px=model_int("train_width_px", 8), model_budget=model_int("budget", 1),
+                 model_init_points=model_int("init_points", 1))
 
 
 # ----------------------------------------------------------------------------------------------
