@@ -68,3 +68,31 @@ def test_console_entry_module_is_light(module):
     """The entry wrappers every node script goes through import nothing before the guard is in place."""
     modules = loaded_modules(module)
     assert offenders(modules, (*HEAVY, "numpy", "rclpy", "gsrmr_server", "gsrmr_robot")) == []
+
+
+def console_scripts() -> dict[str, str]:
+    """Every ``gsrmr-*`` console script of the installed package → the module its entry point names."""
+    from importlib.metadata import entry_points
+
+    return {ep.name: ep.value.split(":")[0] for ep in entry_points(group="console_scripts")
+            if ep.name.startswith("gsrmr-")}
+
+
+def test_every_console_script_is_covered():
+    scripts = console_scripts()
+    if not scripts:
+        pytest.skip("package not installed (no console_scripts metadata)")
+    assert {"gsrmr-robot", "gsrmr-server", "gsrmr-scheduler", "gsrmr-demo", "gsrmr-experiments"} <= set(scripts)
+
+
+@pytest.mark.parametrize("script", sorted(console_scripts()))
+def test_console_script_module_respects_its_wing(script):
+    """Each console script's module in a fresh interpreter: only the simulator's scripts load the simulator;
+    the library tools (scheduling, splatting) load no ROS; the node wrappers stay light (above)."""
+    module = console_scripts()[script]
+    modules = loaded_modules(module)
+    assert module in modules
+    if not module.startswith("gsrmr_sim"):
+        assert offenders(modules, ("gsrmr_sim",)) == [], f"{script} ({module}) loads the simulator"
+    if module.startswith(("gsrmr_server.scheduling", "gsrmr_server.splatting")):
+        assert offenders(modules, ("rclpy", "launch", "launch_ros")) == [], f"{script} ({module}) loads ROS"
