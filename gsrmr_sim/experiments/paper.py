@@ -186,8 +186,7 @@ def table1(data: SceneData, sols: dict[float, dict[str, Schedule]], cfg: PaperCo
 def table1_markdown(t1: dict[str, Any]) -> str:
     """Table 1 in the paper's layout (Loss | PSNR | SSIM, Fairness/MaxRate/APO/Exact, then ours: APO planned
     with the JPEG loss; PSNR pooled over slots), every value measured on the live core's composites."""
-    first = next(iter(t1["per_threshold"].values()), {})
-    ms = TABLE1_METHODS + ((APO_JPEG,) if APO_JPEG in first else ())
+    ms = TABLE1_METHODS + ((APO_JPEG,) if any(APO_JPEG in d for d in t1["per_threshold"].values()) else ())
     head = "| L_th | " + " | ".join(f"loss {m}" for m in ms) + " | " + " | ".join(f"PSNR {m}" for m in ms) + \
         " | " + " | ".join(f"SSIM {m}" for m in ms) + " |"
     lines = [head, "|" + "---|" * (1 + 3 * len(ms))]
