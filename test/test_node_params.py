@@ -201,3 +201,22 @@ def test_parameter_modules_import_no_ros_and_the_scheduler_one_no_renderer():
     assert "gsrmr_server.scheduler_params" in modules
     assert sorted(m for m in modules if m.split(".")[0] in ("rclpy", "rcl_interfaces", "torch")) == []
     assert sorted(m for m in modules if m.startswith(("gsrmr_server.splatting", "gsrmr_server.compose"))) == []
+
+
+def test_limo_base_parameters_defaults_rules_and_read_only():
+    from gsrmr_robot.limo.base_params import MOTION_MODES, LimoBaseParameters
+
+    p = LimoBaseParameters()
+    assert (p.port, p.baud, p.motion_mode, p.heading_source, p.command_rate_hz) == (
+        "/dev/ttyTHS1", 460800, "auto", "imu", 50.0)
+    assert LimoBaseParameters.read_only_names() == {f for f in p.ros_values()} - {"motion_mode", "heading_source"}
+    assert "one of" in LimoBaseParameters.change_problem("motion_mode", "tank")
+    assert "one of" in LimoBaseParameters.change_problem("heading_source", "compass")
+    assert "read-only" in LimoBaseParameters.change_problem("baud", 115200)
+    assert "must be in" in LimoBaseParameters.problem("baud", 100)
+    for mode in MOTION_MODES:
+        assert LimoBaseParameters.change_problem("motion_mode", mode) is None
+    q = p.with_values({"motion_mode": "diff", "max_linear_mps": 0.5})
+    assert q.motion_mode == "diff" and q.limits.max_linear_mps == 0.5 and p.motion_mode == "auto"
+    with pytest.raises(ValueError, match="motion_mode"):
+        p.with_values({"motion_mode": "tank"})

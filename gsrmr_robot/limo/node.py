@@ -31,13 +31,11 @@ from rclpy.node import Node
 from rclpy.time import Time
 from sensor_msgs.msg import Imu
 
-from gsrmr_common.ros_node import declare, diagnostics_msg, run_node
-from gsrmr_robot.limo import kinematics as kin
+from gsrmr_common.ros_node import declare_parameters, diagnostics_msg, run_node
 from gsrmr_robot.limo import protocol as proto
+from gsrmr_robot.limo.base_params import LimoBaseParameters
 from gsrmr_robot.limo.driver import DriverSnapshot, ImuSample, LimoDriver
-from gsrmr_robot.limo.odometry import HEADING_SOURCES
 
-MOTION_MODES = ("auto", "diff", "ackermann", "mecanum")
 BATTERY_WARN_V = 10.5  # 3S Li-ion pack, 12 V nominal: warn below 3.5 V/cell
 
 
@@ -55,34 +53,12 @@ class LimoBaseNode(Node):
 
     def __init__(self) -> None:
         super().__init__("gsrmr_limo_base")
-        p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
-        port = p("port", "/dev/ttyTHS1", "Serial device path or any pyserial URL (e.g. /tmp/limo, "
-                 "rfc2217://host:port)", read_only=True)
-        baud = p("baud", 460800, "Baud rate (LIMO: 460800, 8N1)", min_value=1200, max_value=4_000_000,
-                 read_only=True)
-        rate = p("command_rate_hz", 50.0, "0x111 streaming rate [Hz]", min_value=1.0, max_value=200.0,
-                 read_only=True)
-        timeout = p("cmd_timeout_s", 0.5, "cmd_vel older than this stops the base [s]", min_value=0.05,
-                    max_value=5.0, read_only=True)
-        mode = p("motion_mode", "auto", "auto (from 0x211) | diff | ackermann | mecanum",
-                 constraints="one of " + ", ".join(MOTION_MODES))
-        heading = p("heading_source", "imu", "Odometry heading: imu (0x323 yaw) | gyro_integration (0x221 wz)",
-                    constraints="one of " + ", ".join(HEADING_SOURCES))
-        self.odom_frame = p("odom_frame_id", "odom", "Odometry parent frame", read_only=True)
-        self.base_frame = p("base_frame_id", "base_link", "Robot body frame", read_only=True)
-        self.imu_frame = p("imu_frame_id", "imu_link", "IMU frame", read_only=True)
-        self.publish_tf = p("publish_tf", False, "Also publish odom → base_link on /tf", read_only=True)
-        max_v = p("max_linear_mps", 1.0, "Clamp on |linear.x| and |linear.y| [m/s]", min_value=0.0,
-                  max_value=1.0, read_only=True)
-        max_w = p("max_angular_radps", kin.DEFAULT_LIMITS.max_angular_radps, "Clamp on |angular.z| [rad/s]",
-                  min_value=0.0, max_value=20.0, read_only=True)
-        diag_period = p("diagnostics_period_s", 1.0, "Diagnostics publishing period [s]", min_value=0.1,
-                        max_value=10.0, read_only=True)
-        for name, value, allowed in (("motion_mode", mode, MOTION_MODES), ("heading_source", heading,
-                                                                           HEADING_SOURCES)):
-            if value not in allowed:
-                raise ValueError(f"parameter {name} must be one of {allowed}, got {value!r}")
-        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.params: LimoBaseParameters = declare_parameters(self, LimoBaseParameters)
+        p = self.params
+        self.odom_frame, self.base_frame, self.imu_frame = p.odom_frame_id, p.base_frame_id, p.imu_frame_id
+        self.publish_tf = p.publish_tf
+        self.add_on_set_parameters_callback(self._validate)
+        self.add_post_set_parameters_callback(self._after_set)
 
         self._odom_pub = self.create_publisher(Odometry, "odom", 10)
         self._imu_pub = self.create_publisher(Imu, "imu", 10)
@@ -92,16 +68,16 @@ class LimoBaseNode(Node):
             self._send_tf = self._tf_sender()
         self.create_subscription(Twist, "cmd_vel", self._on_cmd_vel, 10)
 
-        limits = kin.Limits(max_linear_mps=max_v, max_lateral_mps=max_v, max_angular_radps=max_w)
-        self.driver = LimoDriver(port, baud, command_rate_hz=rate, cmd_timeout_s=timeout, motion_mode=mode,
-                                 heading_source=heading, limits=limits, on_event=self._on_event)
+        self.driver = LimoDriver(p.port, p.baud, command_rate_hz=p.command_rate_hz, cmd_timeout_s=p.cmd_timeout_s,
+                                 motion_mode=p.motion_mode, heading_source=p.heading_source, limits=p.limits,
+                                 on_event=self._on_event)
         self.driver.on_odometry = self._publish_odom
         self.driver.on_imu = self._publish_imu
         self._alive = True
-        self.create_timer(diag_period, self._publish_diagnostics)
+        self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
         self.driver.start()
-        self.get_logger().info(f"LIMO base on {port} @ {baud} Bd, mode {mode}, heading {heading}, "
-                               f"commands {rate:g} Hz, timeout {timeout:g} s")
+        self.get_logger().info(f"LIMO base on {p.port} @ {p.baud} Bd, mode {p.motion_mode}, heading "
+                               f"{p.heading_source}, commands {p.command_rate_hz:g} Hz, timeout {p.cmd_timeout_s:g} s")
 
     def _tf_sender(self) -> Callable[[TransformStamped], None] | None:
         """Where odom → base_link goes: tf2_ros's broadcaster, else a raw /tf publisher, else nowhere."""
@@ -119,19 +95,25 @@ class LimoBaseNode(Node):
         return lambda tf: pub.publish(TFMessage(transforms=[tf]))
 
     # ---------------------------------------------------------------- parameters
-    def _on_set_parameters(self, params: list) -> SetParametersResult:
+    def _validate(self, params: list) -> SetParametersResult:
+        """On-set: refuse a change :class:`LimoBaseParameters` gives a reason for (read-only, type, range, an
+        unknown mode or heading source); change nothing."""
         for prm in params:
-            if prm.name == "motion_mode" and prm.value not in MOTION_MODES:
-                return SetParametersResult(successful=False, reason=f"motion_mode must be one of {MOTION_MODES}")
-            if prm.name == "heading_source" and prm.value not in HEADING_SOURCES:
-                return SetParametersResult(successful=False,
-                                           reason=f"heading_source must be one of {HEADING_SOURCES}")
-        for prm in params:
-            if prm.name == "motion_mode" and hasattr(self, "driver"):
-                self.driver.set_motion_mode(prm.value)
-            elif prm.name == "heading_source" and hasattr(self, "driver"):
-                self.driver.set_heading_source(prm.value)
+            reason = LimoBaseParameters.change_problem(prm.name, prm.value)
+            if reason:
+                return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
+
+    def _after_set(self, params: list) -> None:
+        """Post-set: take the accepted values and hand a new motion mode or heading source to the driver."""
+        old = self.params
+        self.params = old.with_values({prm.name: prm.value for prm in params})
+        if not hasattr(self, "driver"):  # start-up overrides: the driver is built from self.params
+            return
+        if self.params.motion_mode != old.motion_mode:
+            self.driver.set_motion_mode(self.params.motion_mode)
+        if self.params.heading_source != old.heading_source:
+            self.driver.set_heading_source(self.params.heading_source)
 
     # ---------------------------------------------------------------- callbacks
     def _on_cmd_vel(self, msg: Twist) -> None:
