@@ -327,7 +327,8 @@ def main() -> int:
         higher_is_better = ("slots", "on_time")
         med = {c: float(np.median([r[c] for r in results])) for c in cols}
         worst = {c: (min if c in higher_is_better else max)(r[c] for r in results) for c in cols}
-        print("| median | " + " | ".join(f"{med[c]:.1f}" for c in cols) + " |")
+        ints = {c for c in cols if all(isinstance(r[c], int) for r in results)}
+        print("| median | " + " | ".join(f"{med[c]:.0f}" if c in ints else f"{med[c]:.1f}" for c in cols) + " |")
         print("| worst | " + " | ".join(f"{worst[c]:.1f}" if isinstance(worst[c], float) else str(worst[c])
                                         for c in cols) + " |")
     return 0
