@@ -14,7 +14,8 @@ Subscribes: ``uplink/pose_key`` (geometry_msgs/Vector3Stamped), ``uplink/image_r
 (sensor_msgs/CompressedImage), ``gsrmr/schedule`` (std_msgs/Float64MultiArray, transient local),
 ``gsrmr/ledger`` (std_msgs/Float64MultiArray, the robot's per-slot energy row), ``cmd_vel``
 (geometry_msgs/Twist, u_t for the recording), and — only with ``evaluate_ground_truth`` in
-simulation — ``camera/image_raw`` (the true r_t, to measure loss/PSNR/SSIM of m̂_t against m_t).
+simulation — ``camera/image_raw`` (the true r_t, to measure loss/PSNR/SSIM of m̂_t against m_t; with
+``ground_truth_dir`` the frames are read from that folder instead, :mod:`gsrmr_common.truth_frames`).
 ``uplink/camera_info`` (sensor_msgs/CameraInfo, reliable, transient local, depth 1: the robot's latched
 calibration) gives the intrinsics the node renders with: the slot clock starts with the first usable one
 (until then ``/diagnostics`` says "waiting for camera_info"); a new calibration is adopted from the next
@@ -75,6 +76,7 @@ from gsrmr_common.ros_wire import (
     schedule_from_msg,
     stamp_to_ns,
 )
+from gsrmr_common.truth_frames import TruthFrameReader
 from gsrmr_common.wire import (
     MAX_COMPRESSED_BYTES,
     LedgerRow,
@@ -161,7 +163,8 @@ class ServerNode(Node):
         self.create_subscription(Twist, "cmd_vel", self._on_cmd, 10, callback_group=io)
         self.create_subscription(CameraInfo, "uplink/camera_info", self.use_camera_info, CAMERA_INFO_QOS,
                                  callback_group=io)
-        if p.evaluate_ground_truth:
+        self._truth_files = TruthFrameReader(p.ground_truth_dir) if p.ground_truth_dir else None
+        if p.evaluate_ground_truth and self._truth_files is None:
             self.create_subscription(Image, "camera/image_raw", self._on_camera, qos_profile_sensor_data,
                                      callback_group=io)
         self.create_timer(0.01, self._tick)  # 10 ms: a slot is composed ≤ 10 ms after it is complete or due
@@ -333,7 +336,11 @@ class ServerNode(Node):
         if out.loss_sample is not None:
             self._pub_loss.publish(loss_sample_to_msg(out.loss_sample))
         if self.params.evaluate_ground_truth:
-            self.core.score(out, match_frame(frames, ledger, start_ns))
+            if self._truth_files is not None:
+                truth = self._truth_files.frame(ledger.frame_stamp_s if ledger else None, start_ns)
+            else:
+                truth = match_frame(frames, ledger, start_ns)
+            self.core.score(out, truth)
         if self.recorder is not None:
             self.recorder.write_slot(replace(out.row, latency_ms=latency_ms), compressed, self._cmd,
                                      stamp_ns=start_ns)

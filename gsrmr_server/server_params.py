@@ -39,6 +39,10 @@ class ServerParameters(NodeParameters):
         0, "Simulation only, with evaluate_ground_truth: also measure what the other choice would have given in "
         "each slot (GS render, and the true frame as a JPEG of this quality = the robot's) for the hindsight "
         "optimum; 0 = off", min_value=0, max_value=100, read_only=True)
+    ground_truth_dir: str = ros_parameter(
+        "", "Simulation only, with evaluate_ground_truth: read the true frames from this folder (the mock camera's "
+        "truth_dir, the simulation backplane) instead of subscribing to camera/image_raw, so raw frames stay off "
+        "a rate-limited uplink; '' = subscribe", read_only=True)
     record_dir: str = ros_parameter("", "Write slots.csv and MCAP here ('' = off)", read_only=True)
     jpeg_quality: int = ros_parameter(85, "JPEG quality of mr/image/compressed", min_value=1, max_value=100)
     max_backlog_slots: int = ros_parameter(

@@ -22,11 +22,14 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+import contextlib
+from dataclasses import dataclass
 import json
 import math
 import os
 from pathlib import Path
 import random
+import shutil
 import signal
 import sys
 import time
@@ -72,21 +75,41 @@ def ensure_survey(scene_name: str, model_path: Path, slots: int, round_index: in
 
 def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, loss_threshold: float,
               slots: int, method: str, timeout_s: float, channel_seed: int | None = None,
-              oracle_channel: bool = False) -> tuple[list[dict], int]:
-    """Start every node as a process over DDS; stop after ``slots`` composed slots; return the rows."""
+              oracle_channel: bool = False, hosts: int = 1, uplink_mbit: float = 5.0,
+              link_events: Sequence[LinkEvent] = (), link_log: dict | None = None) -> tuple[list[dict], int]:
+    """Start every node as a process over DDS; stop after ``slots`` composed slots; return the rows.
+
+    ``hosts`` = 2 runs the robot's processes and the server's in two network namespaces joined by a veth
+    pair limited to ``uplink_mbit`` (:class:`gsrmr_sim.netns.TwoHosts`), DDS over UDPv4 across it, the
+    ground-truth frames over the simulation backplane (:mod:`gsrmr_common.truth_frames`); ``link_events``
+    then change the link during the round, and ``link_log`` (a dict) receives the link's byte counters.
+    """
     from gsrmr_server.recording import read_slots_csv
     from gsrmr_sim.sim_stack import environment, sim_stack
     from gsrmr_sim.supervisor import ProcessStack
 
     domain = random.Random(os.getpid() ^ time.time_ns()).randrange(1, 101)
     link = f"/tmp/gsrmr_limo_{os.getpid()}"
+    truth_dir = str(run_dir / "truth_frames") if hosts == 2 else ""
     specs = sim_stack(scene=scene, model_path=str(model_path), record_dir=str(run_dir / "recording"),
                       loss_threshold=loss_threshold, link_path=link, laps=1, method=method,
                       loss_map_file=str(loss_map), state_dir=str(run_dir / "scheduler_state"),
-                      channel_seed=channel_seed, oracle_channel=oracle_channel)
+                      channel_seed=channel_seed, oracle_channel=oracle_channel, truth_dir=truth_dir)
     stack = ProcessStack(environment(domain), run_dir / "logs", params_dir=run_dir / "params")
+    net = None
+    placement: dict[str, dict] = {}
+    if hosts == 2:
+        from gsrmr_sim.netns import TwoHosts
+
+        net = TwoHosts(uplink_mbit=uplink_mbit, domain_id=domain).open()
+        for spec in specs:
+            ns = net.robot_ns if spec.host == "robot" else net.server_ns
+            placement[spec.name] = {"prefix": ["ip", "netns", "exec", ns], "env": net.environment(stack.env)}
+        _log(f"two hosts: robot {net.robot_ns} ({net.robot_ip}), server {net.server_ns} ({net.server_ip}), "
+             f"uplink limited to {uplink_mbit:g} Mbit/s, DDS over UDPv4")
     _log(f"starting {len(specs)} processes in ROS domain {domain}")
     csv_path = run_dir / "recording" / "slots.csv"
+    events = sorted(link_events, key=lambda e: e.at_slot)
     try:
         # The route follower (which sets the robot in motion) starts last, once the server composes:
         # round 2 then begins with every node up and warm, as a run on the real system would; the mock
@@ -96,13 +119,16 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
         for spec in specs:
             if spec.executable not in last:
                 # the pty must exist before the driver opens it
-                stack.start(spec.name, spec, wait_for_path=link if spec.executable == "gsrmr-mock-limo" else None)
+                stack.start(spec.name, spec, wait_for_path=link if spec.executable == "gsrmr-mock-limo" else None,
+                            **placement.get(spec.name, {}))
         warm = time.monotonic() + 60
         while time.monotonic() < warm and len(read_slots_csv(csv_path) if csv_path.exists() else []) < 10:
             time.sleep(0.2)
         for spec in specs:
             if spec.executable in last:
-                stack.start(spec.name, spec)
+                stack.start(spec.name, spec, **placement.get(spec.name, {}))
+        if net is not None and link_log is not None:
+            link_log["start"] = net.link_bytes()
         deadline = time.monotonic() + timeout_s
         first_moving: int | None = None
         rows: list[dict] = []
@@ -115,6 +141,15 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
             rows = read_slots_csv(csv_path)
             if first_moving is None:
                 first_moving = first_round_row(rows)
+            while net is not None and events and first_moving is not None \
+                    and len(rows) - first_moving >= events[0].at_slot:
+                event = events.pop(0)
+                event.apply(net)
+                if link_log is not None:
+                    link_log.setdefault("events", []).append(
+                        {**event.as_dict(), "applied_after_slot": len(rows) - first_moving,
+                         "wall_s": time.time()})
+                _log(f"link: {event.describe()} (round slot ~{len(rows) - first_moving})")
             if first_moving is not None and len(rows) - first_moving >= slots:
                 break
             if time.monotonic() - last_report > 5:
@@ -124,13 +159,60 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
         else:
             raise TimeoutError(f"round 2 did not produce {slots} slots in {timeout_s:.0f} s")
     finally:
+        if net is not None and link_log is not None and "start" in link_log:
+            with contextlib.suppress(Exception):
+                link_log["end"] = net.link_bytes()
         for name, took in stack.stop().items():
             if took >= stack.stop_timeout_s:
                 _log(f"{name} ignored SIGINT for {stack.stop_timeout_s:.0f} s; killed")
+        if net is not None:
+            net.close()
+        if truth_dir:
+            shutil.rmtree(truth_dir, ignore_errors=True)
         if os.path.islink(link):
             os.unlink(link)
     rows = read_slots_csv(csv_path)
     return rows[first_moving:first_moving + slots], first_moving
+
+
+@dataclass(frozen=True)
+class LinkEvent:
+    """A change of the two-host link once the round has composed ``at_slot`` slots: ``down`` (link down),
+    ``up`` (link back up) or ``rate`` (``mbit`` Mbit/s on the uplink)."""
+
+    at_slot: int
+    action: str
+    mbit: float = 0.0
+
+    def apply(self, net: object) -> None:
+        """Apply to a :class:`gsrmr_sim.netns.TwoHosts`."""
+        if self.action in ("down", "up"):
+            net.set_link(self.action == "up")  # type: ignore[attr-defined]
+        elif self.action == "rate":
+            net.set_rate(self.mbit)  # type: ignore[attr-defined]
+        else:
+            raise ValueError(f"unknown link action {self.action!r}")
+
+    def describe(self) -> str:
+        return f"rate {self.mbit:g} Mbit/s" if self.action == "rate" else f"link {self.action}"
+
+    def as_dict(self) -> dict:
+        rate = {"mbit": self.mbit} if self.action == "rate" else {}
+        return {"at_slot": self.at_slot, "action": self.action, **rate}
+
+
+def parse_link_events(text: str) -> list[LinkEvent]:
+    """``"down@100,up@120,rate=1.5@150"`` → link events at round slots 100, 120 and 150."""
+    events = []
+    for item in filter(None, (t.strip() for t in text.split(","))):
+        what, _, at = item.partition("@")
+        if not at.isdigit():
+            raise ValueError(f"link event {item!r}: expected ACTION@SLOT")
+        action, _, mbit = what.partition("=")
+        if action not in ("down", "up", "rate") or (action == "rate") != bool(mbit):
+            raise ValueError(f"link event {item!r}: ACTION is down, up or rate=MBIT")
+        events.append(LinkEvent(int(at), action, float(mbit) if mbit else 0.0))
+    return events
 
 
 def first_round_row(rows: list[dict]) -> int | None:
@@ -178,6 +260,20 @@ def summarise(rows: list[dict], slot_s: float) -> dict:
             "psnr_slot_mean_db": float(col("psnr_db").mean()) if col("psnr_db").size else math.nan,
             "ssim": float(col("ssim").mean()) if col("ssim").size else math.nan,
             "faults": sum(1 for r in rows if r["faults"])}
+
+
+def link_summary(link_log: dict, rows: list[dict], uplink_mbit: float) -> dict:
+    """What crossed the two-host link (veth byte counters from the round's start to the stack's stop) beside
+    what the robot's ledger says it sent in the scored slots (images and keys, payload only)."""
+    start, end = link_log.get("start"), link_log.get("end")
+    if not (start and end):
+        return {"uplink_mbit": uplink_mbit}
+    up, down = end["uplink"] - start["uplink"], end["downlink"] - start["downlink"]
+    duration_s = max(1e-9, end.get("wall_s", 0.0) - start.get("wall_s", 0.0))
+    return {"uplink_mbit": uplink_mbit, "link_uplink_bytes": int(up), "link_downlink_bytes": int(down),
+            "link_seconds": round(duration_s, 2), "link_uplink_mbit_mean": 8e-6 * up / duration_s,
+            "ledger_bytes_sent": int(sum(r["bytes_sent"] or 0 for r in rows)),
+            "link_events": link_log.get("events", [])}
 
 
 def write_report(report_dir: Path, rows: list[dict], summary: dict) -> None:
@@ -264,7 +360,30 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="the oracle-fed upper bound: the scheduler plans with the simulator's future channel "
                          "realisation and a loss map surveyed on the very round being scored (by default it "
                          "plans with the channel's statistics and a map of the mapping round)"),
+    ap.add_argument("--hosts", type=int, choices=(1, 2), default=1,
+                    help="2: the robot's processes and the server's in two network namespaces joined by a veth pair "
+                         "(DDS over UDPv4 across it; needs root and iproute2)")
+    ap.add_argument("--uplink-mbit", type=float, default=5.0,
+                    help="with --hosts 2: the robot → server rate limit in Mbit/s (tbf)")
+    ap.add_argument("--link-events", default="",
+                    help="with --hosts 2: link changes during the round, e.g. 'down@100,up@120,rate=1.5@150' "
+                         "(ACTION@SLOT, SLOT = composed round slots)")
     args = ap.parse_args(argv)
+    try:
+        link_events = parse_link_events(args.link_events)
+    except ValueError as e:
+        ap.error(str(e))
+    if args.hosts == 2:
+        from gsrmr_sim.netns import unavailable_reason
+
+        reason = unavailable_reason()
+        if reason:
+            print(f"gsrmr-demo --hosts 2: {reason}", file=sys.stderr)
+            return 2
+        if not args.uplink_mbit > 0:
+            ap.error("--uplink-mbit must be > 0")
+    elif link_events:
+        ap.error("--link-events needs --hosts 2")
 
     from gsrmr_sim.world.scene import load_scene
 
@@ -282,10 +401,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     model = built.path
     seed = ensure_survey(args.scene, model, slots, round_index=2 if args.oracle else 1)
     _log(f"round 2: {slots} slots in real time ({slots * scene.slot_s:.1f} s) over DDS, L_th = {args.loss_threshold}")
+    link_log: dict = {}
     rows, first_moving = run_stack(scene=args.scene, model_path=model, loss_map=seed, run_dir=out,
-                        loss_threshold=args.loss_threshold, slots=slots, method=args.method,
-                        timeout_s=slots * scene.slot_s + 120.0, channel_seed=args.channel_seed,
-                        oracle_channel=args.oracle)
+                                   loss_threshold=args.loss_threshold, slots=slots, method=args.method,
+                                   timeout_s=slots * scene.slot_s + 120.0, channel_seed=args.channel_seed,
+                                   oracle_channel=args.oracle, hosts=args.hosts, uplink_mbit=args.uplink_mbit,
+                                   link_events=link_events, link_log=link_log)
     recording = out / "recording"
     if (recording / "run.mcap").exists():
         (out / "run.mcap").write_bytes((recording / "run.mcap").read_bytes())
@@ -302,6 +423,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                "model_compacted": not args.no_compact, "channel_seed": args.channel_seed, "oracle": args.oracle,
                "method": args.method, "loss_map_seed": "round-2 survey (oracle)" if args.oracle else "mapping round",
                **hindsight_summary(rows, args.loss_threshold),
+               "hosts": args.hosts, **(link_summary(link_log, rows, args.uplink_mbit) if args.hosts == 2 else {}),
                "report_dir": str(out)}
     write_report(out, rows, summary)
     print(f"\ngsrmr demo — scene {args.scene}, L_th {args.loss_threshold}, {summary['slots']} slots "
@@ -313,6 +435,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"  MR images: mean loss {summary['mean_loss']:.4f}, PSNR {summary['psnr_db']:.2f} dB pooled "
           f"({summary['psnr_slot_mean_db']:.2f} dB per-slot mean), "
           f"SSIM {summary['ssim']:.4f}; on time {summary['slots_on_time']}/{summary['slots']}")
+    if args.hosts == 2:
+        print(f"  two hosts: uplink limited to {args.uplink_mbit:g} Mbit/s; {summary['link_uplink_bytes']} B crossed "
+              f"robot → server ({summary['link_uplink_mbit_mean']:.2f} Mbit/s mean), "
+              f"{summary['link_downlink_bytes']} B server → robot; the robot's ledger sent "
+              f"{summary['ledger_bytes_sent']} B in the scored slots")
     print(f"  report: {out}")
     summary.pop("faults", None)
     print(json.dumps(summary), flush=True)

@@ -149,13 +149,14 @@ class TwoHosts:
         self._procs.append(p)
         return p
 
-    def link_bytes(self) -> dict[str, int]:
-        """Bytes the link carried so far: ``uplink`` (robot → server) and ``downlink``, from the veth counters."""
+    def link_bytes(self) -> dict[str, float]:
+        """Bytes the link carried so far: ``uplink`` (robot → server) and ``downlink``, from the veth counters,
+        and ``wall_s``, when they were read (seconds since the epoch)."""
         def read(ns: str, ifname: str, what: str) -> int:
             return int(self.ns_run(ns, "cat", f"/sys/class/net/{ifname}/statistics/{what}").stdout.strip())
 
         return {"uplink": read(self.robot_ns, self.robot_if, "tx_bytes"),
-                "downlink": read(self.server_ns, self.server_if, "tx_bytes")}
+                "downlink": read(self.server_ns, self.server_if, "tx_bytes"), "wall_s": time.time()}
 
     def set_rate(self, mbit: float) -> None:
         """Limit the robot → server direction to ``mbit`` Mbit/s (tbf: 32 kbit burst, 400 ms queue)."""

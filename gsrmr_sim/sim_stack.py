@@ -51,6 +51,7 @@ class ProcessSpec:
     remappings: list[tuple[str, str]] = field(default_factory=list)
     ros: bool = True  # False: a plain CLI (arguments only)
     nice: int = 0  # scheduling niceness added to the process (see WORLD_NICE)
+    host: str = "robot"  # the machine it runs on in a two-host deployment: "robot" or "server"
 
 
 # The simulated world (mock LIMO, mock camera, route follower) stands in for hardware and physics that
@@ -90,8 +91,13 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
               link_path: str = "/tmp/gsrmr_limo", laps: int = 1, method: str = "exact",
               loss_map_file: str = "", state_dir: str = "", overrides: dict[str, dict] | None = None,
               config: Path | None = None, channel_seed: int | None = None,
-              oracle_channel: bool = False) -> list[ProcessSpec]:
+              oracle_channel: bool = False, truth_dir: str = "") -> list[ProcessSpec]:
     """Every process of the simulated closed loop (mock base, camera and radio, robot, server, scheduler).
+
+    Each process says which machine it belongs to (``host``): the robot (base, camera, robot node and the
+    simulated world that stands in for the robot's hardware and surroundings) or the server (server,
+    scheduler). ``truth_dir`` routes the server's ground-truth frames through that folder (the simulation
+    backplane, :mod:`gsrmr_common.truth_frames`) instead of over DDS, as two hosts need.
 
     ``channel_seed`` overrides ``config/link.yaml``'s for the simulated radio (and the scheduler, which
     only uses it with ``oracle_channel``: planning with the simulator's future fading, an upper bound).
@@ -111,18 +117,19 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
                     arguments=["--link", link_path, f"--start-pose={a0},{b0},{t0}"], nice=WORLD_NICE),
         ProcessSpec("gsrmr-limo-base", "gsrmr_limo_base", [base], {"port": link_path}),
         ProcessSpec("gsrmr-mock-camera", "gsrmr_mock_camera", [],
-                    {"scene": scene, "round": 2, "clock_from_motion": True}, nice=WORLD_NICE),
+                    {"scene": scene, "round": 2, "clock_from_motion": True, "truth_dir": truth_dir}, nice=WORLD_NICE),
         ProcessSpec("gsrmr-route-follower", "gsrmr_route_follower", [],
                     {"scene": scene, "laps": laps, "odom_topic": "/sim/ground_truth/odom"}, nice=WORLD_NICE),
         ProcessSpec("gsrmr-sim-channel", "gsrmr_sim_channel", [link], seed, nice=WORLD_NICE),
         ProcessSpec("gsrmr-robot", "gsrmr_robot", [link, robot],
                     {"map_from_odom": [a0, b0, t0], **mount}),
-        ProcessSpec("gsrmr-server", "gsrmr_server", [link, server],
-                    {"mr_content": sc.mr_content, "background_rgb": [float(c) for c in sc.background], **mount,
+        ProcessSpec("gsrmr-server", "gsrmr_server", [link, server], host="server",
+                    params={"mr_content": sc.mr_content, "background_rgb": [float(c) for c in sc.background], **mount,
                      "model_path": model_path, "record_dir": record_dir, "evaluate_ground_truth": True,
+                     "ground_truth_dir": truth_dir,
                      "hindsight_jpeg_quality": robot_jpeg_quality(robot)}),
-        ProcessSpec("gsrmr-scheduler", "gsrmr_scheduler", [link, scheduler],
-                    {"route_waypoints_m": [float(v) for xy in sc.route.waypoints for v in xy],
+        ProcessSpec("gsrmr-scheduler", "gsrmr_scheduler", [link, scheduler], host="server",
+                    params={"route_waypoints_m": [float(v) for xy in sc.route.waypoints for v in xy],
                      "route_speed_mps": float(sc.route.speed_mps), "loss_threshold": loss_threshold, "method": method,
                      "loss_map_file": loss_map_file, "state_dir": state_dir, "oracle_channel": oracle_channel,
                      "round_slots": int(sc.slots), **seed,

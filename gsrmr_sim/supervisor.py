@@ -37,12 +37,16 @@ class ProcessStack:
         self.procs: dict[str, subprocess.Popen] = {}
 
     def start(self, name: str, what: ProcessSpec | Sequence[str], *, wait_for_path: str | None = None,
-              wait_s: float = 10.0) -> subprocess.Popen:
+              wait_s: float = 10.0, prefix: Sequence[str] = (), env: dict[str, str] | None = None) -> subprocess.Popen:
         """Start ``what`` as ``name`` (output appended to its log); with ``wait_for_path``, return once that
-        path exists (e.g. the mock LIMO's pty) or raise :class:`ProcessDiedError` / TimeoutError."""
+        path exists (e.g. the mock LIMO's pty) or raise :class:`ProcessDiedError` / TimeoutError. ``prefix`` is
+        put before the command (e.g. ``ip netns exec <ns>``, which execs it: signals still reach the node);
+        ``env`` replaces the stack's environment for this process."""
         argv = command_line(what, None, self.params_dir) if isinstance(what, ProcessSpec) else list(what)
+        argv = [*prefix, *argv]
         log = (self.log_dir / f"{name}.log").open("a")
-        proc = subprocess.Popen(argv, env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        proc = subprocess.Popen(argv, env=self.env if env is None else env, stdout=log, stderr=subprocess.STDOUT,
+                                start_new_session=True)
         log.close()  # the child holds its own descriptor
         self.procs[name] = proc
         if wait_for_path is not None:

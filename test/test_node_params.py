@@ -28,6 +28,7 @@ SERVER_DECLARED = {
     "measure_loss": (True, None, False),
     "evaluate_ground_truth": (False, None, True),
     "hindsight_jpeg_quality": (0, (0, 100), True),
+    "ground_truth_dir": ("", None, True),
     "record_dir": ("", None, True),
     "jpeg_quality": (85, (1, 100), False),
     "max_backlog_slots": (30, (1, 100_000), False),

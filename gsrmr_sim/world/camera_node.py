@@ -9,6 +9,10 @@ Publishes at ``rate_hz`` (default: the scene's camera rate, 10 Hz), all with the
 * ``camera/depth/image_raw`` (32FC1, metres = camera-space z, +inf where nothing is hit; parameter
   ``publish_depth``): the LIMO's RGB-D depth, registered to the colour image
 
+With ``truth_dir`` set, every colour frame is also written there (:mod:`gsrmr_common.truth_frames`): the
+simulation backplane the server's ground-truth evaluation reads across two simulated hosts, so the raw frames
+never cross the robot's uplink.
+
 The pose is the true pose from ``odom_topic`` (default ``/sim/ground_truth/odom``, nav_msgs/Odometry in
 ``map``: x, y and yaw of base_link). Until the first message arrives (or when it is older than
 ``odom_timeout_s``) the node falls back to a scripted pose: the route driven open-loop at its nominal
@@ -33,6 +37,7 @@ from std_msgs.msg import Int32
 from gsrmr_common.camera import camera_from_pose
 from gsrmr_common.ros_node import declare, run_node
 from gsrmr_common.route import LoopPath
+from gsrmr_common.truth_frames import TruthFrameWriter
 from gsrmr_sim.world.kinematics import has_moved
 from gsrmr_sim.world.points import make_world
 from gsrmr_sim.world.recorder import with_resolution
@@ -98,6 +103,9 @@ class MockCamera(Node):
                                          "then follow the route progress however long the stack takes to start")
         self.publish_depth = declare(self, "publish_depth", True,
                                      "publish camera/depth/image_raw (32FC1, metres, REP 118)")
+        truth_dir = declare(self, "truth_dir", "", "simulation backplane: also write every colour frame to this "
+                            "folder for the server's ground-truth evaluation ('' = off)")
+        self.truth = TruthFrameWriter(truth_dir) if truth_dir else None
         self.scene = with_resolution(load_scene(scene_name), width or None, height or None)
         self.world = make_world(self.scene, self.round_index)
         self.path = LoopPath(self.scene.route.waypoints)
@@ -170,6 +178,8 @@ class MockCamera(Node):
         stamp = now.to_msg()
         rgb_u8 = np.clip(np.round(rgb * 255), 0, 255).astype(np.uint8)
         self.pub_image.publish(image_msg(rgb_u8, "rgb8", stamp))
+        if self.truth is not None:
+            self.truth.put(now.nanoseconds, rgb_u8)
         self.pub_info.publish(self.camera_info(stamp))
         if self.publish_depth:
             self.pub_depth.publish(depth_msg(depth, stamp))

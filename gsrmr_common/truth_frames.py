@@ -1,0 +1,87 @@
+"""True camera frames kept in a folder: the simulation backplane for ground-truth evaluation (pure, no ROS).
+
+In simulation the server can score every MR image it composes against the truth m = d·r + (1 − d)·v, which
+needs the true camera frame r of the slot. On one network stack the server subscribes to the mock camera's
+``camera/image_raw``; across two hosts that would send raw 320×240 RGB frames (≈ 18 Mbit/s at 10 Hz) over the
+robot's rate-limited uplink, which a real robot never does (it has no truth to send). So with two simulated
+hosts the truth takes the simulator's own path instead: the mock camera (``truth_dir``) writes each frame it
+publishes here, and the server (``ground_truth_dir``) reads the frame a slot used — named by the capture stamp
+in the robot's ledger row — when it scores the slot. Both hosts of the simulation share one filesystem, and no
+byte of it crosses the simulated link.
+
+Layout: one ``<stamp_us>.npy`` per frame (H×W×3 uint8 RGB, capture stamp in integer microseconds since the
+clock's epoch), written to a temporary name and renamed, so a reader never sees half a frame; the writer
+keeps the newest ``keep`` frames.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+import contextlib
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+
+def _name(stamp_us: int) -> str:
+    return f"{stamp_us:020d}.npy"
+
+
+class TruthFrameWriter:
+    """Writes true frames into ``folder`` and prunes all but the newest ``keep``."""
+
+    def __init__(self, folder: str | os.PathLike[str], keep: int = 200) -> None:
+        if keep < 1:
+            raise ValueError("keep must be ≥ 1")
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.keep = int(keep)
+        self._written: deque[Path] = deque()
+
+    def put(self, stamp_ns: int, frame_u8: np.ndarray) -> Path:
+        """Store ``frame_u8`` (H×W×3 uint8) captured at ``stamp_ns``; returns its path."""
+        frame = np.ascontiguousarray(frame_u8, dtype=np.uint8)
+        path = self.folder / _name(int(stamp_ns) // 1000)
+        tmp = path.with_suffix(".tmp")
+        with open(tmp, "wb") as f:
+            np.save(f, frame)
+        os.replace(tmp, path)
+        self._written.append(path)
+        while len(self._written) > self.keep:
+            with contextlib.suppress(FileNotFoundError):
+                self._written.popleft().unlink()
+        return path
+
+
+class TruthFrameReader:
+    """Finds the true frame of a slot in a folder a :class:`TruthFrameWriter` fills."""
+
+    def __init__(self, folder: str | os.PathLike[str]) -> None:
+        self.folder = Path(folder)
+
+    def _load(self, path: Path) -> np.ndarray | None:
+        try:
+            return np.load(path, allow_pickle=False)
+        except (FileNotFoundError, ValueError, OSError):  # pruned meanwhile, or not a frame
+            return None
+
+    def frame(self, capture_stamp_s: float | None, slot_start_ns: int) -> np.ndarray | None:
+        """The frame captured at ``capture_stamp_s`` (float seconds, as the robot's ledger row carries it:
+        matched to the microsecond, ± 1 µs for the float's rounding); without a stamp, the newest frame
+        captured by 5 ms after ``slot_start_ns`` (as :func:`gsrmr_server.slot_core.match_frame` picks)."""
+        if capture_stamp_s is not None and math.isfinite(capture_stamp_s):
+            us = round(capture_stamp_s * 1e6)
+            for candidate in (us, us - 1, us + 1):
+                path = self.folder / _name(candidate)
+                if path.exists():
+                    return self._load(path)
+            return None
+        limit_us = (int(slot_start_ns) + 5_000_000) // 1000
+        try:
+            names = sorted(n for n in os.listdir(self.folder) if n.endswith(".npy"))
+        except FileNotFoundError:
+            return None
+        older = [n for n in names if int(n[:-4]) <= limit_us]
+        return self._load(self.folder / older[-1]) if older else None
