@@ -33,8 +33,12 @@ import shutil
 import signal
 import sys
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from gsrmr_sim.models import BuiltModel
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -276,6 +280,33 @@ def link_summary(link_log: dict, rows: list[dict], uplink_mbit: float) -> dict:
             "link_events": link_log.get("events", [])}
 
 
+def copy_recording(out: Path, recording: Path, first_moving: int, scored: int) -> None:
+    """The report's copies of the server's recording: ``run.mcap``, and ``slots.csv`` with ``scored`` marking
+    the ``scored`` rows of the round from row ``first_moving`` on."""
+    if (recording / "run.mcap").exists():
+        (out / "run.mcap").write_bytes((recording / "run.mcap").read_bytes())
+    if (recording / "slots.csv").exists():  # the report's copy marks the scored round
+        from gsrmr_server.recording import read_slots_csv, write_slots_csv
+
+        every = read_slots_csv(recording / "slots.csv")
+        for i, row in enumerate(every):
+            row["scored"] = int(first_moving <= i < first_moving + scored)
+        write_slots_csv(out / "slots.csv", every)
+
+
+def run_summary(args: argparse.Namespace, rows: list[dict], slot_s: float, built: BuiltModel,
+                channel_seed: int | None) -> dict:
+    """The summary of one robot's round (the demo's JSON without hosts, link and report folder): headline
+    figures, the model, the settings and the hindsight optimum."""
+    from gsrmr_sim.hindsight import hindsight_summary
+
+    return {"scene": args.scene, "loss_threshold": args.loss_threshold, **summarise(rows, slot_s),
+            "model_gaussians": built.model.num_gaussians, "model_heldout_psnr_db": built.heldout_psnr_db,
+            "model_compacted": not args.no_compact, "channel_seed": channel_seed, "oracle": args.oracle,
+            "method": args.method, "loss_map_seed": "round-2 survey (oracle)" if args.oracle else "mapping round",
+            **hindsight_summary(rows, args.loss_threshold)}
+
+
 def write_report(report_dir: Path, rows: list[dict], summary: dict) -> None:
     """x/p profile plot, MR image strip, CSV copy, summary.json."""
     import matplotlib
@@ -368,7 +399,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--link-events", default="",
                     help="with --hosts 2: link changes during the round, e.g. 'down@100,up@120,rate=1.5@150' "
                          "(ACTION@SLOT, SLOT = composed round slots)")
+    ap.add_argument("--robots", type=int, default=None, metavar="N",
+                    help="a fleet: N robots at once (namespaces /robot1 … /robotN, each with its own server, "
+                         "scheduler and simulated world; channel seed + k - 1 for robot k), one report folder per "
+                         "robot and fleet totals (gsrmr_sim.fleet); without it, the single robot in the root "
+                         "namespace (default)")
     args = ap.parse_args(argv)
+    if args.robots is not None and args.robots < 1:
+        ap.error("--robots must be >= 1")
     try:
         link_events = parse_link_events(args.link_events)
     except ValueError as e:
@@ -382,6 +420,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
         if not args.uplink_mbit > 0:
             ap.error("--uplink-mbit must be > 0")
+        if args.oracle:  # the oracle reads the simulator's channel on the server: simulation traffic on the uplink
+            ap.error("--oracle reads the simulated radio on the server side; it is not run across two hosts")
     elif link_events:
         ap.error("--link-events needs --hosts 2")
 
@@ -400,6 +440,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                        log=_log)
     model = built.path
     seed = ensure_survey(args.scene, model, slots, round_index=2 if args.oracle else 1)
+    if args.robots is not None:
+        from gsrmr_sim.fleet import fleet_demo
+
+        return fleet_demo(args, slots=slots, slot_s=scene.slot_s, out=out, built=built, loss_map=seed,
+                          link_events=link_events, t_start=t_start)
     _log(f"round 2: {slots} slots in real time ({slots * scene.slot_s:.1f} s) over DDS, L_th = {args.loss_threshold}")
     link_log: dict = {}
     rows, first_moving = run_stack(scene=args.scene, model_path=model, loss_map=seed, run_dir=out,
@@ -407,22 +452,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                    timeout_s=slots * scene.slot_s + 120.0, channel_seed=args.channel_seed,
                                    oracle_channel=args.oracle, hosts=args.hosts, uplink_mbit=args.uplink_mbit,
                                    link_events=link_events, link_log=link_log)
-    recording = out / "recording"
-    if (recording / "run.mcap").exists():
-        (out / "run.mcap").write_bytes((recording / "run.mcap").read_bytes())
-    if (recording / "slots.csv").exists():  # the report's copy marks the scored round
-        from gsrmr_server.recording import read_slots_csv, write_slots_csv
-
-        every = read_slots_csv(recording / "slots.csv")
-        for i, row in enumerate(every):
-            row["scored"] = int(first_moving <= i < first_moving + len(rows))
-        write_slots_csv(out / "slots.csv", every)
-    from gsrmr_sim.hindsight import hindsight_summary
-    summary = {"scene": args.scene, "loss_threshold": args.loss_threshold, **summarise(rows, scene.slot_s),
-               "model_gaussians": built.model.num_gaussians, "model_heldout_psnr_db": built.heldout_psnr_db,
-               "model_compacted": not args.no_compact, "channel_seed": args.channel_seed, "oracle": args.oracle,
-               "method": args.method, "loss_map_seed": "round-2 survey (oracle)" if args.oracle else "mapping round",
-               **hindsight_summary(rows, args.loss_threshold),
+    copy_recording(out, out / "recording", first_moving, len(rows))
+    summary = {**run_summary(args, rows, scene.slot_s, built, args.channel_seed),
                "hosts": args.hosts, **(link_summary(link_log, rows, args.uplink_mbit) if args.hosts == 2 else {}),
                "report_dir": str(out)}
     write_report(out, rows, summary)

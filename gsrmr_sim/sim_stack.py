@@ -24,6 +24,9 @@ from gsrmr_sim.world.kinematics import start_pose
 from gsrmr_sim.world.scene import load_scene
 
 REPO_CONFIG = Path(__file__).resolve().parents[1] / "config"
+# The mock LIMO's true pose (gsrmr_sim.limo.mock_ros). Relative, so that each robot of a fleet has its own
+# (/robot2/sim/ground_truth/odom); a node in the root namespace resolves it to /sim/ground_truth/odom.
+GROUND_TRUTH_TOPIC = "sim/ground_truth/odom"
 
 
 def config_dir() -> Path:
@@ -52,6 +55,7 @@ class ProcessSpec:
     ros: bool = True  # False: a plain CLI (arguments only)
     nice: int = 0  # scheduling niceness added to the process (see WORLD_NICE)
     host: str = "robot"  # the machine it runs on in a two-host deployment: "robot" or "server"
+    namespace: str = ""  # ROS namespace of the node ("/robot2" in a fleet; "" = the root, as one robot runs)
 
 
 # The simulated world (mock LIMO, mock camera, route follower) stands in for hardware and physics that
@@ -119,7 +123,7 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
         ProcessSpec("gsrmr-mock-camera", "gsrmr_mock_camera", [],
                     {"scene": scene, "round": 2, "clock_from_motion": True, "truth_dir": truth_dir}, nice=WORLD_NICE),
         ProcessSpec("gsrmr-route-follower", "gsrmr_route_follower", [],
-                    {"scene": scene, "laps": laps, "odom_topic": "/sim/ground_truth/odom"}, nice=WORLD_NICE),
+                    {"scene": scene, "laps": laps, "odom_topic": GROUND_TRUTH_TOPIC}, nice=WORLD_NICE),
         ProcessSpec("gsrmr-sim-channel", "gsrmr_sim_channel", [link], seed, nice=WORLD_NICE),
         ProcessSpec("gsrmr-robot", "gsrmr_robot", [link, robot],
                     {"map_from_odom": [a0, b0, t0], **mount}),
@@ -140,6 +144,63 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
     for spec in specs:
         spec.params.update(over.get(spec.name, {}))
     return specs
+
+
+ROBOT_NAMESPACE_PREFIX = "robot"
+
+
+def robot_namespace(k: int, prefix: str = ROBOT_NAMESPACE_PREFIX) -> str:
+    """``/robot<k>``: the namespace of robot ``k`` (1-based) of a fleet."""
+    return f"/{prefix}{k}"
+
+
+def per_robot_path(path: str, robot: str) -> str:
+    """``path`` for one robot of a fleet: ``{robot}`` in it replaced by the robot's name (``robot2``), else
+    ``path/robot2``; ``""`` (off) stays off."""
+    if not path:
+        return ""
+    return path.replace("{robot}", robot) if "{robot}" in path else os.path.join(path, robot)
+
+
+def fleet_stack(*, robots: int, scene: str = "sandbox", model_path: str, record_dir: str = "",
+                loss_threshold: float = 0.03, link_path: str = "/tmp/gsrmr_limo", laps: int = 1,
+                method: str = "exact", loss_map_file: str = "", state_dir: str = "",
+                overrides: dict[str, dict] | None = None, config: Path | None = None,
+                channel_seed: int | None = None, oracle_channel: bool = False, truth_dir: str = "",
+                prefix: str = ROBOT_NAMESPACE_PREFIX) -> list[ProcessSpec]:
+    """``robots`` closed loops side by side: every process of :func:`sim_stack` once per robot, robot k
+    (1-based) in namespace ``/robot<k>`` with its own server, scheduler and simulated world.
+
+    Per robot: the mock LIMO's pty ``<link_path>_robot<k>``; ``record_dir``, ``state_dir`` and ``truth_dir``
+    through :func:`per_robot_path` (``<dir>/robot<k>``, or ``{robot}`` in the path replaced); channel seed
+    ``channel_seed + k - 1`` (default base: ``config/link.yaml``'s seed), so robot 1 sees the single robot's
+    channel and every other robot a different one. All robots start at the route's start pose (the
+    simulated robots do not collide). ``loss_map_file`` (read only) and the model are shared.
+    """
+    if robots < 1:
+        raise ValueError("robots must be >= 1")
+    cfg = config or config_dir()
+    base_seed = link_budget(str(cfg / "link.yaml")).channel_seed if channel_seed is None else int(channel_seed)
+    specs: list[ProcessSpec] = []
+    for k in range(1, robots + 1):
+        ns = robot_namespace(k, prefix)
+        name = ns.strip("/")
+        for spec in sim_stack(scene=scene, model_path=model_path, record_dir=per_robot_path(record_dir, name),
+                              loss_threshold=loss_threshold, link_path=f"{link_path}_{name}", laps=laps,
+                              method=method, loss_map_file=loss_map_file,
+                              state_dir=per_robot_path(state_dir, name), overrides=overrides, config=cfg,
+                              channel_seed=base_seed + k - 1, oracle_channel=oracle_channel,
+                              truth_dir=per_robot_path(truth_dir, name)):
+            spec.namespace = ns
+            specs.append(spec)
+    return specs
+
+
+def mock_limo_link(spec: ProcessSpec) -> str | None:
+    """The pty path a ``gsrmr-mock-limo`` spec creates (its ``--link`` argument), else None."""
+    if spec.executable != "gsrmr-mock-limo" or "--link" not in spec.arguments:
+        return None
+    return spec.arguments[spec.arguments.index("--link") + 1]
 
 
 def nice_prefix(spec: ProcessSpec) -> list[str]:
@@ -191,10 +252,14 @@ def command_line(spec: ProcessSpec, bin_dir: str | Path | None = None,
     if not spec.ros:
         return argv
     ros = ["--ros-args", "-r", f"__node:={spec.name}"]
+    if spec.namespace:
+        ros += ["-r", f"__ns:={spec.namespace}"]
     for path in spec.param_files:
         ros += ["--params-file", path]
     if spec.params:
         folder = Path(param_dir or tempfile.mkdtemp(prefix="gsrmr-params-"))
+        if spec.namespace:  # one override file per node *and* namespace: robots of a fleet share node names
+            folder = folder / spec.namespace.strip("/").replace("/", "_")
         folder.mkdir(parents=True, exist_ok=True)
         path = folder / f"{spec.name}.yaml"
         path.write_text(yaml.safe_dump({"/**": {"ros__parameters": spec.params}}))

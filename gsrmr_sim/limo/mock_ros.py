@@ -1,6 +1,7 @@
 """ROS side of the mock LIMO: publishes its true pose for the simulated camera.
 
-``/sim/ground_truth/odom`` ``nav_msgs/Odometry``: header.frame_id ``map``, child_frame_id
+``sim/ground_truth/odom`` ``nav_msgs/Odometry`` (relative: ``/sim/ground_truth/odom`` in the root namespace,
+``/robot2/sim/ground_truth/odom`` for robot 2 of a fleet): header.frame_id ``map``, child_frame_id
 ``base_link`` (REP-103: x forward, y left, yaw CCW; metres, radians), twist in ``base_link``,
 published at the mock's stream rate (50 Hz), reliable QoS, depth 10.
 """
@@ -15,7 +16,7 @@ from rclpy.node import Node
 from gsrmr_common.ros_node import run_node
 from gsrmr_sim.limo.mock import MockLimo
 
-GROUND_TRUTH_TOPIC = "/sim/ground_truth/odom"
+GROUND_TRUTH_TOPIC = "sim/ground_truth/odom"  # = gsrmr_sim.sim_stack.GROUND_TRUTH_TOPIC
 
 
 class GroundTruthPublisher(Node):
@@ -26,7 +27,7 @@ class GroundTruthPublisher(Node):
         self.mock = mock
         self._pub = self.create_publisher(Odometry, GROUND_TRUTH_TOPIC, 10)
         self.create_timer(1.0 / mock.rate_hz, self._tick)
-        self.get_logger().info(f"mock LIMO on {mock.link_path}; true pose on {GROUND_TRUTH_TOPIC}")
+        self.get_logger().info(f"mock LIMO on {mock.link_path}; true pose on {self._pub.topic_name}")
 
     def _tick(self) -> None:
         x, y, yaw = self.mock.true_pose()

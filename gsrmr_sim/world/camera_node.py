@@ -13,7 +13,8 @@ With ``truth_dir`` set, every colour frame is also written there (:mod:`gsrmr_co
 simulation backplane the server's ground-truth evaluation reads across two simulated hosts, so the raw frames
 never cross the robot's uplink.
 
-The pose is the true pose from ``odom_topic`` (default ``/sim/ground_truth/odom``, nav_msgs/Odometry in
+The pose is the true pose from ``odom_topic`` (default ``sim/ground_truth/odom``, relative to the node's
+namespace: ``/sim/ground_truth/odom`` in the root one; nav_msgs/Odometry in
 ``map``: x, y and yaw of base_link). Until the first message arrives (or when it is older than
 ``odom_timeout_s``) the node falls back to a scripted pose: the route driven open-loop at its nominal
 speed (arc length = speed · round time, heading along the path). Round time is the node clock
@@ -94,7 +95,7 @@ class MockCamera(Node):
                         max_value=4096)
         height = declare(self, "height", 0, "image height in pixels (0 = the scene's)", min_value=0,
                          max_value=4096)
-        odom_topic = declare(self, "odom_topic", "/sim/ground_truth/odom", "true pose (nav_msgs/Odometry)")
+        odom_topic = declare(self, "odom_topic", "sim/ground_truth/odom", "true pose (nav_msgs/Odometry)")
         self.odom_timeout_s = declare(self, "odom_timeout_s", 1.0, "use the scripted pose when odom is older",
                                       min_value=0.0)
         self.clock_from_motion = declare(self, "clock_from_motion", False,

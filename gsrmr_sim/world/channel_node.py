@@ -33,7 +33,7 @@ class ChannelNode(Node):
                          read_only=True)
         self.lead_ns = int(1e9 * declare(self, "lead_s", 0.04, "Publish slot t's gain this long before t "
                                          "starts [s]", min_value=0.0, max_value=0.05, read_only=True))
-        odom_topic = declare(self, "odom_topic", "/sim/ground_truth/odom", "true pose (nav_msgs/Odometry, map)",
+        odom_topic = declare(self, "odom_topic", "sim/ground_truth/odom", "true pose (nav_msgs/Odometry, map)",
                              read_only=True)
         self.slot_len_ns = slot_ns(slot_s)
         self.truth = TrueChannel(self.link)

@@ -1,6 +1,6 @@
 """``gsrmr-route-follower``: drive the scene's route loop by publishing cmd_vel (pure pursuit).
 
-Subscribes ``odom_topic`` (nav_msgs/Odometry; default ``odom``, or ``/sim/ground_truth/odom`` for the
+Subscribes ``odom_topic`` (nav_msgs/Odometry; default ``odom``, or ``sim/ground_truth/odom`` for the
 true pose), publishes ``cmd_vel`` (geometry_msgs/Twist: linear.x in m/s, angular.z in rad/s, robot
 frame) at ``rate_hz``, and ``sim/route/lap`` (std_msgs/Int32, laps completed, on every change).
 After ``laps`` laps (0 = never stop) it publishes a zero Twist and stays stopped. Before the first
