@@ -168,6 +168,8 @@ class LedgerRow:
     upload_all_energy_j: float
     frame_stamp_s: float = float("nan")  # capture stamp of the camera frame this slot used (NaN: none)
     round_slot: int = -1  # the radio's index of the slot in the round (ChannelSample.round_slot; −1: unknown)
+    held_back: int = 0  # 1: an image was asked for and the robot sent the key only (its last image still queued)
+    uplink_rate_bps: float = float("nan")  # the robot's estimate of the uplink's throughput from image acks, bit/s
 
 
 # Order of the values in a ``gsrmr/ledger`` Float64MultiArray (one message per slot).
@@ -246,9 +248,10 @@ def ledger_row_from_data(data: list[float] | np.ndarray) -> LedgerRow:
     if arr.shape != (len(LEDGER_FIELDS),):
         raise ValueError(f"ledger row: expected {len(LEDGER_FIELDS)} values {LEDGER_FIELDS}, got {arr.size}")
     row = dict(zip(LEDGER_FIELDS, arr.tolist(), strict=True))
-    if not all(math.isfinite(row[k]) for k in ("slot", "x", "bits_sent", "upload_all_bits", "round_slot")):
-        raise ValueError("ledger row: slot, x, bits_sent, upload_all_bits and round_slot must be finite")
-    for k in ("slot", "x", "bits_sent", "upload_all_bits", "round_slot"):
+    integers = ("slot", "x", "bits_sent", "upload_all_bits", "round_slot", "held_back")
+    if not all(math.isfinite(row[k]) for k in integers):
+        raise ValueError(f"ledger row: {', '.join(integers)} must be finite")
+    for k in integers:
         row[k] = int(row[k])
     return LedgerRow(**row)
 

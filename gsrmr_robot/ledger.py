@@ -29,7 +29,7 @@ class EnergyLedger:
                  noise_w: float) -> None:
         self._power = required_power_w
         self.slot_s, self.bandwidth_hz, self.noise_w = slot_s, bandwidth_hz, noise_w
-        self.slots = self.images = self.keys_only = self.undeliverable = 0
+        self.slots = self.images = self.keys_only = self.undeliverable = self.held_back = 0
         self.bits_sent = 0
         self.energy_j = 0.0
         self.upload_all_energy_j = 0.0
@@ -42,7 +42,7 @@ class EnergyLedger:
 
     def record(self, slot: int, x: int, scheduled_power_w: float, jpeg_bytes: int | None, gain: float,
                reference_jpeg_bytes: int | None, frame_stamp_s: float = float("nan"),
-               round_slot: int = -1) -> LedgerRow:
+               round_slot: int = -1, held_back: int = 0, uplink_rate_bps: float = float("nan")) -> LedgerRow:
         """Record one slot. ``jpeg_bytes`` is None for a key-only slot; ``reference_jpeg_bytes`` is the
         size this slot's frame has (or would have) as a JPEG, for the upload-all reference."""
         bits = POSE_KEY_BITS + (8 * jpeg_bytes if jpeg_bytes is not None else 0)
@@ -50,10 +50,12 @@ class EnergyLedger:
         ref_bits = 8 * reference_jpeg_bytes if reference_jpeg_bytes else 0
         _, ref_energy_j = self._energy(ref_bits, gain)
         row = LedgerRow(slot, int(x), float(scheduled_power_w), bits, float(gain), power_w, energy_j,
-                        ref_bits, ref_energy_j, float(frame_stamp_s), int(round_slot))
+                        ref_bits, ref_energy_j, float(frame_stamp_s), int(round_slot), int(held_back),
+                        float(uplink_rate_bps))
         self.slots += 1
         self.images += int(jpeg_bytes is not None)
         self.keys_only += int(jpeg_bytes is None)
+        self.held_back += int(held_back)
         self.bits_sent += bits
         if math.isfinite(energy_j):
             self.energy_j += energy_j
@@ -69,7 +71,7 @@ class EnergyLedger:
         return {"slots": self.slots, "images_sent": self.images, "keys_only": self.keys_only,
                 "bits_sent": self.bits_sent, "energy_j": self.energy_j,
                 "energy_upload_all_j": self.upload_all_energy_j, "energy_ratio_vs_upload_all": ratio,
-                "undeliverable": self.undeliverable}
+                "undeliverable": self.undeliverable, "images_held_back": self.held_back}
 
     @staticmethod
     def row_dict(row: LedgerRow) -> dict:

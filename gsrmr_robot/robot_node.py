@@ -7,7 +7,10 @@ publishes:
 * ``uplink/pose_key`` (``geometry_msgs/Vector3Stamped``, reliable, depth 50): (a, b, θ) in ``map``
   — every slot (in image slots too, so the server can measure the GS loss at this pose);
 * ``uplink/image_raw/compressed`` (``sensor_msgs/CompressedImage``, JPEG, ``format`` =
-  ``"rgb8; jpeg compressed bgr8"``, reliable, depth 10): only when x_t = 1.
+  ``"rgb8; jpeg compressed bgr8"``, reliable, depth 10): only when x_t = 1 — and, with
+  ``hold_images_while_queued``, only when the previous image has been acknowledged by the server's reader
+  (else the slot sends the key only and its ledger row says ``held_back``; :mod:`gsrmr_robot.uplink_backlog`:
+  on a link slower than one image per slot images leave as fast as it delivers them, not into a queue).
 
 Inputs: ``camera/image_raw`` (``sensor_msgs/Image``, sensor-data QoS), ``odom`` (``nav_msgs/Odometry``,
 odom → base_link; composed with the ``map_from_odom`` parameter to get the pose in ``map``),
@@ -46,6 +49,7 @@ from geometry_msgs.msg import TransformStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
@@ -83,6 +87,8 @@ from gsrmr_common.tf_tree import (
     map_from_odom_transform,
 )
 from gsrmr_common.wire import CHANNEL_TOPIC, ScheduleMsg, slot_ns, slot_start_ns
+from gsrmr_robot.dds_profile import use_uplink_profile
+from gsrmr_robot.uplink_backlog import UplinkBacklog
 from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, odom_to_map
 
 
@@ -95,6 +101,8 @@ class RobotParameters:
     max_frame_age_s: float = 0.5  # older camera frames are not uploaded
     map_from_odom: tuple[float, float, float] = (0.0, 0.0, 0.0)  # pose of odom in map [a_m, b_m, theta_rad]
     camera_frame_id: str = CAMERA_OPTICAL_FRAME  # frame of uploaded images (the camera's optical frame)
+    hold_images_while_queued: bool = True  # send the key only while the last image is unacknowledged
+    uplink_ack_stale_s: float = 1.0  # an image unacknowledged this long no longer holds the next one back [s]
 
     @staticmethod
     def problem(name: str, value: object) -> str | None:
@@ -167,7 +175,14 @@ class RobotNode(Node):
             map_from_odom=tuple(declare(self, "map_from_odom", list(d.map_from_odom),
                                         "Pose of the odom frame in map: [a_m, b_m, theta_rad]")),
             camera_frame_id=declare(self, "camera_frame_id", d.camera_frame_id, "Frame of uploaded images: the "
-                                    "camera's optical frame (x right, y down, z forward)"))
+                                    "camera's optical frame (x right, y down, z forward)"),
+            hold_images_while_queued=declare(
+                self, "hold_images_while_queued", d.hold_images_while_queued,
+                "Send the pose key only (ledger held_back = 1) when the schedule asks for an image while the last "
+                "one is still unacknowledged by the server (queued on the link)"),
+            uplink_ack_stale_s=declare(
+                self, "uplink_ack_stale_s", d.uplink_ack_stale_s, "An image unacknowledged this long no longer "
+                "holds the next one back [s]", min_value=0.05, max_value=60.0))
         problem = next((msg for name in ("map_from_odom", "camera_frame_id")
                         if (msg := RobotParameters.problem(name, getattr(self.params, name)))), None)
         if problem:
@@ -192,6 +207,7 @@ class RobotNode(Node):
         self.schedule_misses = self.no_frame = self.no_pose = 0
         self.core = UplinkCore(self.link, self.slot_s, self.params.jpeg_quality, self.params.default_upload_image)
         self.ledger = self.core.ledger
+        self.backlog = UplinkBacklog(stale_after_s=self.params.uplink_ack_stale_s)
 
         self._pub_key = self.create_publisher(Vector3Stamped, "uplink/pose_key", UPLINK_QOS)
         self._pub_img = self.create_publisher(CompressedImage, "uplink/image_raw/compressed", IMAGE_UPLOAD_QOS)
@@ -211,6 +227,9 @@ class RobotNode(Node):
         # run each slot 1 ms after it starts (polling the clock at 200 Hz cost ~5 % of a core)
         aligned_timer(self, self.slot_s, 0.001, self._tick)
         self.create_timer(1.0, self._publish_diagnostics)
+        # while an image is unacknowledged: poll the image writer's acknowledgements every 5 ms
+        self._ack_timer = self.create_timer(0.005, self._poll_acks)
+        self._ack_timer.cancel()
         self._tf_static = None
         tf2_ros, why = load_tf2_ros()
         if tf2_ros is None:
@@ -250,6 +269,7 @@ class RobotNode(Node):
             self.params = self.params.with_values({p.name: p.value for p in params})
             self.core.jpeg_quality = self.params.jpeg_quality
             self.core.default_upload_image = self.params.default_upload_image
+            self.backlog.stale_after_s = self.params.uplink_ack_stale_s
         if any(p.name in ("map_from_odom", "camera_frame_id") for p in params):
             self._send_static_tf()
 
@@ -337,10 +357,12 @@ class RobotNode(Node):
             sched = self._schedule
             frame_id = self.params.camera_frame_id
             gain, round_slot = self._gains.get(slot, (None, -1))
+            now_s = now_ns / 1e9
+            queued = self.params.hold_images_while_queued and self.backlog.queued(now_s)
             decision = self.core.run_slot(SlotInputs(slot, frame, frame_stamp_ns, pose,
                                                      sched.lookup(slot) if sched is not None else None, gain,
                                                      sched.threshold(slot) if sched is not None else None,
-                                                     round_slot))
+                                                     round_slot, queued, self.backlog.rate_bps))
         self.channel_unmeasured += int(gain is None)
         self.schedule_misses += int(not decision.scheduled)
         self.no_frame += int(frame is None)
@@ -350,21 +372,38 @@ class RobotNode(Node):
             self._pub_ledger.publish(ledger_to_msg(decision.row))
         if decision.jpeg is not None:
             self._pub_img.publish(compressed_to_msg(decision.jpeg, stamp_ns, frame_id))
+            self.backlog.sent(8 * len(decision.jpeg), self.get_clock().now().nanoseconds / 1e9)
+            if self._ack_timer.is_canceled():
+                self._ack_timer.reset()
         if decision.key is not None:
             self._pub_key.publish(pose_key_to_msg(decision.key, self._slot_len_ns))
+
+    def _poll_acks(self) -> None:
+        """Every image published so far acknowledged by every matched reader: book the delay, stop polling."""
+        if not self.backlog.waiting:
+            self._ack_timer.cancel()
+            return
+        if self._pub_img.wait_for_all_acked(Duration(seconds=0)):
+            self.backlog.acked(self.get_clock().now().nanoseconds / 1e9)
+            self._ack_timer.cancel()
 
     def _publish_diagnostics(self) -> None:
         totals = self.ledger.totals()
         extra = {"schedule_misses": self.schedule_misses, "no_frame": self.no_frame, "no_pose": self.no_pose,
                  "schedule_seq": self._schedule.seq if self._schedule else -1,
                  "channel_unmeasured": self.channel_unmeasured,
-                 "camera_info_changes": self.camera_info_changes, "tf_published": self._tf_static is not None}
+                 "camera_info_changes": self.camera_info_changes, "tf_published": self._tf_static is not None,
+                 "uplink_rate_bps_estimate": round(self.backlog.rate_bps, 1),
+                 "image_ack_delay_ms": round(1e3 * self.backlog.last_ack_delay_s, 2),
+                 "image_queued_for_ms": round(1e3 * self.backlog.queued_for_s(
+                     self.get_clock().now().nanoseconds / 1e9), 1)}
         self._pub_diag.publish(diagnostics_msg(
             self, name=f"{self.get_name()}: uplink energy ledger", hardware_id="gsrmr_robot",
             values={**totals, **extra}, problems=["missing frames or pose"] if self.no_frame or self.no_pose else []))
 
 
 def main(args: list[str] | None = None) -> int:
-    """Console script ``gsrmr-robot``."""
+    """Console script ``gsrmr-robot`` (the uplink DDS profile unless one is set: :mod:`gsrmr_robot.dds_profile`)."""
+    use_uplink_profile()
     return run_node(RobotNode, args)
 

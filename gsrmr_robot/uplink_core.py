@@ -69,6 +69,8 @@ class SlotInputs:
     measured_gain: float | None = None  # the radio's channel gain g = |h|² for this slot (None: not measured)
     gain_threshold: float | None = None  # the schedule's in-slot rule: image iff measured_gain ≥ this
     round_slot: int = -1  # the radio's index of this slot in the round (−1: unknown)
+    uplink_queued: bool = False  # the last image is still unacknowledged (gsrmr_robot.uplink_backlog): hold back
+    uplink_rate_bps: float = float("nan")  # the robot's estimate of the uplink throughput (for the ledger)
 
 
 @dataclass(frozen=True)
@@ -109,6 +111,11 @@ class UplinkCore:
             # decided in the slot at the gain just measured (the expected one when the radio said nothing:
             # the rule, with its probing, keeps working; the plan's own x assumed the rule would run)
             x = int(gain >= inputs.gain_threshold)
+        # an image asked for while the last one is still queued on the link is held back (key only): on a link
+        # slower than one image per slot, images then leave as fast as it delivers them instead of piling up
+        held_back = int(x == 1 and inputs.uplink_queued and inputs.frame is not None)
+        if held_back:
+            x = 0
         frame = inputs.frame
         # Encoded in key slots too: the ledger books what an image would have cost (upload-all baseline).
         jpeg = encode_jpeg(frame, self.jpeg_quality) if frame is not None else None
@@ -117,6 +124,7 @@ class UplinkCore:
         stamp_s = inputs.frame_stamp_ns / 1e9 if inputs.frame_stamp_ns is not None and frame is not None \
             else float("nan")
         row = self.ledger.record(inputs.slot, x, power_w, len(upload) if upload is not None else None, gain,
-                                 len(jpeg) if jpeg is not None else None, stamp_s, inputs.round_slot)
+                                 len(jpeg) if jpeg is not None else None, stamp_s, inputs.round_slot, held_back,
+                                 inputs.uplink_rate_bps)
         return SlotDecision(inputs.slot, x, key, upload, row, inputs.entry is not None,
                             publish_row=key is not None or upload is not None)

@@ -48,8 +48,10 @@ from gsrmr_common.route import LoopPath
 from gsrmr_common.wire import ScheduleMsg
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.loss_predictor import LossPredictor
-from gsrmr_server.slot_price import gain_thresholds, rician_power_samples, saving_coefficient_j
+from gsrmr_server.slot_price import cap_expected_images, gain_thresholds, rician_power_samples, saving_coefficient_j
 
+# ledger rows the uplink's carrying capacity is judged on (OnlinePlanner.link_image_cap): 5 s of slots
+LINK_WINDOW_SLOTS = 50
 LOSS_MODELS = ("map", "burst")  # L_t predictors: calibrated seed map / burst model (gsrmr_server.loss_predictor)
 
 
@@ -132,6 +134,9 @@ class OnlinePlanner:
         self.in_slot_decision = bool(in_slot_decision)
         self._fading = rician_power_samples(rician_k)
         self._actual_x: dict[int, int] = {}  # slot → what the robot did (its ledger)
+        # (slot, x, held_back, uplink_rate_bps, image_bits) of the last LINK_WINDOW_SLOTS ledger rows
+        self._link_window: deque[tuple[int, int, int, float, float]] = deque(maxlen=LINK_WINDOW_SLOTS)
+        self.last_image_cap: float | None = None  # the image fraction the last plan was held to (None: no cap)
         self.last_price: float | None = None  # λ of the last plan (J per unit of loss)
         self.calibrate = bool(calibrate)
         self.explore_image_fraction = float(explore_image_fraction)
@@ -191,13 +196,35 @@ class OnlinePlanner:
         """Σ estimated MR loss of the booked slots (recent ones re-estimated as measurements arrive)."""
         return self._frozen_spent + math.fsum(self._slot_loss(*d) for d in self._done)
 
-    def record_action(self, slot: int, x: int) -> None:
-        """What the robot did in ``slot`` (1 = image), from its ledger: key slots are charged by it."""
+    def record_action(self, slot: int, x: int, held_back: int = 0, uplink_rate_bps: float = math.nan,
+                      image_bits: float = math.nan) -> None:
+        """What the robot did in ``slot`` (1 = image), from its ledger: key slots are charged by it.
+        ``held_back`` = 1: an image was asked for and the robot sent the key, its last image still queued;
+        ``uplink_rate_bps``: the robot's estimate of the uplink throughput (from its image acknowledgements);
+        ``image_bits``: the size of this slot's frame as a JPEG."""
         self._actual_x[slot] = int(x)
+        self._link_window.append((int(slot), int(x), int(held_back), float(uplink_rate_bps), float(image_bits)))
         if x and (self._last_image_slot is None or slot > self._last_image_slot):
             self._last_image_slot = slot
         for old in [k for k in self._actual_x if k < slot - 1000]:
             del self._actual_x[old]
+
+    def link_image_cap(self) -> float | None:
+        """The fraction of slots that may plan an image because the uplink carries no more, or None (it carries
+        at least one per slot): τ · R / b, with R the median of the robot's throughput estimates and b the median
+        JPEG size over its last ``LINK_WINDOW_SLOTS`` ledger rows. R comes from how long each image took to be
+        acknowledged (:mod:`gsrmr_robot.uplink_backlog`): it measures the link, not the plan, so a cap does not
+        ratchet itself down (a cap from the images the link carried would: fewer planned, fewer carried)."""
+        rates = [r for *_, r, _ in self._link_window if math.isfinite(r) and r > 0]
+        sizes = [b for *_, b in self._link_window if math.isfinite(b) and b > 0]
+        if not rates or not sizes:
+            return None
+        cap = self.slot_s * float(np.median(rates)) / float(np.median(sizes))
+        return cap if cap < 1.0 else None
+
+    def images_held_back(self) -> int:
+        """Images the robot held back in its last ``LINK_WINDOW_SLOTS`` ledger rows (its last one still queued)."""
+        return sum(h for _, _, h, _, _ in self._link_window)
 
     def record_pose(self, slot: int, a_m: float, b_m: float, theta_rad: float) -> None:
         """The pose the robot reported for ``slot`` (its pose key): key slots are charged at it."""
@@ -245,6 +272,8 @@ class OnlinePlanner:
             blocks.append((slice(0, self.horizon), target * (self.slots_done + self.horizon) - self.loss_spent))
         x = np.zeros(self.horizon, np.int8)
         power = np.zeros(self.horizon)
+        image_cap = self.link_image_cap()
+        self.last_image_cap = image_cap
         thresholds = np.full(self.horizon, np.inf) if self.in_slot_decision and not self.oracle_channel else None
         energy, feasible, solve_time, notes, budget = 0.0, True, 0.0, [], None
         for part, cap in blocks:
@@ -267,8 +296,18 @@ class OnlinePlanner:
                                              self.link.noise_w)
                 thresholds[part], price, _ = gain_thresholds(gains[part], key_cost[part], block_budget * n, coeff,
                                                              self._fading, explore[part])
+                if image_cap is not None:  # the link carries fewer images than the budget asks: the best of them
+                    thresholds[part], scale = cap_expected_images(thresholds[part], gains[part], self._fading,
+                                                                  image_cap * n)
+                    price *= scale
                 if part.start == 0:
                     self.last_price = price
+            elif image_cap is not None and x[part].sum() > image_cap * n:  # keep those saving most loss per joule
+                keep = np.argsort(-(key_cost[part] * gains[part] * x[part]))[:int(image_cap * n)]
+                capped = np.zeros(n, np.int8)
+                capped[keep] = x[part][keep]
+                x[part] = capped
+                notes.append(f"images capped at {image_cap:.2f} of slots: the uplink carries no more")
         self.seq += 1
         schedule = ScheduleMsg(first, self.slot_s, self.seq, x, power, thresholds)
         for i in range(self.horizon):

@@ -100,6 +100,7 @@ class SchedulerNode(Node):
         self.solve_times_s: list[float] = []
         self.plan_times_s: list[float] = []  # wall time of the whole plan (predictor, solver, thresholds)
         self.plan_slack_s: list[float] = []  # first covered slot's start − schedule ready
+        self._logged_cap: float | None = None  # the uplink image cap last logged
         self._pub = self.create_publisher(Float64MultiArray, "gsrmr/schedule", SCHEDULE_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(Vector3Stamped, "uplink/pose_key", self._on_key, UPLINK_QOS)
@@ -122,7 +123,7 @@ class SchedulerNode(Node):
         except ValueError:
             return
         with self._lock:
-            self.planner.record_action(row.slot, row.x)
+            self.planner.record_action(row.slot, row.x, row.held_back, row.uplink_rate_bps, row.upload_all_bits)
 
     def _on_channel(self, msg: Float64MultiArray) -> None:
         """Oracle only: learn when the simulator's round (and its fading index) started."""
@@ -225,6 +226,14 @@ class SchedulerNode(Node):
             self.planner.clear_drift()
         self._pub.publish(schedule_to_msg(result.schedule))
         self._save(result.schedule)
+        cap = self.planner.last_image_cap
+        if (cap is None) != (self._logged_cap is None) or (cap is not None and abs(cap - self._logged_cap) >= 0.05):
+            self._logged_cap = cap
+            self.get_logger().info(
+                "uplink image cap: image_cap=none (the link carries an image per slot)" if cap is None else
+                f"uplink image cap: image_cap={cap:.3f} (the robot's images take {1 / cap:.1f} slots each to be "
+                f"acknowledged, {self.planner.images_held_back()} held back in the last slots; the plan keeps the "
+                "images saving the most loss per joule)")
         if reason != "period":
             self.get_logger().info(f"replan ({reason}): {self._summary(result, changed)}")
         return result, changed
@@ -282,7 +291,10 @@ class SchedulerNode(Node):
         p = self.planner
         values = {"replans": json.dumps(self.replans), "loss_map_cells": len(p.loss_map.cells),
                   "loss_spent": round(p.loss_spent, 6), "slots_accounted": p.slots_done,
-                  "loss_model": p.loss_model, "image_slot_loss": round(p.image_slot_loss, 6)}
+                  "loss_model": p.loss_model, "image_slot_loss": round(p.image_slot_loss, 6),
+                  # the image fraction the last plan was held to because the robot held images back (-1: none)
+                  "link_image_cap": -1 if p.last_image_cap is None else round(p.last_image_cap, 4),
+                  "images_held_back": p.images_held_back()}
         if p.loss_model == "burst":
             lp = p.loss_predictor
             values.update({"loss_level_ratio": round(math.exp(lp.level), 4), "loss_margin_factor": round(lp.margin, 4),

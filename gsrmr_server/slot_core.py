@@ -99,7 +99,9 @@ class ServerCore:
             energy_image_j=(self._energy_j(ledger.upload_all_bits + POSE_KEY_BITS, ledger.gain)
                             if ledger and ledger.upload_all_bits > 0 else None),
             energy_key_j=self._energy_j(POSE_KEY_BITS, ledger.gain) if ledger else None,
-            round_slot=ledger.round_slot if ledger else None)
+            round_slot=ledger.round_slot if ledger else None,
+            held_back=ledger.held_back if ledger else None,
+            uplink_rate_bps=ledger.uplink_rate_bps if ledger and math.isfinite(ledger.uplink_rate_bps) else None)
         return SlotOutcome(result, to_u8(result.mr), row, sample, self.jpeg_quality)
 
     def score(self, outcome: SlotOutcome, truth_frame: np.ndarray | None) -> SlotOutcome:

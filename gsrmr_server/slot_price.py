@@ -100,3 +100,32 @@ def _price(mean_gain: np.ndarray, loss: np.ndarray, loss_cap: float, coeff_j: fl
     lam = math.exp(hi)
     thresholds = np.where(pos, coeff_j / (lam * np.where(pos, L, 1.0)), np.inf)
     return thresholds, lam, expected(lam)
+
+
+def cap_expected_images(thresholds: np.ndarray, mean_gain: np.ndarray, samples: np.ndarray,
+                        max_images: float) -> tuple[np.ndarray, float]:
+    """Raise the gain thresholds by one common factor until the rule's expected number of images,
+    ``Σ P(m_t·|h|² ≥ g*_t)``, is at most ``max_images`` (a link that carries fewer images than the loss budget
+    asks for); returns (thresholds, factor ≥ 1). Scaling every g*_t = c/(λ·L_t) by s is raising the price λ by
+    s: the images kept are still the ones that save the most loss per joule. Thresholds of 0 (image always)
+    are first set to the lowest fade drawn, so that they can rise too; +inf (never) stays."""
+    m = np.asarray(mean_gain, np.float64)
+    t = np.asarray(thresholds, np.float64)
+    finite = np.isfinite(t)
+    base = np.where(finite, np.maximum(t / m, samples[0]), np.inf)  # in units of the mean gain
+
+    def expected(scale: float) -> float:
+        q = base[finite] * scale
+        return float(np.sum(1.0 - np.searchsorted(samples, q) / samples.size))
+
+    if max_images < 0 or expected(1.0) <= max_images:
+        return t.copy(), 1.0
+    lo, hi = 0.0, math.log(float(samples[-1]) / float(base[finite].min())) + 1.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if expected(math.exp(mid)) > max_images:
+            lo = mid
+        else:
+            hi = mid
+    scale = math.exp(hi)
+    return np.where(finite, base * scale * m, np.inf), scale

@@ -40,6 +40,8 @@ class SlotRow:
     image_truth_loss: float | None = None  # … and of the composite from the decoded JPEG of the true frame
     scored: int | None = None  # 1 = a slot of the scored round (set by the demo's report), 0 = outside it
     round_slot: int | None = None  # the radio's index of the slot in the round (its ledger; −1 before it)
+    held_back: int | None = None  # 1: an image was asked for, the robot sent the key (its last image still queued)
+    uplink_rate_bps: float | None = None  # the robot's estimate of the uplink throughput from image acks
 
 
 SLOT_ROW_COLUMNS = tuple(f.name for f in fields(SlotRow))

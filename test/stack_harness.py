@@ -44,11 +44,14 @@ class Stack:
     """The simulated system as processes in one isolated ROS domain (a :class:`~gsrmr_sim.supervisor.ProcessStack`).
 
     ``overrides`` are merged into the node suite's defaults (per node name); ``remappings`` are added
-    to the named node's spec; ``extra`` specs (e.g. a relay) are started after the others.
+    to the named node's spec; ``extra`` specs (e.g. a relay) are started after the others. With ``hosts``
+    (an open :class:`gsrmr_sim.netns.TwoHosts`) every process runs in its spec's host namespace, DDS over UDPv4
+    across the veth, the server's ground truth over the simulation backplane (``truth_dir``).
     """
 
     def __init__(self, tmp: Path, model: Path, env: dict[str, str], *, overrides: dict[str, dict] | None = None,
-                 remappings: dict[str, list[tuple[str, str]]] | None = None, extra: tuple = ()) -> None:
+                 remappings: dict[str, list[tuple[str, str]]] | None = None, extra: tuple = (),
+                 hosts=None) -> None:
         from gsrmr_sim.sim_stack import environment, sim_stack
         from gsrmr_sim.supervisor import ProcessStack
 
@@ -61,7 +64,8 @@ class Stack:
             over.setdefault(name, {}).update(params)
         self.specs = {s.name: s for s in sim_stack(
             model_path=str(model), record_dir=str(tmp / "rec"), link_path=self.link, laps=0,
-            state_dir=str(tmp / "sched_state"), overrides=over)}
+            state_dir=str(tmp / "sched_state"), overrides=over,
+            truth_dir=str(tmp / "truth_frames") if hosts is not None else "")}
         for name, remaps in (remappings or {}).items():
             self.specs[name].remappings.extend(remaps)
         for spec in extra:
@@ -70,10 +74,16 @@ class Stack:
         self.processes = ProcessStack(environment(base=env, kill_safe=True), tmp, params_dir=tmp / "params")
         self.env = self.processes.env
         self.procs = self.processes.procs
+        self.hosts = hosts
 
     def start(self, name: str) -> subprocess.Popen:
-        return self.processes.start(name, self.specs[name],
-                                    wait_for_path=self.link if name == "gsrmr_mock_limo" else None)
+        spec = self.specs[name]
+        placement = {}
+        if self.hosts is not None:
+            ns = self.hosts.robot_ns if spec.host == "robot" else self.hosts.server_ns
+            placement = {"prefix": ["ip", "netns", "exec", ns], "env": self.hosts.environment(self.env)}
+        return self.processes.start(name, spec, wait_for_path=self.link if name == "gsrmr_mock_limo" else None,
+                                    **placement)
 
     def start_all(self) -> None:
         for name in self.specs:
@@ -152,4 +162,6 @@ def slot_rows(record_dir: Path) -> list[dict]:
     from gsrmr_server.recording import read_slots_csv
 
     path = Path(record_dir) / "slots.csv"
-    return read_slots_csv(path) if path.exists() else []
+    if not path.exists() or path.stat().st_size == 0:  # created, header not written yet
+        return []
+    return read_slots_csv(path)

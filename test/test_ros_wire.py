@@ -244,7 +244,8 @@ def test_fuzz_image_from_msg_rejects_or_returns_rgb(height: int, width: int, ste
 
 def _row(**changes: float) -> wire.LedgerRow:
     fields = dict(slot=17_000_000_123, x=1, scheduled_power_w=0.02, bits_sent=64_000, gain=3e-7, power_w=0.021,
-                  energy_j=0.0021, upload_all_bits=64_000, upload_all_energy_j=0.0021, frame_stamp_s=1.7e9 + 0.25)
+                  energy_j=0.0021, upload_all_bits=64_000, upload_all_energy_j=0.0021, frame_stamp_s=1.7e9 + 0.25,
+                  held_back=1, uplink_rate_bps=2.5e6)
     fields.update(changes)
     return wire.LedgerRow(**fields)
 

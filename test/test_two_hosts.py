@@ -1,0 +1,189 @@
+"""Robot and server on two network stacks (root only): real network faults on the link between them.
+
+One stack for the module: the robot's processes in the robot namespace and the server's in the server
+namespace of a :class:`gsrmr_sim.netns.TwoHosts` (5 Mbit/s uplink, DDS over UDPv4), an untrained point model,
+the scheduler asking for an image in every slot (L_th = 0) so that every slot should carry one. The tests run
+in file order on it: the link taken down for 2 s, the robot's participant killed and restarted, the uplink cut
+below one image per slot; the last one stops everything and checks the recording and that nothing is left.
+Everything is read from what the nodes write (``slots.csv``, logs): the test process is in neither namespace.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+import time
+
+import pytest
+
+from gsrmr_sim.netns import TwoHosts, namespaces, unavailable_reason
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow,
+              pytest.mark.skipif(unavailable_reason() is not None, reason=f"two hosts: {unavailable_reason()}")]
+
+
+def _harness():
+    from pathlib import Path
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    import stack_harness
+
+    return stack_harness
+
+
+@pytest.fixture(scope="module")
+def two_hosts(tmp_path_factory):
+    from conftest import ros_env
+
+    h = _harness()
+    tmp = tmp_path_factory.mktemp("two_hosts")
+    model = h.make_point_model(tmp)
+    env = ros_env()
+    hosts = TwoHosts(uplink_mbit=5.0, domain_id=int(env["ROS_DOMAIN_ID"])).open()
+    stack = h.Stack(tmp, model, env, hosts=hosts,
+                    overrides={"gsrmr_scheduler": {"loss_threshold": 0.0, "horizon": 100, "replan_period_s": 1.0}})
+    state = {"stopped": False}
+    try:
+        stack.start_all()
+        yield stack, hosts, state
+    finally:
+        if not state["stopped"]:
+            stack.stop()
+        hosts.close()
+
+
+def _rows(stack) -> list[dict]:
+    return _harness().slot_rows(stack.tmp / "rec")
+
+
+def _wait_rows(stack, predicate, timeout_s: float) -> list[dict]:
+    deadline = time.monotonic() + timeout_s
+    rows = _rows(stack)
+    while time.monotonic() < deadline and not predicate(rows):
+        time.sleep(0.2)
+        rows = _rows(stack)
+    return rows
+
+
+def _consecutive(rows) -> bool:
+    slots = [r["slot"] for r in rows]
+    return bool(slots) and slots == list(range(slots[0], slots[0] + len(slots)))
+
+
+def _faults(rows) -> Counter:
+    return Counter(f for r in rows for f in (r["faults"] or "").split(";") if f)
+
+
+def _alive(stack) -> None:
+    for name, proc in stack.procs.items():
+        assert proc.poll() is None, (name, stack.log(name)[-2000:])
+
+
+def test_images_cross_the_veth_not_shared_memory(two_hosts):
+    stack, hosts, _ = two_hosts
+    rows = _wait_rows(stack, lambda rs: sum(r["source"] == "image" for r in rs) >= 30, 90)
+    assert sum(r["source"] == "image" for r in rows) >= 30, (stack.log("gsrmr_server")[-2000:],
+                                                             stack.log("gsrmr_robot")[-2000:])
+    before = hosts.link_bytes()
+    time.sleep(3.0)
+    after = hosts.link_bytes()
+    recent = [r for r in _rows(stack) if r["stamp_s"] >= before["wall_s"] and r["stamp_s"] < after["wall_s"] - 0.5]
+    sent = sum(r["bytes_sent"] or 0 for r in recent)
+    assert sent > 0 and after["uplink"] - before["uplink"] >= sent  # the uploads went through the veth
+    _alive(stack)
+
+
+def test_link_down_two_seconds_server_composes_through_and_images_resume(two_hosts):
+    stack, hosts, _ = two_hosts
+    t_down = time.time()
+    hosts.set_link(False)
+    time.sleep(2.0)
+    hosts.set_link(True)
+    t_up = time.time()
+    rows = _wait_rows(stack, lambda rs: bool(rs) and rs[-1]["stamp_s"] > t_up + 4.0, 30)
+    assert _consecutive(rows), "the server skipped slots"
+    gap = [r for r in rows if t_down + 0.3 <= r["stamp_s"] <= t_up - 0.1]
+    assert len(gap) >= 15  # composed all through the outage …
+    assert all(r["source"] in ("render", "fallback") for r in gap), Counter(r["source"] for r in gap)
+    # … from the GS render at the extrapolated pose, every missing upload counted
+    assert _faults(gap)["missing_key"] >= len(gap) - 2, _faults(gap)
+    first_image = next((r for r in rows if r["stamp_s"] >= t_up and r["source"] == "image"), None)
+    assert first_image is not None, Counter(r["source"] for r in rows if r["stamp_s"] >= t_up)
+    assert first_image["stamp_s"] - t_up <= 1.0, first_image["stamp_s"] - t_up
+    after = [r for r in rows if t_up + 1.5 <= r["stamp_s"] <= t_up + 4.0]
+    # and keep coming (the robot may hold one back while the outage's queue drains)
+    assert sum(r["source"] == "image" for r in after) >= 0.5 * len(after), \
+        Counter((r["source"], r["held_back"]) for r in after)
+    _alive(stack)
+
+
+def test_robot_participant_killed_and_restarted_images_resume(two_hosts):
+    stack, _, _ = two_hosts
+    stack.kill9("gsrmr_robot")
+    t_kill = time.time()
+    time.sleep(1.0)
+    stack.start("gsrmr_robot")
+    t_start = time.time()
+    rows = _wait_rows(stack, lambda rs: any(r["stamp_s"] > t_start and r["source"] == "image" for r in rs), 30)
+    assert _consecutive(rows)
+    gap = [r for r in rows if t_kill + 0.2 <= r["stamp_s"] <= t_start]
+    assert gap and all(r["source"] in ("render", "fallback") for r in gap)
+    first_image = next(r for r in rows if r["stamp_s"] > t_start and r["source"] == "image")
+    assert first_image["stamp_s"] - t_start <= 15.0  # process start-up and SUBNET discovery across the veth
+    _alive(stack)
+
+
+def test_uplink_cut_below_one_image_per_slot_robot_holds_back_scheduler_plans_fewer(two_hosts):
+    stack, hosts, _ = two_hosts
+    # what the link carries besides images (keys and ledger rows to server and scheduler, cmd_vel, DDS
+    # heartbeats, acknowledgements and discovery), measured over 4 s of one image per slot
+    before = hosts.link_bytes()
+    time.sleep(4.0)
+    after_bytes = hosts.link_bytes()
+    window = [r for r in _rows(stack) if before["wall_s"] <= r["stamp_s"] < after_bytes["wall_s"]]
+    images = [r["bytes_sent"] for r in window if r["x"] == 1 and r["bytes_sent"]]
+    assert len(images) >= 20
+    seconds = after_bytes["wall_s"] - before["wall_s"]
+    other_bps = max(0.0, 8 * (after_bytes["uplink"] - before["uplink"] - sum(images)) / seconds)
+    image_bps = 8 * sorted(images)[len(images) // 2] / 0.1  # one image per slot
+    # below one image per slot: room for 60 % of the images beside the rest of the traffic
+    cut_mbit = (other_bps + 0.6 * image_bps) / 1e6
+    hosts.set_rate(cut_mbit)
+    t_cut = time.time()
+    rows = _wait_rows(stack, lambda rs: bool(rs) and rs[-1]["stamp_s"] > t_cut + 12.0, 40)
+    assert _consecutive(rows)
+    early = [r for r in rows if t_cut <= r["stamp_s"] < t_cut + 4.0]
+    after = [r for r in rows if t_cut + 4.0 <= r["stamp_s"] <= t_cut + 12.0]
+    assert len(after) >= 60
+    # the robot notices: images asked for while the last one is unacknowledged are held back (key only) —
+    # until the scheduler's cap (below) stops asking for more than the link carries
+    held = sum(r["held_back"] or 0 for r in early + after)
+    assert held >= 3, Counter((r["x"], r["held_back"]) for r in early + after)
+    # the scheduler notices (the robot's ledger rows) and caps the images it plans at what the link carries
+    caps = [float(line.rsplit("image_cap=", 1)[1].split()[0]) for line in stack.log("gsrmr_scheduler").splitlines()
+            if "image_cap=" in line and "image_cap=none" not in line]
+    assert caps and min(caps) < 0.9, stack.log("gsrmr_scheduler")[-3000:]
+    # the uplink does not fall behind: images still arrive in their slots, and keys keep arriving
+    assert sum(r["source"] == "image" for r in after) >= 10, Counter(r["source"] for r in after)
+    assert _faults(after)["missing_key"] <= 0.5 * len(after), _faults(after)
+    rates = [r["uplink_rate_bps"] for r in after if r["uplink_rate_bps"]]
+    assert rates and min(rates) < 2.5e6  # the robot's throughput estimate fell from the 5 Mbit/s link's
+    hosts.set_rate(5.0)
+    _alive(stack)
+
+
+def test_two_host_stack_stops_cleanly_recording_complete_nothing_left(two_hosts):
+    from gsrmr_server.recording import TOPIC_SLOT_LOG, read_mcap
+
+    stack, hosts, state = two_hosts
+    took = stack.stop()
+    state["stopped"] = True
+    assert all(t < 10 for t in took.values()), took
+    rows = _rows(stack)
+    assert _consecutive(rows)
+    logs = [msg for topic, _, msg in read_mcap(stack.tmp / "rec" / "run.mcap") if topic == TOPIC_SLOT_LOG]
+    assert len(logs) == len(rows)  # every composed slot is in the MCAP too
+    made = {hosts.robot_ns, hosts.server_ns}
+    hosts.close()
+    assert not made & set(namespaces())
+    assert not list((stack.tmp / "truth_frames").glob("*.tmp"))

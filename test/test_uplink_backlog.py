@@ -1,0 +1,118 @@
+"""The uplink backlog (pure): the robot holds images back while one is queued, the scheduler plans fewer."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gsrmr_common.link_model import LinkBudget
+from gsrmr_robot.dds_profile import HEARTBEAT_PERIOD_NS, use_uplink_profile
+from gsrmr_robot.uplink_backlog import UplinkBacklog
+from gsrmr_robot.uplink_core import SlotInputs, UplinkCore
+from gsrmr_server.slot_price import cap_expected_images, rician_power_samples
+
+
+def test_backlog_queues_until_acked_and_measures_the_rate():
+    b = UplinkBacklog(stale_after_s=1.0)
+    assert not b.queued(0.0) and math.isnan(b.rate_bps)
+    b.sent(64_000, 10.0)
+    assert b.waiting and b.queued(10.05) and b.queued_for_s(10.05) == pytest.approx(0.05)
+    b.acked(10.032)  # 64 kbit in 32 ms: 2 Mbit/s
+    assert not b.queued(10.04) and b.rate_bps == pytest.approx(2e6)
+    b.sent(64_000, 11.0)
+    b.acked(11.128)  # 0.5 Mbit/s, smoothed in with weight 0.3
+    assert b.rate_bps == pytest.approx(0.7 * 2e6 + 0.3 * 0.5e6)
+    b.acked(12.0)  # nothing queued: no sample
+    assert b.acked_images == 2
+    rate = b.rate_bps
+    b.sent(64_000, 13.0)
+    b.acked(15.0)  # acknowledged after an outage: no throughput sample
+    assert b.rate_bps == rate and b.last_ack_delay_s == pytest.approx(2.0) and not b.waiting
+
+
+def test_backlog_stops_holding_back_after_stale_time():
+    b = UplinkBacklog(stale_after_s=0.5)
+    b.sent(8000, 0.0)
+    assert b.queued(0.49) and not b.queued(0.5)
+    assert b.waiting  # still polled for its acknowledgement
+    with pytest.raises(ValueError):
+        UplinkBacklog(stale_after_s=0.0)
+
+
+def _inputs(slot: int, queued: bool, rate: float = float("nan")) -> SlotInputs:
+    frame = np.full((24, 32, 3), 128, np.uint8)
+    return SlotInputs(slot, frame, 1_000, (0.0, 0.0, 0.0), (1, 0.01), measured_gain=1e-6, uplink_queued=queued,
+                      uplink_rate_bps=rate)
+
+
+def test_core_holds_an_image_back_while_the_last_is_queued():
+    core = UplinkCore(LinkBudget(), 0.1)
+    sent = core.run_slot(_inputs(1, queued=False))
+    assert sent.x == 1 and sent.jpeg is not None and sent.row.held_back == 0
+    held = core.run_slot(_inputs(2, queued=True, rate=1.5e6))
+    assert held.x == 0 and held.jpeg is None and held.key is not None
+    assert held.row.held_back == 1 and held.row.uplink_rate_bps == 1.5e6
+    assert held.row.upload_all_bits > 0  # the upload-all reference still prices the frame
+    assert core.ledger.totals()["images_held_back"] == 1
+
+
+def test_cap_expected_images_keeps_the_most_valuable_images():
+    samples = rician_power_samples(1.0)
+    mean_gain = np.full(10, 1e-6)
+    # thresholds c/(λ L): slot 0 has the largest L (lowest threshold), slot 9 the smallest; slot 5 always a key
+    thresholds = mean_gain * np.linspace(0.2, 1.5, 10)
+    thresholds[5] = np.inf
+    expected = lambda t: float(np.sum(1 - np.searchsorted(samples, t / mean_gain) / samples.size))  # noqa: E731
+    assert expected(thresholds) > 4
+    capped, scale = cap_expected_images(thresholds, mean_gain, samples, 4.0)
+    assert scale > 1 and expected(capped) <= 4.0 + 1e-6 and expected(capped) > 3.9
+    assert np.isinf(capped[5]) and np.all(np.diff(capped[[0, 1, 2, 3, 4, 6, 7, 8, 9]]) > 0)  # order kept
+    same, one = cap_expected_images(thresholds, mean_gain, samples, 20.0)
+    assert one == 1.0 and np.array_equal(same, thresholds)
+    zero = np.zeros(10)  # "always an image" thresholds rise too
+    capped0, _ = cap_expected_images(zero, mean_gain, samples, 2.0)
+    assert expected(capped0) <= 2.0 + 1e-6
+
+
+def test_planner_caps_images_when_the_robot_held_them_back():
+    from gsrmr_server.horizon import LINK_WINDOW_SLOTS, OnlinePlanner, RoutePredictor
+    from gsrmr_server.loss_map import LossMap
+
+    link = LinkBudget()
+    planner = OnlinePlanner(RoutePredictor([[0, 0], [4, 0], [4, 4], [0, 4]], 0.3), LossMap(prior=0.2),
+                            link, slot_s=0.1, image_bits=64_000, pose_bits=192, loss_threshold=0.0, horizon=40,
+                            in_slot_decision=True)
+    free = planner.plan(0, (0.0, 0.0, 0.0))
+    assert planner.link_image_cap() is None
+    for k in range(1, LINK_WINDOW_SLOTS + 1):  # a fast link: 64 kbit images acknowledged at 2 Mbit/s: no cap
+        planner.record_action(k, 1, 0, 2e6, 64_000)
+    assert planner.link_image_cap() is None
+    for k in range(LINK_WINDOW_SLOTS + 1, 2 * LINK_WINDOW_SLOTS + 1):  # 0.2 Mbit/s: an image per 3.2 slots
+        planner.record_action(k, int(k % 3 == 0), int(k % 3 != 0), 0.2e6, 64_000)
+    cap = planner.link_image_cap()
+    assert cap == pytest.approx(0.1 * 0.2e6 / 64_000) and planner.images_held_back() == 33
+    capped = planner.plan(2 * LINK_WINDOW_SLOTS, (0.0, 0.0, 0.0))
+    samples = rician_power_samples(1.0)
+    gains = planner.gains(2 * LINK_WINDOW_SLOTS + 1, planner.predictor.predict((0.0, 0.0, 0.0), 40, 0.1))
+
+    def expected(s) -> float:
+        t = np.asarray(s.schedule.gain_threshold)
+        return float(np.sum(1 - np.searchsorted(samples, t / gains) / samples.size))
+
+    assert expected(free) > 30  # L_th = 0: images in every slot but the deepest fades
+    assert expected(capped) <= cap * 40 + 1e-6
+    assert planner.last_image_cap == cap
+
+
+def test_robot_uses_the_uplink_profile_unless_one_is_set(tmp_path):
+    env: dict[str, str] = {}
+    path = use_uplink_profile(env)
+    text = Path(path).read_text()
+    assert env["FASTDDS_DEFAULT_PROFILES_FILE"] == path and f"<nanosec>{HEARTBEAT_PERIOD_NS}</nanosec>" in text
+    assert 'is_default_profile="true"' in text
+    own = {"FASTRTPS_DEFAULT_PROFILES_FILE": str(tmp_path / "mine.xml")}
+    assert use_uplink_profile(own) == own["FASTRTPS_DEFAULT_PROFILES_FILE"]
+    assert "FASTDDS_DEFAULT_PROFILES_FILE" not in own
