@@ -29,6 +29,8 @@ import time
 COLUMNS = ("slots", "slots_on_time", "images_sent", "energy_ratio_vs_upload_all", "energy_upload_all_j", "mean_loss",
            "psnr_db", "psnr_slot_mean_db", "ssim", "regret", "hindsight_images", "latency_ms_p50", "latency_ms_p95",
            "latency_ms_p99", "plan_ms_p50", "plan_ms_max", "replans_late")
+# with gsrmr-demo --hosts 2: what crossed the rate-limited uplink (veth counters) and the limiter's drops
+LINK_COLUMNS = ("link_uplink_mbit_mean", "link_uplink_bytes", "link_uplink_dropped_packets")
 
 
 def run_figures(report_dir: Path) -> dict:
@@ -100,6 +102,9 @@ def main() -> int:
 
 
 def _runs(args: argparse.Namespace) -> int:
+    global COLUMNS
+    if "--hosts" in args.demo_args:
+        COLUMNS = COLUMNS + LINK_COLUMNS
     print("| run | " + " | ".join(COLUMNS) + " | wall s |")
     print("|" + "---|" * (len(COLUMNS) + 2))
     rows = []
@@ -113,7 +118,7 @@ def _runs(args: argparse.Namespace) -> int:
     for r in rows:  # summaries of runs before the pooled PSNR existed
         r.setdefault("psnr_slot_mean_db", float("nan"))
     lower_is_better = ("images_sent", "mean_loss", "regret", "latency_ms_p50", "latency_ms_p95", "latency_ms_p99",
-                       "plan_ms_p50", "plan_ms_max")
+                       "plan_ms_p50", "plan_ms_max", *LINK_COLUMNS)
 
     def summary_cell(c: str, pick) -> str:
         if c == "replans_late":  # all runs together: late / all replans

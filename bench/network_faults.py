@@ -13,9 +13,10 @@ by ``tbf``. Cases (``--link-events`` slots count composed round slots):
 * ``cut-nohold`` — the same cut with the robot's hold-back off (``hold_images_while_queued`` false): images
   go into the queue whenever the schedule asks.
 
-Prints per case (median and worst over ``--runs``): slots on time, images composed / sent, missing keys and
-images, late arrivals, images held back, mean MR loss, energy below upload-all, the uplink's mean Mbit/s, and
-for the outage the seconds from link-up to the first composed image. The machine's load average is printed
+Prints per case (median and worst over ``--runs``): slots on time, images sent (the robot's ledger) and
+composed, images held back, missing keys and images, late arrivals (the server's counter, whole run), packets
+the rate limiter dropped (its queue overflowed), mean MR loss, energy below upload-all, the uplink's mean
+Mbit/s, and for the outage the seconds from link-up to the first composed image. The machine's load average is printed
 first; figures from a loaded machine say so.
 """
 
@@ -39,8 +40,9 @@ CASES = {
     "cut-nohold": ["--uplink-mbit", "5", "--link-events", "rate=0.5@100",
                    "--param", "gsrmr_robot:hold_images_while_queued=false"],
 }
-COLUMNS = ("slots_on_time", "images_composed", "images_sent", "missing_key", "missing_image", "late", "held_back",
-           "mean_loss", "energy_ratio_vs_upload_all", "link_uplink_mbit_mean", "images_back_after_s")
+COLUMNS = ("slots_on_time", "images_sent", "images_composed", "held_back", "missing_key", "missing_image", "late",
+           "link_uplink_dropped_packets", "mean_loss", "energy_ratio_vs_upload_all", "link_uplink_mbit_mean",
+           "images_back_after_s")
 
 
 def _run(case: str, extra: list[str]) -> dict:
@@ -60,6 +62,8 @@ def _slot_figures(out: Path, summary: dict) -> dict:
     rows = [r for r in read_slots_csv(out / "slots.csv") if r.get("scored")]
     faults = [f for r in rows for f in (r["faults"] or "").split(";") if f]
     fig = {"images_composed": sum(r["source"] == "image" for r in rows),
+           # what the robot's ledger says it sent as images (rows whose ledger row reached the server)
+           "images_sent": sum(1 for r in rows if r["x"] == 1 and (r["bytes_sent"] or 0) > 24),
            "missing_key": faults.count("missing_key"), "missing_image": faults.count("missing_image"),
            # uploads that came after their slot was composed (the server's counter, whole run)
            "late": _server_faults(out).get("late", 0), "held_back": sum(r["held_back"] or 0 for r in rows),
@@ -87,7 +91,8 @@ def main() -> int:
           f"({os.cpu_count()} CPUs, load average before {os.getloadavg()[0]:.1f}, {time.strftime('%Y-%m-%d %H:%M')})")
     print("| case | stat | " + " | ".join(COLUMNS) + " |")
     print("|" + "---|" * (len(COLUMNS) + 2))
-    lower_is_better = {"missing_key", "missing_image", "late", "held_back", "mean_loss", "images_back_after_s"}
+    lower_is_better = {"missing_key", "missing_image", "late", "held_back", "mean_loss", "images_back_after_s",
+                       "link_uplink_dropped_packets"}
     for case in args.cases:
         runs = [_run(case, args.demo_args) for _ in range(args.runs)]
         for label, pick in (("median", statistics.median), ("worst", None)):

@@ -52,6 +52,13 @@ from gsrmr_server.slot_price import cap_expected_images, gain_thresholds, rician
 
 # ledger rows the uplink's carrying capacity is judged on (OnlinePlanner.link_image_cap): 5 s of slots
 LINK_WINDOW_SLOTS = 50
+# images that must have been composed for the uplink to count as delivering them in their slots: the last
+# DELIVERY_WINDOW_IMAGES the robot sent, older than DELIVERY_GRACE_SLOTS (the server's loss sample follows its
+# slot by ~1 slot); fewer than MIN_DELIVERY_RATIO of them composed → the plan only probes (PROBE_IMAGE_FRACTION)
+DELIVERY_WINDOW_IMAGES = 8
+DELIVERY_GRACE_SLOTS = 10
+MIN_DELIVERY_RATIO = 0.5
+PROBE_IMAGE_FRACTION = 3 / LINK_WINDOW_SLOTS
 LOSS_MODELS = ("map", "burst")  # L_t predictors: calibrated seed map / burst model (gsrmr_server.loss_predictor)
 
 
@@ -137,6 +144,8 @@ class OnlinePlanner:
         # (slot, x, held_back, uplink_rate_bps, image_bits) of the last LINK_WINDOW_SLOTS ledger rows
         self._link_window: deque[tuple[int, int, int, float, float]] = deque(maxlen=LINK_WINDOW_SLOTS)
         self.last_image_cap: float | None = None  # the image fraction the last plan was held to (None: no cap)
+        self._sent_images: deque[int] = deque(maxlen=4 * DELIVERY_WINDOW_IMAGES)  # slots the robot sent an image in
+        self._sampled_slots: deque[int] = deque(maxlen=1000)  # slots the server measured L_t in (image composed)
         self.last_price: float | None = None  # λ of the last plan (J per unit of loss)
         self.calibrate = bool(calibrate)
         self.explore_image_fraction = float(explore_image_fraction)
@@ -204,6 +213,8 @@ class OnlinePlanner:
         ``image_bits``: the size of this slot's frame as a JPEG."""
         self._actual_x[slot] = int(x)
         self._link_window.append((int(slot), int(x), int(held_back), float(uplink_rate_bps), float(image_bits)))
+        if x:
+            self._sent_images.append(int(slot))
         if x and (self._last_image_slot is None or slot > self._last_image_slot):
             self._last_image_slot = slot
         for old in [k for k in self._actual_x if k < slot - 1000]:
@@ -214,13 +225,31 @@ class OnlinePlanner:
         at least one per slot): τ · R / b, with R the median of the robot's throughput estimates and b the median
         JPEG size over its last ``LINK_WINDOW_SLOTS`` ledger rows. R comes from how long each image took to be
         acknowledged (:mod:`gsrmr_robot.uplink_backlog`): it measures the link, not the plan, so a cap does not
-        ratchet itself down (a cap from the images the link carried would: fewer planned, fewer carried)."""
+        ratchet itself down (a cap from the images the link carried would: fewer planned, fewer carried). When
+        most recent images were not composed in their slot (:meth:`image_delivery_ratio` < ``MIN_DELIVERY_RATIO``:
+        they arrive late), the cap is ``PROBE_IMAGE_FRACTION``: a few images keep measuring the link."""
         rates = [r for *_, r, _ in self._link_window if math.isfinite(r) and r > 0]
         sizes = [b for *_, b in self._link_window if math.isfinite(b) and b > 0]
-        if not rates or not sizes:
-            return None
-        cap = self.slot_s * float(np.median(rates)) / float(np.median(sizes))
+        cap = self.slot_s * float(np.median(rates)) / float(np.median(sizes)) if rates and sizes else 1.0
+        delivered = self.image_delivery_ratio()
+        if delivered is not None and delivered < MIN_DELIVERY_RATIO:
+            # the images the link carries arrive after their slot was composed (a link this slow takes longer
+            # than the server waits): they cost energy and change nothing — only probe until they arrive again
+            cap = min(cap, PROBE_IMAGE_FRACTION)
         return cap if cap < 1.0 else None
+
+    def image_delivery_ratio(self) -> float | None:
+        """Of the last ``DELIVERY_WINDOW_IMAGES`` images the robot sent (older than ``DELIVERY_GRACE_SLOTS``), the
+        fraction the server composed in their slot (its loss sample came); None before the server has sent any
+        sample (it may not measure) or with fewer than 2 such images."""
+        if not self._sampled_slots or not self._link_window:
+            return None
+        newest = max(s for s, *_ in self._link_window)
+        settled = [s for s in self._sent_images if s <= newest - DELIVERY_GRACE_SLOTS][-DELIVERY_WINDOW_IMAGES:]
+        if len(settled) < 2:
+            return None
+        sampled = set(self._sampled_slots)
+        return sum(s in sampled for s in settled) / len(settled)
 
     def images_held_back(self) -> int:
         """Images the robot held back in its last ``LINK_WINDOW_SLOTS`` ledger rows (its last one still queued)."""
@@ -371,6 +400,7 @@ class OnlinePlanner:
     def observe(self, slot: int, a_m: float, b_m: float, theta_rad: float, loss: float) -> bool:
         """An image slot's measured L_t (the server's loss sample); True when the prediction error says a
         replan is due."""
+        self._sampled_slots.append(int(slot))
         predicted = self._predicted.get(slot)
         if self.loss_model == "burst":
             self.loss_predictor.observe(slot, (a_m, b_m, theta_rad), loss, predicted)

@@ -231,9 +231,9 @@ class SchedulerNode(Node):
             self._logged_cap = cap
             self.get_logger().info(
                 "uplink image cap: image_cap=none (the link carries an image per slot)" if cap is None else
-                f"uplink image cap: image_cap={cap:.3f} (the robot's images take {1 / cap:.1f} slots each to be "
-                f"acknowledged, {self.planner.images_held_back()} held back in the last slots; the plan keeps the "
-                "images saving the most loss per joule)")
+                f"uplink image cap: image_cap={cap:.3f} ({self.planner.images_held_back()} held back in the last "
+                f"slots, {_ratio(self.planner.image_delivery_ratio())} of the last images composed in their slot; "
+                "the plan keeps the images saving the most loss per joule)")
         if reason != "period":
             self.get_logger().info(f"replan ({reason}): {self._summary(result, changed)}")
         return result, changed
@@ -294,7 +294,8 @@ class SchedulerNode(Node):
                   "loss_model": p.loss_model, "image_slot_loss": round(p.image_slot_loss, 6),
                   # the image fraction the last plan was held to because the robot held images back (-1: none)
                   "link_image_cap": -1 if p.last_image_cap is None else round(p.last_image_cap, 4),
-                  "images_held_back": p.images_held_back()}
+                  "images_held_back": p.images_held_back(),
+                  "image_delivery_ratio": _ratio(p.image_delivery_ratio())}
         if p.loss_model == "burst":
             lp = p.loss_predictor
             values.update({"loss_level_ratio": round(math.exp(lp.level), 4), "loss_margin_factor": round(lp.margin, 4),
@@ -309,6 +310,10 @@ class SchedulerNode(Node):
         self._pub_diag.publish(diagnostics_msg(
             self, name=f"{self.get_name()}: schedule", hardware_id="gsrmr_server", values=values,
             problems=[] if r is None or r.feasible else ["plan infeasible"]))
+
+
+def _ratio(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.0%}"
 
 
 def main(args: list[str] | None = None) -> int:

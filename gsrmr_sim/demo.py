@@ -80,8 +80,10 @@ def ensure_survey(scene_name: str, model_path: Path, slots: int, round_index: in
 def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, loss_threshold: float,
               slots: int, method: str, timeout_s: float, channel_seed: int | None = None,
               oracle_channel: bool = False, hosts: int = 1, uplink_mbit: float = 5.0,
-              link_events: Sequence[LinkEvent] = (), link_log: dict | None = None) -> tuple[list[dict], int]:
+              link_events: Sequence[LinkEvent] = (), link_log: dict | None = None,
+              overrides: dict[str, dict] | None = None) -> tuple[list[dict], int]:
     """Start every node as a process over DDS; stop after ``slots`` composed slots; return the rows.
+    ``overrides``: parameters per node name on top of the stack's (``gsrmr-demo --param``).
 
     ``hosts`` = 2 runs the robot's processes and the server's in two network namespaces joined by a veth
     pair limited to ``uplink_mbit`` (:class:`gsrmr_sim.netns.TwoHosts`), DDS over UDPv4 across it, the
@@ -98,7 +100,8 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
     specs = sim_stack(scene=scene, model_path=str(model_path), record_dir=str(run_dir / "recording"),
                       loss_threshold=loss_threshold, link_path=link, laps=1, method=method,
                       loss_map_file=str(loss_map), state_dir=str(run_dir / "scheduler_state"),
-                      channel_seed=channel_seed, oracle_channel=oracle_channel, truth_dir=truth_dir)
+                      channel_seed=channel_seed, oracle_channel=oracle_channel, truth_dir=truth_dir,
+                      overrides=overrides)
     stack = ProcessStack(environment(domain), run_dir / "logs", params_dir=run_dir / "params")
     net = None
     placement: dict[str, dict] = {}
@@ -205,6 +208,20 @@ class LinkEvent:
         return {"at_slot": self.at_slot, "action": self.action, **rate}
 
 
+def parse_params(items: Sequence[str]) -> dict[str, dict]:
+    """``["gsrmr_robot:jpeg_quality=70", …]`` → ``{"gsrmr_robot": {"jpeg_quality": 70}}`` (values parsed as YAML)."""
+    import yaml
+
+    out: dict[str, dict] = {}
+    for item in items:
+        node, sep, rest = item.partition(":")
+        name, eq, value = rest.partition("=")
+        if not (sep and eq and node and name):
+            raise ValueError(f"--param {item!r}: expected NODE:NAME=VALUE")
+        out.setdefault(node, {})[name] = yaml.safe_load(value)
+    return out
+
+
 def parse_link_events(text: str) -> list[LinkEvent]:
     """``"down@100,up@120,rate=1.5@150"`` → link events at round slots 100, 120 and 150."""
     events = []
@@ -277,6 +294,7 @@ def link_summary(link_log: dict, rows: list[dict], uplink_mbit: float) -> dict:
     return {"uplink_mbit": uplink_mbit, "link_uplink_bytes": int(up), "link_downlink_bytes": int(down),
             "link_seconds": round(duration_s, 2), "link_uplink_mbit_mean": 8e-6 * up / duration_s,
             "ledger_bytes_sent": int(sum(r["bytes_sent"] or 0 for r in rows)),
+            "link_uplink_dropped_packets": int(end.get("uplink_dropped", 0) - start.get("uplink_dropped", 0)),
             "link_events": link_log.get("events", [])}
 
 
@@ -404,7 +422,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                          "scheduler and simulated world; channel seed + k - 1 for robot k), one report folder per "
                          "robot and fleet totals (gsrmr_sim.fleet); without it, the single robot in the root "
                          "namespace (default)")
+    ap.add_argument("--param", action="append", default=[], metavar="NODE:NAME=VALUE",
+                    help="set a node's parameter on top of the stack's (YAML value), e.g. "
+                         "gsrmr_robot:hold_images_while_queued=false; repeatable")
     args = ap.parse_args(argv)
+    try:
+        args.overrides = parse_params(args.param)
+    except ValueError as e:
+        ap.error(str(e))
     if args.robots is not None and args.robots < 1:
         ap.error("--robots must be >= 1")
     try:
@@ -451,7 +476,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                    loss_threshold=args.loss_threshold, slots=slots, method=args.method,
                                    timeout_s=slots * scene.slot_s + 120.0, channel_seed=args.channel_seed,
                                    oracle_channel=args.oracle, hosts=args.hosts, uplink_mbit=args.uplink_mbit,
-                                   link_events=link_events, link_log=link_log)
+                                   link_events=link_events, link_log=link_log, overrides=args.overrides)
     copy_recording(out, out / "recording", first_moving, len(rows))
     summary = {**run_summary(args, rows, scene.slot_s, built, args.channel_seed),
                "hosts": args.hosts, **(link_summary(link_log, rows, args.uplink_mbit) if args.hosts == 2 else {}),

@@ -327,7 +327,8 @@ def fleet_demo(args: argparse.Namespace, *, slots: int, slot_s: float, out: Path
     runs = run_fleet(robots=robots, scene=args.scene, model_path=built.path, loss_map=loss_map, run_dir=out,
                      loss_threshold=args.loss_threshold, slots=slots, method=args.method,
                      timeout_s=slots * slot_s + 120.0, channel_seed=args.channel_seed, oracle_channel=args.oracle,
-                     hosts=args.hosts, uplink_mbit=args.uplink_mbit, link_events=link_events, link_log=link_log)
+                     hosts=args.hosts, uplink_mbit=args.uplink_mbit, link_events=link_events, link_log=link_log,
+                     overrides=getattr(args, "overrides", None) or None)
     per_robot = []
     for run in runs:
         copy_recording(run.report_dir, run.report_dir / "recording", run.first_moving, len(run.rows))

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import os
 from pathlib import Path
 import random
+import re
 import shutil
 import signal
 import subprocess
@@ -151,12 +152,26 @@ class TwoHosts:
 
     def link_bytes(self) -> dict[str, float]:
         """Bytes the link carried so far: ``uplink`` (robot → server) and ``downlink``, from the veth counters,
-        and ``wall_s``, when they were read (seconds since the epoch)."""
+        ``uplink_dropped`` (packets the rate limiter dropped) and ``wall_s``, when they were read (seconds since
+        the epoch)."""
         def read(ns: str, ifname: str, what: str) -> int:
             return int(self.ns_run(ns, "cat", f"/sys/class/net/{ifname}/statistics/{what}").stdout.strip())
 
         return {"uplink": read(self.robot_ns, self.robot_if, "tx_bytes"),
-                "downlink": read(self.server_ns, self.server_if, "tx_bytes"), "wall_s": time.time()}
+                "downlink": read(self.server_ns, self.server_if, "tx_bytes"),
+                "uplink_dropped": self.queue_stats()["dropped"], "wall_s": time.time()}
+
+    def queue_stats(self) -> dict[str, int]:
+        """The uplink's rate limiter (tbf on the robot's veth end), cumulative since the link was made:
+        ``sent_bytes``, ``dropped`` packets (its queue overflowed: more than 400 ms of traffic waiting) and
+        ``backlog_bytes`` queued right now."""
+        text = self.ns_run(self.robot_ns, "tc", "-s", "qdisc", "show", "dev", self.robot_if).stdout
+        sent = re.search(r"Sent (\d+) bytes", text)
+        dropped = re.search(r"dropped (\d+)", text)
+        backlog = re.search(r"backlog (\d+)([KM]?)b", text)
+        scale = {"": 1, "K": 1000, "M": 1_000_000}
+        return {"sent_bytes": int(sent.group(1)) if sent else 0, "dropped": int(dropped.group(1)) if dropped else 0,
+                "backlog_bytes": int(backlog.group(1)) * scale[backlog.group(2)] if backlog else 0}
 
     def set_rate(self, mbit: float) -> None:
         """Limit the robot → server direction to ``mbit`` Mbit/s (tbf: 32 kbit burst, 400 ms queue)."""

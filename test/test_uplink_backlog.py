@@ -116,3 +116,37 @@ def test_robot_uses_the_uplink_profile_unless_one_is_set(tmp_path):
     own = {"FASTRTPS_DEFAULT_PROFILES_FILE": str(tmp_path / "mine.xml")}
     assert use_uplink_profile(own) == own["FASTRTPS_DEFAULT_PROFILES_FILE"]
     assert "FASTDDS_DEFAULT_PROFILES_FILE" not in own
+
+
+def test_planner_only_probes_when_images_arrive_after_their_slot():
+    from gsrmr_server.horizon import (
+        DELIVERY_GRACE_SLOTS,
+        DELIVERY_WINDOW_IMAGES,
+        PROBE_IMAGE_FRACTION,
+        OnlinePlanner,
+        RoutePredictor,
+    )
+    from gsrmr_server.loss_map import LossMap
+
+    planner = OnlinePlanner(RoutePredictor([[0, 0], [4, 0], [4, 4], [0, 4]], 0.3), LossMap(prior=0.2), LinkBudget(),
+                            slot_s=0.1, image_bits=64_000, pose_bits=192, loss_threshold=0.0, horizon=40,
+                            in_slot_decision=True)
+    fast = (2e6, 64_000)  # acknowledged fast: the throughput alone would not cap
+    for k in range(1, 21):  # images composed in their slots (the server's loss samples came)
+        planner.record_action(k, 1, 0, *fast)
+        planner.observe(k, 0.0, 0.0, 0.0, 0.1)
+    assert planner.image_delivery_ratio() == 1.0 and planner.link_image_cap() is None
+    for k in range(21, 21 + DELIVERY_WINDOW_IMAGES + DELIVERY_GRACE_SLOTS):  # then none composed: all late
+        planner.record_action(k, 1, 0, *fast)
+    assert planner.image_delivery_ratio() < 0.5
+    assert planner.link_image_cap() == PROBE_IMAGE_FRACTION
+    k0 = 21 + DELIVERY_WINDOW_IMAGES + DELIVERY_GRACE_SLOTS
+    for k in range(k0, k0 + DELIVERY_WINDOW_IMAGES + DELIVERY_GRACE_SLOTS):  # the probes arrive again
+        planner.record_action(k, 1, 0, *fast)
+        planner.observe(k, 0.0, 0.0, 0.0, 0.1)
+    assert planner.image_delivery_ratio() >= 0.5 and planner.link_image_cap() is None
+    silent = OnlinePlanner(RoutePredictor([[0, 0], [4, 0], [4, 4]], 0.3), LossMap(prior=0.2), LinkBudget(), slot_s=0.1,
+                           image_bits=64_000, pose_bits=192, loss_threshold=0.0, horizon=10)
+    for k in range(1, 40):  # a server that never measures L_t: no verdict on delivery
+        silent.record_action(k, 1, 0, *fast)
+    assert silent.image_delivery_ratio() is None and silent.link_image_cap() is None
