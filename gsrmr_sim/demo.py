@@ -455,6 +455,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     scene = load_scene(args.scene)
     slots = args.slots or scene.slots
     out = Path(args.out or REPO / "reports" / f"demo-{time.strftime('%Y%m%d-%H%M%S')}")
+    if (out / "recording").exists() or (out / "robot1").exists():  # the server would refuse to record into it
+        ap.error(f"--out {out} already holds a run; use a fresh folder")
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     from gsrmr_sim.models import live_model, live_recipe

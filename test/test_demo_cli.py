@@ -47,6 +47,12 @@ def test_two_hosts_refuses_the_oracle_and_link_events_need_two_hosts(monkeypatch
         demo.main(["--link-events", "down@10"])
 
 
+def test_a_report_folder_holding_a_run_is_refused(tmp_path):
+    (tmp_path / "recording").mkdir()
+    with pytest.raises(SystemExit):
+        demo.main(["--out", str(tmp_path)])
+
+
 def test_link_summary_counts_what_crossed_between_start_and_end():
     log = {"start": {"uplink": 1000, "downlink": 500, "uplink_dropped": 3, "wall_s": 10.0},
            "end": {"uplink": 1_251_000, "downlink": 20_500, "uplink_dropped": 7, "wall_s": 30.0},
