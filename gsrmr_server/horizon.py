@@ -225,14 +225,17 @@ class OnlinePlanner:
         at least one per slot): τ · R / b, with R the median of the robot's throughput estimates and b the median
         JPEG size over its last ``LINK_WINDOW_SLOTS`` ledger rows. R comes from how long each image took to be
         acknowledged (:mod:`gsrmr_robot.uplink_backlog`): it measures the link, not the plan, so a cap does not
-        ratchet itself down (a cap from the images the link carried would: fewer planned, fewer carried). When
-        most recent images were not composed in their slot (:meth:`image_delivery_ratio` < ``MIN_DELIVERY_RATIO``:
-        they arrive late), the cap is ``PROBE_IMAGE_FRACTION``: a few images keep measuring the link."""
+        ratchet itself down (a cap from the images the link carried would: fewer planned, fewer carried). When,
+        on such a slow link, most recent images were not composed in their slot (:meth:`image_delivery_ratio` <
+        ``MIN_DELIVERY_RATIO``: they arrive late), the cap is ``PROBE_IMAGE_FRACTION``: a few images keep
+        measuring the link. Images lost to an outage do not count (the link is not slow once it is back)."""
         rates = [r for *_, r, _ in self._link_window if math.isfinite(r) and r > 0]
         sizes = [b for *_, b in self._link_window if math.isfinite(b) and b > 0]
         cap = self.slot_s * float(np.median(rates)) / float(np.median(sizes)) if rates and sizes else 1.0
         delivered = self.image_delivery_ratio()
-        if delivered is not None and delivered < MIN_DELIVERY_RATIO:
+        # only on a link measurably slower than an image per slot: images lost to an outage (the rate estimate
+        # takes no sample from them) say nothing about the link once it is back
+        if cap < 1.0 and delivered is not None and delivered < MIN_DELIVERY_RATIO:
             # the images the link carries arrive after their slot was composed (a link this slow takes longer
             # than the server waits): they cost energy and change nothing — only probe until they arrive again
             cap = min(cap, PROBE_IMAGE_FRACTION)

@@ -122,6 +122,7 @@ def test_planner_only_probes_when_images_arrive_after_their_slot():
     from gsrmr_server.horizon import (
         DELIVERY_GRACE_SLOTS,
         DELIVERY_WINDOW_IMAGES,
+        LINK_WINDOW_SLOTS,
         PROBE_IMAGE_FRACTION,
         OnlinePlanner,
         RoutePredictor,
@@ -131,20 +132,25 @@ def test_planner_only_probes_when_images_arrive_after_their_slot():
     planner = OnlinePlanner(RoutePredictor([[0, 0], [4, 0], [4, 4], [0, 4]], 0.3), LossMap(prior=0.2), LinkBudget(),
                             slot_s=0.1, image_bits=64_000, pose_bits=192, loss_threshold=0.0, horizon=40,
                             in_slot_decision=True)
-    fast = (2e6, 64_000)  # acknowledged fast: the throughput alone would not cap
+    fast, slow = (2e6, 64_000), (0.5e6, 64_000)  # 0.5 Mbit/s: 0.78 images per slot
     for k in range(1, 21):  # images composed in their slots (the server's loss samples came)
         planner.record_action(k, 1, 0, *fast)
         planner.observe(k, 0.0, 0.0, 0.0, 0.1)
     assert planner.image_delivery_ratio() == 1.0 and planner.link_image_cap() is None
-    for k in range(21, 21 + DELIVERY_WINDOW_IMAGES + DELIVERY_GRACE_SLOTS):  # then none composed: all late
+    k0 = 21 + DELIVERY_WINDOW_IMAGES + DELIVERY_GRACE_SLOTS
+    for k in range(21, k0):  # then none composed (an outage), the link as fast as before: no cap
         planner.record_action(k, 1, 0, *fast)
+    assert planner.image_delivery_ratio() < 0.5 and planner.link_image_cap() is None
+    for k in range(k0, k0 + LINK_WINDOW_SLOTS):  # a slow link whose images all arrive late: only probe
+        planner.record_action(k, 1, 0, *slow)
     assert planner.image_delivery_ratio() < 0.5
     assert planner.link_image_cap() == PROBE_IMAGE_FRACTION
-    k0 = 21 + DELIVERY_WINDOW_IMAGES + DELIVERY_GRACE_SLOTS
-    for k in range(k0, k0 + DELIVERY_WINDOW_IMAGES + DELIVERY_GRACE_SLOTS):  # the probes arrive again
-        planner.record_action(k, 1, 0, *fast)
+    k1 = k0 + LINK_WINDOW_SLOTS
+    for k in range(k1, k1 + DELIVERY_WINDOW_IMAGES + DELIVERY_GRACE_SLOTS):  # the probes arrive again
+        planner.record_action(k, 1, 0, *slow)
         planner.observe(k, 0.0, 0.0, 0.0, 0.1)
-    assert planner.image_delivery_ratio() >= 0.5 and planner.link_image_cap() is None
+    assert planner.image_delivery_ratio() >= 0.5
+    assert planner.link_image_cap() == pytest.approx(0.1 * 0.5e6 / 64_000)  # the throughput cap alone
     silent = OnlinePlanner(RoutePredictor([[0, 0], [4, 0], [4, 4]], 0.3), LossMap(prior=0.2), LinkBudget(), slot_s=0.1,
                            image_bits=64_000, pose_bits=192, loss_threshold=0.0, horizon=10)
     for k in range(1, 40):  # a server that never measures L_t: no verdict on delivery
