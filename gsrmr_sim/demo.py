@@ -388,16 +388,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--cache", default=str(REPO / ".cache" / "gsrmr"))
     ap.add_argument("--out", default="", help="report folder (default reports/demo-<time>)")
     ap.add_argument("--frames", type=int, default=0, help="round-1 frames H (0 = the scene's)")
+    ap.add_argument("--train-iterations", type=int, default=None,
+                    help="GS training steps (default: the scene's model.train_iterations, else 2000; deterministic: "
+                         "the same model on any machine and load)")
     ap.add_argument("--train-seconds", type=float, default=None,
-                    help="GS training wall-time budget (default: the scene's model.train_iterations or "
-                         "model.train_seconds, else 75 s)")
-    ap.add_argument("--train-iterations", type=int, default=None, help="GS training steps (deterministic)")
+                    help="train for this wall time instead of a step count (the model then depends on the machine "
+                         "and its load)")
     ap.add_argument("--train-width", type=int, default=None,
                     help="GS training width in px (default: the scene's model.train_width_px, else 160)")
     ap.add_argument("--budget", type=int, default=None,
                     help="Gaussian budget of the trained model (default: the scene's model.budget, else 100k): "
-                         "render time per slot grows with it (sandbox, "
-                         "75 s of training: 100k → 37.3 dB held out, 30 ms/render; 200k → 36.8 dB, 44 ms)")
+                         "render time per slot grows with it (docs/splatting.md)")
     ap.add_argument("--max-psnr-drop-db", type=float, default=0.3,
                     help="compact the trained model to the smallest one within this held-out PSNR loss "
                          "(gsrmr-compact; bench/compact.py: sandbox 97k → 17k Gaussians at −0.21 dB)")

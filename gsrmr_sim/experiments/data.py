@@ -50,7 +50,7 @@ class DataSettings:
     frames: int | None = None  # H, round-1 frames (None: the scene's)
     slots: int | None = None  # T, round-2 slots (None: the scene's)
     train_iterations: int | None = None  # GS training steps (None: the scene's model.train_iterations …)
-    train_seconds: float | None = None  # … or wall-time budget (None: the scene's, else 75 s)
+    train_seconds: float | None = None  # … or wall-time budget (None: the scene's step count, else 2000 steps)
     train_width: int | None = None  # px, the training resolution (None: the scene's, else 160; frames are
     #                                 recorded at the camera's size)
     budget: int | None = None  # max Gaussians (None: the scene's, else 100k)

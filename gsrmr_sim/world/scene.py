@@ -122,7 +122,7 @@ class Scene:
     points: PointsWorld | None = None
     source: str = ""
     model_iterations: int | None = None  # GS training of the live model: a fixed step count (deterministic) …
-    model_train_seconds: float | None = None  # … or a wall-time budget (s); neither: 75 s
+    model_train_seconds: float | None = None  # … or a wall-time budget (s); neither: 2000 steps
     model_train_width_px: int | None = None  # training resolution (None: 160 px)
     model_budget: int | None = None  # max Gaussians (None: 100k)
     model_init_points: int | None = None  # Gaussians initialised from round-1 depth (None: the trainer's 30k)
