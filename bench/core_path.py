@@ -35,7 +35,8 @@ if str(REPO) not in sys.path:
 
 from gsrmr_common.camera import Intrinsics  # noqa: E402
 from gsrmr_common.link_model import SLOT_S, LinkBudget  # noqa: E402
-from gsrmr_common.wire import LedgerRow, PoseKey, slot_index, slot_ns, slot_start_ns  # noqa: E402
+from gsrmr_common.slot_clock import SlotClock  # noqa: E402
+from gsrmr_common.wire import LedgerRow, PoseKey  # noqa: E402
 from gsrmr_robot.uplink_core import Pose, PoseHistory, SlotDecision, SlotInputs, UplinkCore  # noqa: E402
 from gsrmr_server.slot_core import count_composition_faults  # noqa: E402
 from gsrmr_sim.fault_relay import Upload  # noqa: E402
@@ -61,7 +62,7 @@ class RobotSide:
     """One robot's uplink core (node defaults: JPEG q 80, image in unscheduled slots, ``LinkBudget()``)."""
 
     def __init__(self, slot_s: float = SLOT_S, link: LinkBudget | None = None, jpeg_quality: int = 80) -> None:
-        self.slot_len_ns = slot_ns(slot_s)
+        self.clock = SlotClock(slot_s)
         self.core = UplinkCore(link or LinkBudget(), slot_s, jpeg_quality, default_upload_image=True)
         self.poses = PoseHistory()
 
@@ -75,7 +76,7 @@ class RobotSide:
     def uploads(self, decision: SlotDecision) -> list[Upload]:
         """What the robot node publishes on the uplink (image first, then the key; the ledger row is not an
         upload: it travels on ``gsrmr/ledger``, which the fault relay does not touch)."""
-        start = slot_start_ns(decision.slot, self.slot_len_ns)
+        start = self.clock.start_ns(decision.slot)
         out = []
         if decision.jpeg is not None:
             out.append(Upload("image", start, decision.jpeg, CAMERA_FRAME))
@@ -85,11 +86,11 @@ class RobotSide:
         return out
 
 
-def deliver(assembler, uploads: list[Upload], now_ns: int, slot_len_ns: int) -> None:
+def deliver(assembler, uploads: list[Upload], now_ns: int, clock: SlotClock) -> None:
     """Uploads into an :class:`~gsrmr_server.uplink.UplinkAssembler` arriving at ``now_ns``."""
-    now_slot = now_ns // slot_len_ns
+    now_slot = clock.slot_at(now_ns)
     for up in uploads:
-        slot = slot_index(up.stamp_ns, slot_len_ns)
+        slot = clock.slot_named(up.stamp_ns)
         if up.kind == "key":
             assembler.on_key(PoseKey(slot, *up.data), now_slot, now_ns)
         else:
@@ -108,7 +109,7 @@ class ServerSide:
         from gsrmr_server.uplink import UplinkAssembler
 
         p = self.params = ServerParameters(model_path=str(model_path), **params)
-        self.slot_s, self.slot_len_ns = p.slot_s, slot_ns(p.slot_s)
+        self.slot_s, self.clock = p.slot_s, SlotClock(p.slot_s)
         self.core = build_server_core(p, GaussianModel.load_ply(p.model_path), camera)
         self.composer = self.core.composer
         self.uplink = UplinkAssembler()
@@ -126,7 +127,7 @@ class ServerSide:
         ``(SlotOutcome, ms)`` with ``ms`` the wall time of the work (take → JPEG, before scoring). The
         row's ``latency_ms`` is ``clock_ns() −`` slot start when a clock is given, else ``ms``."""
         t0 = time.perf_counter()
-        start_ns = slot_start_ns(slot, self.slot_len_ns)
+        start_ns = self.clock.start_ns(slot)
         uploads = self.uplink.take(slot, image_expected=None if ledger is None else bool(ledger.x))
         best = self.uplink.best_pose(slot)
         out = self.core.process(uploads, best, time_s=(slot - t0_slot) * self.slot_s, stamp_s=start_ns / 1e9,

@@ -18,13 +18,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 import signal
 import statistics
 import subprocess
 import sys
 import time
+
+from machine import machine_line
 
 COLUMNS = ("slots", "slots_on_time", "images_sent", "energy_ratio_vs_upload_all", "energy_upload_all_j", "mean_loss",
            "psnr_db", "psnr_slot_mean_db", "ssim", "regret", "hindsight_images", "latency_ms_p50", "latency_ms_p95",
@@ -90,8 +91,8 @@ def main() -> int:
     args = ap.parse_args()
     if args.method:
         args.demo_args += ["--method", args.method]
-    print(f"# bench/demo.py: {args.runs} × gsrmr-demo {' '.join(args.demo_args)} ({os.cpu_count()} CPUs, "
-          f"load average before {os.getloadavg()[0]:.1f}; {args.load} busy process(es) during the runs)")
+    print(f"# bench/demo.py: {args.runs} × gsrmr-demo {' '.join(args.demo_args)} (before the runs: {machine_line()} "
+          f"(bench/machine.py); {args.load} busy process(es) during the runs)", flush=True)
     busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.load)]
     try:
         return _runs(args)
@@ -111,12 +112,12 @@ def _runs(args: argparse.Namespace) -> int:
     for k in range(args.runs):
         seed = [] if args.seeds is None else ["--channel-seed", str(args.seeds + k)]
         s = run_once([*args.demo_args, *seed])
+        for c in COLUMNS:  # a run without a figure (e.g. no feasible hindsight optimum: no hindsight_images)
+            s.setdefault(c, float("nan"))
         rows.append(s)
         print(f"| {k + 1} | " + " | ".join(f"{s[c]:.4g}" if isinstance(s[c], float) else str(s[c])
                                          for c in COLUMNS) + f" | {s['wall_s']:.0f} |", flush=True)
         print(f"|   | compose ms p50 by stage: {json.dumps(s['compose_ms_p50'])} |", flush=True)
-    for r in rows:  # summaries of runs before the pooled PSNR existed
-        r.setdefault("psnr_slot_mean_db", float("nan"))
     lower_is_better = ("images_sent", "mean_loss", "regret", "latency_ms_p50", "latency_ms_p95", "latency_ms_p99",
                        "plan_ms_p50", "plan_ms_max", *LINK_COLUMNS)
 

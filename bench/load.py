@@ -195,10 +195,10 @@ def run_cores(args: argparse.Namespace, model_path: Path) -> dict:
     from core_path import RobotSide, ServerSide, deliver, intrinsics, synthetic_frames
     import psutil
 
-    from gsrmr_common.wire import slot_ns
+    from gsrmr_common.slot_clock import SlotClock
 
     camera = intrinsics(args.width, args.height)
-    slot_len_ns = slot_ns(args.slot_s)
+    clock = SlotClock(args.slot_s)
     servers = [ServerSide(model_path, camera, slot_s=args.slot_s, measure_loss=True) for _ in range(args.robots)]
     robots = [RobotSide(args.slot_s) for _ in range(args.robots)]
     frames = [synthetic_frames(args.width, args.height, 1, seed=i, noise=40)[0] for i in range(args.robots)]
@@ -216,21 +216,21 @@ def run_cores(args: argparse.Namespace, model_path: Path) -> dict:
                     busy[r] = False
                     return
                 k, uploads, ledger, arrival_ns = pending[r].popleft()
-            deliver(server.uplink, uploads, arrival_ns, slot_len_ns)
+            deliver(server.uplink, uploads, arrival_ns, clock)
             out, ms = server.process(k, ledger, t0_slot=k_first)
             source = str(out.composed.source)
-            done.append((k, ms, (time.time_ns() - k * slot_len_ns) / 1e6, source))
+            done.append((k, ms, (time.time_ns() - clock.start_ns(k)) / 1e6, source))
         with lock:
             busy[r] = False
 
     n_warm, n_run = round(args.warmup_s / args.slot_s), round(args.duration_s / args.slot_s)
-    k_first = time.time_ns() // slot_len_ns + 2
+    k_first = clock.slot_at(time.time_ns()) + 2
     k_meas, k_end = k_first + n_warm, k_first + n_warm + n_run
     proc = psutil.Process()
     pool = ThreadPoolExecutor(max_workers=args.threads, thread_name_prefix="compose")
     try:
         for k in range(k_first, k_end + 1):
-            wait_ns = k * slot_len_ns + 1_000_000 - time.time_ns()  # the robots run 1 ms into the slot
+            wait_ns = clock.start_ns(k) + 1_000_000 - time.time_ns()  # the robots run 1 ms into the slot
             if wait_ns > 0:
                 time.sleep(wait_ns / 1e9)
             if k == k_meas:
@@ -240,7 +240,7 @@ def run_cores(args: argparse.Namespace, model_path: Path) -> dict:
             t = (k - k_first) * args.slot_s
             pose = (math.cos(0.2 * t), math.sin(0.2 * t), 0.2 * t + math.pi / 2)
             for r, robot in enumerate(robots):
-                decision = robot.run_slot(k, frames[r], k * slot_len_ns, pose)
+                decision = robot.run_slot(k, frames[r], clock.start_ns(k), pose)
                 item = (k, robot.uploads(decision), decision.row if decision.publish_row else None, time.time_ns())
                 with lock:
                     pending[r].append(item)

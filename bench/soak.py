@@ -63,15 +63,15 @@ def main() -> int:
     from stack_harness import make_point_model
 
     from gsrmr_common.link_model import SLOT_S
-    from gsrmr_common.wire import slot_ns
+    from gsrmr_common.slot_clock import SlotClock
     from gsrmr_sim.fault_relay import FaultInjector, FaultRates
 
     tmp = Path(tempfile.mkdtemp(prefix="gsrmr-soak-"))
     model = make_point_model(tmp, n=args.gaussians)
     camera = intrinsics(args.width, args.height)
     score = not args.no_score
-    slot_len_ns = slot_ns(SLOT_S)
-    k0 = time.time_ns() // slot_len_ns
+    clock = SlotClock(SLOT_S)
+    k0 = clock.slot_at(time.time_ns())
     if args.node:
         import rclpy
         from rclpy.parameter import Parameter
@@ -84,15 +84,15 @@ def main() -> int:
                                                Parameter("record_dir", value=str(tmp / "rec")),
                                                Parameter("evaluate_ground_truth", value=score)])
         node.use_camera_info(camera_info_from_intrinsics(camera, 0, CAMERA_FRAME))  # what the robot relays
-        assert node._slot_len_ns == slot_len_ns, "the node's slot_s differs from SLOT_S"
-        node._t0_slot = k0
+        assert node.clock == clock, "the node's slot_s differs from SLOT_S"
+        node.cursor.first = k0  # round time 0 of the MR content
         uplink = node.uplink
 
         def server_slot(k: int, ledger, frame) -> None:
             if ledger is not None:
                 node._on_ledger(ledger_to_msg(ledger))  # what gsrmr/ledger delivers
             if score:
-                node._on_camera(image_to_msg(frame, k * slot_len_ns, CAMERA_FRAME))  # camera/image_raw
+                node._on_camera(image_to_msg(frame, clock.start_ns(k), CAMERA_FRAME))  # camera/image_raw
             node.process_slot(k)
     else:
         server = ServerSide(model, camera, slot_s=SLOT_S, record_dir=str(tmp / "rec"))
@@ -119,14 +119,14 @@ def main() -> int:
         t = 0.1 * i
         pose = (2.0 * math.cos(0.05 * t), 2.0 * math.sin(0.05 * t), 0.05 * t + math.pi / 2)
         frame = frames[i % len(frames)]
-        start = k * slot_len_ns
+        start = clock.start_ns(k)
         decision = robot.run_slot(k, frame, start, pose, (int(i % args.image_every == 0), float("nan")))
         t_send = start + 1_000_000
-        deliver(uplink, injector.due(t_send), t_send, slot_len_ns)
+        deliver(uplink, injector.due(t_send), t_send, clock)
         for up in robot.uploads(decision):
-            deliver(uplink, injector.push(up, t_send), t_send, slot_len_ns)
+            deliver(uplink, injector.push(up, t_send), t_send, clock)
         t_compose = start + 30_000_000
-        deliver(uplink, injector.due(t_compose), t_compose, slot_len_ns)
+        deliver(uplink, injector.due(t_compose), t_compose, clock)
         server_slot(k, decision.row if decision.publish_row else None, frame)
         done = i + 1
         if done == args.warmup or done % args.sample_every == 0 or done == args.slots:

@@ -20,6 +20,7 @@ from gsrmr_common.camera import CameraMount
 from gsrmr_common.interrupts import CLEANUP, POLICY, RUNNING, START
 from gsrmr_common.link_model import LinkBudget
 from gsrmr_common.node_params import NodeParameters
+from gsrmr_common.slot_clock import SlotClock
 
 P = TypeVar("P", bound=NodeParameters)
 
@@ -159,18 +160,17 @@ def declare_link_budget(node: Node) -> LinkBudget:
                       (float(server[0]), float(server[1])), int(seed))
 
 
-def aligned_timer(node: Node, period_s: float, phase_s: float, callback: Callable[[], None]) -> None:
-    """Call ``callback`` every ``period_s`` at ROS times ≡ ``phase_s`` (mod ``period_s``), e.g. 1 ms after
-    every slot start — instead of polling a clock at 200 Hz (each rclpy wake-up costs ~0.5 ms of CPU).
+def aligned_timer(node: Node, clock: SlotClock, phase_s: float, callback: Callable[[], None]) -> None:
+    """Call ``callback`` once per slot of ``clock`` at ``phase_s`` into the slot (e.g. 1 ms after every slot
+    start) — instead of polling a clock at 200 Hz (each rclpy wake-up costs ~0.5 ms of CPU).
 
-    Blocks the caller (a node's constructor) until the next such instant (< ``period_s``), then starts
-    one periodic timer: rcl timers fire at ``start + k·period`` and never early, so every call is at or
-    just after its instant (late by the executor's wake-up). The callback should still work out *which*
-    slot is due from the clock, as a late call must do the right thing anyway."""
+    Blocks the caller (a node's constructor) until the next such instant (< one slot), then starts one
+    periodic timer: rcl timers fire at ``start + k·period`` and never early, so every call is at or just
+    after its instant (late by the executor's wake-up). The callback should still work out *which* slot
+    is due from the clock, as a late call must do the right thing anyway."""
     import time
 
-    period_ns = int(round(period_s * 1e9))
-    phase_ns = int(round(phase_s * 1e9)) % period_ns
-    wait_ns = (phase_ns - node.get_clock().now().nanoseconds) % period_ns
+    period_ns = clock.slot_len_ns
+    wait_ns = (round(phase_s * 1e9) - clock.phase_ns(node.get_clock().now().nanoseconds)) % period_ns
     time.sleep(wait_ns / 1e9)
-    node.create_timer(period_s, callback)
+    node.create_timer(clock.slot_s, callback)

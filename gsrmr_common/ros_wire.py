@@ -37,6 +37,7 @@ from gsrmr_common import wire
 from gsrmr_common.camera import Intrinsics
 from gsrmr_common.image_bridge import imgmsg_to_numpy, numpy_to_imgmsg
 from gsrmr_common.jpeg import ImageRejected, decode_jpeg
+from gsrmr_common.slot_clock import SlotClock
 
 NS_PER_S = 1_000_000_000
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
@@ -76,23 +77,23 @@ def ns_to_stamp(ns: int) -> Time:
 
 # --------------------------------------------------------------------------------------- pose key
 
-def pose_key_to_msg(key: wire.PoseKey, slot_len_ns: int) -> Vector3Stamped:
+def pose_key_to_msg(key: wire.PoseKey, clock: SlotClock) -> Vector3Stamped:
     """Pose key → ``Vector3Stamped`` (frame ``map``, stamp = start of ``key.slot``)."""
     msg = Vector3Stamped()
-    msg.header.stamp = ns_to_stamp(wire.slot_start_ns(key.slot, slot_len_ns))
+    msg.header.stamp = ns_to_stamp(clock.start_ns(key.slot))
     msg.header.frame_id = wire.MAP_FRAME
     msg.vector.x, msg.vector.y, msg.vector.z = float(key.a_m), float(key.b_m), float(key.theta_rad)
     return msg
 
 
-def pose_key_from_msg(msg: Vector3Stamped, slot_len_ns: int) -> wire.PoseKey:
+def pose_key_from_msg(msg: Vector3Stamped, clock: SlotClock) -> wire.PoseKey:
     """``Vector3Stamped`` → pose key; the slot comes from the stamp. Refuses frames other than ``map``.
 
     The key may still be non-finite: check :meth:`wire.PoseKey.is_valid` before rendering it.
     """
     if msg.header.frame_id != wire.MAP_FRAME:
         raise ValueError(f"pose key must be in frame {wire.MAP_FRAME!r}, got {msg.header.frame_id!r}")
-    slot = wire.slot_index(stamp_to_ns(msg.header.stamp), slot_len_ns)
+    slot = clock.slot_named(stamp_to_ns(msg.header.stamp))
     return wire.PoseKey(slot, float(msg.vector.x), float(msg.vector.y), float(msg.vector.z))
 
 

@@ -6,8 +6,9 @@ this module owns the rules, so robot and server cannot disagree.
 Slot clock
 ----------
 Slot ``k`` covers ROS time ``[k·τ, (k+1)·τ)`` (``τ = slot_s``, time in nanoseconds since the clock's
-epoch). Every upload is stamped with its slot's start time, so the stamp *is* the slot index:
-``k = slot_index(stamp_ns, slot_ns)``. Robot and server only have to agree on τ (a parameter of both).
+epoch): :class:`gsrmr_common.slot_clock.SlotClock` owns the arithmetic. Every upload is stamped with its
+slot's start time, so the stamp *is* the slot index: ``k = SlotClock(τ).slot_named(stamp_ns)``. Robot and
+server only have to agree on τ (a parameter of both).
 
 Pose key (x_t = 0): ``(a_m, b_m, theta_rad)`` as three float64 = 192 bits of payload, in the ``map``
 frame (REP-103: x forward, y left, z up; θ counter-clockwise from +x). Carried as
@@ -51,23 +52,6 @@ SCHEDULE_META = ("first_slot", "slot_s", "seq", "slots")
 # Refuse uploads whose size or claimed dimensions are absurd before decoding them.
 MAX_IMAGE_PIXELS = 4096 * 4096
 MAX_COMPRESSED_BYTES = 8 * 1024 * 1024
-
-
-def slot_ns(slot_s: float) -> int:
-    """Slot length in integer nanoseconds (τ must be positive and finite)."""
-    if not (math.isfinite(slot_s) and slot_s > 0):
-        raise ValueError(f"slot_s must be a positive finite number of seconds, got {slot_s}")
-    return round(slot_s * 1e9)
-
-
-def slot_index(stamp_ns: int, slot_len_ns: int) -> int:
-    """Absolute slot index of a time stamp: the slot whose start is nearest (stamps are slot starts)."""
-    return (int(stamp_ns) + slot_len_ns // 2) // slot_len_ns
-
-
-def slot_start_ns(index: int, slot_len_ns: int) -> int:
-    """Start time of absolute slot ``index`` in nanoseconds."""
-    return int(index) * slot_len_ns
 
 
 @dataclass(frozen=True)

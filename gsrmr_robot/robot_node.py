@@ -77,6 +77,7 @@ from gsrmr_common.ros_wire import (
     schedule_from_msg,
     stamp_to_ns,
 )
+from gsrmr_common.slot_clock import SlotClock, SlotTicker
 from gsrmr_common.tf_tree import (
     BASE_FRAME,
     CAMERA_OPTICAL_FRAME,
@@ -86,7 +87,7 @@ from gsrmr_common.tf_tree import (
     base_from_camera_optical_transform,
     map_from_odom_transform,
 )
-from gsrmr_common.wire import CHANNEL_TOPIC, ScheduleMsg, slot_ns, slot_start_ns
+from gsrmr_common.wire import CHANNEL_TOPIC, ScheduleMsg
 from gsrmr_robot.dds_profile import use_uplink_profile
 from gsrmr_robot.uplink_backlog import UplinkBacklog
 from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, odom_to_map
@@ -195,7 +196,8 @@ class RobotNode(Node):
         self.link = declare_link_budget(self)
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._after_set)
-        self._slot_len_ns = slot_ns(self.slot_s)
+        self.clock = SlotClock(self.slot_s)
+        self._ticker = SlotTicker(self.clock)
         self._lock = threading.Lock()
         self._frame: np.ndarray | None = None
         self._frame_ns = 0
@@ -203,7 +205,6 @@ class RobotNode(Node):
         # Recent poses in map: the key is the pose at the capture time of the frame it stands for.
         self._poses = PoseHistory()
         self._schedule: ScheduleMsg | None = None
-        self._last_slot: int | None = None
         self.schedule_misses = self.no_frame = self.no_pose = 0
         self.core = UplinkCore(self.link, self.slot_s, self.params.jpeg_quality, self.params.default_upload_image)
         self.ledger = self.core.ledger
@@ -225,7 +226,7 @@ class RobotNode(Node):
         self.channel_unmeasured = 0
         # 5 ms tick: slot starts are detected with ≤ 5 ms jitter without a drifting periodic timer.
         # run each slot 1 ms after it starts (polling the clock at 200 Hz cost ~5 % of a core)
-        aligned_timer(self, self.slot_s, 0.001, self._tick)
+        aligned_timer(self, self.clock, 0.001, self._tick)
         self.create_timer(1.0, self._publish_diagnostics)
         # while an image is unacknowledged: poll the image writer's acknowledgements every 5 ms
         self._ack_timer = self.create_timer(0.005, self._poll_acks)
@@ -335,16 +336,12 @@ class RobotNode(Node):
     # ---------------------------------------------------------------- slots
     def _tick(self) -> None:
         now_ns = self.get_clock().now().nanoseconds
-        slot = now_ns // self._slot_len_ns
-        if self._last_slot is None:
-            self._last_slot = slot  # start on the next boundary
+        due = self._ticker.poll(now_ns)
+        if due is None:
             return
-        if slot <= self._last_slot:
-            return
-        if slot > self._last_slot + 1:
-            self.get_logger().warning(f"{slot - self._last_slot - 1} slot(s) skipped (node overloaded)",
-                                      throttle_duration_sec=5.0)
-        self._last_slot = slot
+        slot, skipped = due
+        if skipped:
+            self.get_logger().warning(f"{skipped} slot(s) skipped (node overloaded)", throttle_duration_sec=5.0)
         self.run_slot(slot, now_ns)
 
     def run_slot(self, slot: int, now_ns: int) -> None:
@@ -367,7 +364,7 @@ class RobotNode(Node):
         self.schedule_misses += int(not decision.scheduled)
         self.no_frame += int(frame is None)
         self.no_pose += int(decision.key is None)
-        stamp_ns = slot_start_ns(slot, self._slot_len_ns)
+        stamp_ns = self.clock.start_ns(slot)
         if decision.publish_row:  # first: the server waits for it to know whether an image follows
             self._pub_ledger.publish(ledger_to_msg(decision.row))
         if decision.jpeg is not None:
@@ -376,7 +373,7 @@ class RobotNode(Node):
             if self._ack_timer.is_canceled():
                 self._ack_timer.reset()
         if decision.key is not None:
-            self._pub_key.publish(pose_key_to_msg(decision.key, self._slot_len_ns))
+            self._pub_key.publish(pose_key_to_msg(decision.key, self.clock))
 
     def _poll_acks(self) -> None:
         """Every image published so far acknowledged by every matched reader: book the delay, stop polling."""

@@ -45,7 +45,8 @@ from gsrmr_common.ros_wire import (
     pose_key_from_msg,
     schedule_to_msg,
 )
-from gsrmr_common.wire import CHANNEL_TOPIC, ScheduleMsg, slot_ns, slot_start_ns
+from gsrmr_common.slot_clock import SlotClock
+from gsrmr_common.wire import CHANNEL_TOPIC, ScheduleMsg
 from gsrmr_server.horizon import OnlinePlanner, PlanResult, RoutePredictor
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.scheduler_params import PLANNING_PARAMETERS, SchedulerParameters
@@ -59,7 +60,7 @@ class SchedulerNode(Node):
         self.params: SchedulerParameters = replace(declare_parameters(self, SchedulerParameters),
                                                    link=declare_link_budget(self))
         p = self.params
-        self._slot_len_ns = slot_ns(p.slot_s)
+        self.clock = SlotClock(p.slot_s)
         # Load the compiled knapsack kernel now (1–2 s from the numba cache, ~8 s cold) rather than in the
         # first replan, so the first schedule follows start-up at once.
         from gsrmr_server.scheduling import exact
@@ -166,7 +167,7 @@ class SchedulerNode(Node):
     # ---------------------------------------------------------------- inputs
     def _on_key(self, msg: Vector3Stamped) -> None:
         try:
-            key = pose_key_from_msg(msg, self._slot_len_ns)
+            key = pose_key_from_msg(msg, self.clock)
         except ValueError as err:  # wrong frame or invalid stamp: ignore, never raise out of the callback
             self.get_logger().warning(f"pose key refused: {err}", throttle_duration_sec=5.0)
             return
@@ -204,14 +205,14 @@ class SchedulerNode(Node):
             self._replan_reason = None
             recent = sorted(self.plan_times_s[-20:])
             expected_ns = int(1e9 * recent[int(0.9 * (len(recent) - 1))]) if recent else 0
-            now_slot = (self.get_clock().now().nanoseconds + expected_ns) // self._slot_len_ns
+            now_slot = self.clock.slot_at(self.get_clock().now().nanoseconds + expected_ns)
             previous = self.planner.active
             t0 = time.perf_counter()
             result = self.planner.plan(now_slot, self._pose)
             self.plan_times_s.append(time.perf_counter() - t0)
             del self.plan_times_s[:-100]
             # > 0: the schedule was ready before the first slot it covers started
-            self.plan_slack_s.append(round((slot_start_ns(now_slot + 1, self._slot_len_ns)
+            self.plan_slack_s.append(round((self.clock.start_ns(now_slot + 1)
                                             - self.get_clock().now().nanoseconds) / 1e9, 4))
             del self.plan_slack_s[:-10_000]
             changed = 0
@@ -279,7 +280,7 @@ class SchedulerNode(Node):
         except (ValueError, KeyError, json.JSONDecodeError) as err:
             self.get_logger().warning(f"saved schedule ignored: {err}")
             return
-        now_slot = self.get_clock().now().nanoseconds // self._slot_len_ns
+        now_slot = self.clock.slot_at(self.get_clock().now().nanoseconds)
         if sched.lookup(now_slot + 1) is not None:
             self.planner._active = sched
             self.planner.seq = sched.seq
@@ -301,7 +302,7 @@ class SchedulerNode(Node):
             values.update({"loss_level_ratio": round(math.exp(lp.level), 4), "loss_margin_factor": round(lp.margin, 4),
                            "loss_burst_factor": round(lp.burst_factor, 4)})
         if p.round_slots:
-            remaining = p.round_remaining(self.get_clock().now().nanoseconds // self._slot_len_ns + 1)
+            remaining = p.round_remaining(self.clock.slot_at(self.get_clock().now().nanoseconds) + 1)
             values["round_slots_remaining"] = -1 if remaining is None else remaining
         if r is not None:
             values.update({"method": r.method, "horizon": len(r.schedule.x), "images": r.images,

@@ -76,15 +76,13 @@ from gsrmr_common.ros_wire import (
     schedule_from_msg,
     stamp_to_ns,
 )
+from gsrmr_common.slot_clock import ComposeCursor, SlotClock
 from gsrmr_common.truth_frames import TruthFrameReader
 from gsrmr_common.wire import (
     MAX_COMPRESSED_BYTES,
     LedgerRow,
     ScheduleMsg,
     UplinkFault,
-    slot_index,
-    slot_ns,
-    slot_start_ns,
 )
 from gsrmr_server.recording import TOPIC_CAMERA_INFO, RunRecorder
 from gsrmr_server.server_params import ServerParameters
@@ -125,7 +123,8 @@ class ServerNode(Node):
         # elapsed meanwhile.
         self.core = build_server_core(p, GaussianModel.load_ply(p.model_path), WARM_UP_INTRINSICS)
         self.composer = self.core.composer
-        self._slot_len_ns = slot_ns(p.slot_s)
+        self.clock = SlotClock(p.slot_s)
+        self.cursor = ComposeCursor(self.clock)
         self.uplink = UplinkAssembler()
         self._lock = threading.Lock()
         self.add_on_set_parameters_callback(self._validate)
@@ -134,8 +133,6 @@ class ServerNode(Node):
         self._ledger: dict[int, LedgerRow] = {}
         self._cmd: tuple[float, float] | None = None
         self._frames: deque[tuple[int, np.ndarray]] = deque(maxlen=30)
-        self._next_slot: int | None = None
-        self._t0_slot: int | None = None
         self.slots_done = self.slots_on_time = 0
         self.sources: dict[str, int] = {}
         self.latencies_ms: deque[float] = deque(maxlen=1000)
@@ -192,12 +189,12 @@ class ServerNode(Node):
     # ---------------------------------------------------------------- inputs
     def _now_slot(self) -> tuple[int, int]:
         now_ns = self.get_clock().now().nanoseconds
-        return now_ns // self._slot_len_ns, now_ns
+        return self.clock.slot_at(now_ns), now_ns
 
     def _on_key(self, msg: Vector3Stamped) -> None:
         slot, now_ns = self._now_slot()
         try:
-            key = pose_key_from_msg(msg, self._slot_len_ns)
+            key = pose_key_from_msg(msg, self.clock)
         except ValueError:  # wrong frame or an invalid stamp: refuse, never raise out of the callback
             with self._lock:
                 self.uplink.count(UplinkFault.MALFORMED_KEY)
@@ -217,7 +214,7 @@ class ServerNode(Node):
             except ValueError:
                 self.uplink.count(UplinkFault.MALFORMED_IMAGE)
                 return
-            self.uplink.on_image(slot_index(stamp_ns, self._slot_len_ns), data, slot, now_ns)
+            self.uplink.on_image(self.clock.slot_named(stamp_ns), data, slot, now_ns)
 
     def _on_schedule(self, msg: Float64MultiArray) -> None:
         try:
@@ -283,22 +280,13 @@ class ServerNode(Node):
     def _tick(self) -> None:
         if self.intrinsics is None:  # the slot clock starts with the robot's calibration
             return
-        now_ns = self.get_clock().now().nanoseconds
-        params = self.params
-        due = (now_ns - round(params.process_delay_s * 1e9)) // self._slot_len_ns
-        if self._next_slot is None:
-            self._next_slot = due + 1
-            self._t0_slot = due + 1
-            return
-        if due < self._next_slot and not (self._next_slot <= now_ns // self._slot_len_ns
-                                          and self._uploads_complete(self._next_slot)):
-            return
-        if due > self._next_slot + params.max_backlog_slots:  # far behind (suspended, clock jump): skip ahead
+        skips = self.cursor.skips
+        slot = self.cursor.next_slot(self.get_clock().now().nanoseconds, delay_s=self.params.process_delay_s,
+                                     max_backlog_slots=self.params.max_backlog_slots, complete=self._uploads_complete)
+        if self.cursor.skips > skips:  # far behind (suspended, clock jump): skipped ahead
             self.uplink.count(UplinkFault.SKIPPED_SLOTS)
-            self._next_slot = due
-        slot = self._next_slot
-        self._next_slot += 1
-        self.process_slot(slot)
+        if slot is not None:
+            self.process_slot(slot)
 
     def _uploads_complete(self, slot: int) -> bool:
         """Everything for ``slot`` arrived: its key and its image, or its key and the robot's ledger row
@@ -310,7 +298,7 @@ class ServerNode(Node):
 
     def process_slot(self, slot: int) -> None:
         """Compose, publish and record slot ``slot`` (the work is the slot core's; this publishes)."""
-        start_ns = slot_start_ns(slot, self._slot_len_ns)
+        start_ns = self.clock.start_ns(slot)
         with self._lock:
             entry = self._schedule.lookup(slot) if self._schedule is not None else None
             ledger = self._ledger.pop(slot, None)
@@ -318,7 +306,7 @@ class ServerNode(Node):
             uploads = self.uplink.take(slot, image_expected=expected)
             best = self.uplink.best_pose(slot)
             frames = list(self._frames) if self.params.evaluate_ground_truth else []
-        time_s = (slot - (self._t0_slot or slot)) * self.params.slot_s
+        time_s = self.cursor.round_time_s(slot)
         out = self.core.process(uploads, best, time_s=time_s, stamp_s=start_ns / 1e9, ledger=ledger,
                                 scheduled_x=entry[0] if entry else None)
         result = out.composed

@@ -354,16 +354,16 @@ def write_report(report_dir: Path, rows: list[dict], summary: dict) -> None:
         import cv2
 
         wanted = {r["slot"] for r in rows[:: max(1, len(rows) // 6)][:6]}
+        by_stamp_ms = {round(r["stamp_s"] * 1e3): r for r in rows if r.get("stamp_s") is not None}
         tiles = []
         for topic, _, msg in read_mcap(mcap):
             if topic != TOPIC_MR_IMAGE:
                 continue
-            from gsrmr_common.wire import slot_index, slot_ns
-
-            k = slot_index(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec, slot_ns(0.1))
+            # the MR image's stamp is its slot's start (slots.csv stamp_s): match them to the millisecond
+            row = by_stamp_ms.get(round(msg.header.stamp.sec * 1e3 + msg.header.stamp.nanosec / 1e6))
+            k = row["slot"] if row is not None else None
             if k in wanted:
                 img = cv2.imdecode(np.frombuffer(bytes(msg.data), np.uint8), cv2.IMREAD_COLOR)
-                row = next(r for r in rows if r["slot"] == k)
                 cv2.putText(img, f"slot {k - rows[0]['slot']} {row['source']}", (4, 14), cv2.FONT_HERSHEY_SIMPLEX,
                             0.45, (255, 255, 255), 1)
                 tiles.append(img)

@@ -159,13 +159,14 @@ def test_aligned_timer_fires_at_its_phase_of_every_period():
     from rclpy.executors import SingleThreadedExecutor
 
     from gsrmr_common.ros_node import aligned_timer
+    from gsrmr_common.slot_clock import SlotClock
 
     ctx = Context()
     rclpy.init(context=ctx, domain_id=int(ros_env()["ROS_DOMAIN_ID"]))
     try:
         node = rclpy.create_node("aligned_timer_test", context=ctx)
         calls: list[int] = []
-        aligned_timer(node, 0.05, 0.012, lambda: calls.append(node.get_clock().now().nanoseconds))
+        aligned_timer(node, SlotClock(0.05), 0.012, lambda: calls.append(node.get_clock().now().nanoseconds))
         executor = SingleThreadedExecutor(context=ctx)
         executor.add_node(node)
         end = time.monotonic() + 0.6

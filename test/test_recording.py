@@ -23,17 +23,19 @@ from std_msgs.msg import Float64MultiArray, String
 
 from gsrmr_common import ros_wire, wire
 from gsrmr_common.jpeg import decode_jpeg
+from gsrmr_common.slot_clock import SlotClock
 from gsrmr_server import recording as rec
 from gsrmr_server.recording import CSV_COLUMNS, RunRecorder, read_mcap, read_slots_csv, recover_run
 
-SLOT_NS = wire.slot_ns(0.1)
+CLOCK = SlotClock(0.1)
+SLOT_NS = CLOCK.slot_len_ns
 T0_SLOT = 17_638_000_000  # an epoch-like absolute slot index (2025-11-22 in ROS time at τ = 0.1 s)
 
 
 def make_row(k: int) -> dict:
     """A fully populated slot row for absolute slot T0_SLOT + k."""
     slot = T0_SLOT + k
-    return {"slot": slot, "stamp_s": wire.slot_start_ns(slot, SLOT_NS) / 1e9, "x": k % 2,
+    return {"slot": slot, "stamp_s": CLOCK.start_ns(slot) / 1e9, "x": k % 2,
             "power_w": 0.05 + 0.01 * k, "bytes_sent": 24 if k % 2 == 0 else 15_000 + k,
             "energy_j": 1e-3 * (k + 1), "loss": 0.1 / (k + 1), "psnr_db": 20.0 + k, "ssim": 0.9,
             "source": ("render", "image", "fallback")[k % 3], "pose_a_m": 0.1 * k, "pose_b_m": -0.2 * k,
@@ -93,7 +95,7 @@ def test_round_trip_csv_and_mcap(tmp_path: Path) -> None:
     assert len(by_topic[rec.TOPIC_SLOT_LOG]) == 12
     assert len(by_topic[rec.TOPIC_MR_IMAGE]) == 11 and len(by_topic[rec.TOPIC_CMD_VEL]) == 11
     for (log_time, msg), row in zip(by_topic[rec.TOPIC_SLOT_LOG], rows, strict=True):
-        assert log_time == wire.slot_start_ns(row["slot"], SLOT_NS)
+        assert log_time == CLOCK.start_ns(row["slot"])
         assert json.loads(msg.data)["slot"] == row["slot"]
     image_rows = [r for k, r in enumerate(rows) if k != 3]
     for (log_time, msg), row in zip(by_topic[rec.TOPIC_MR_IMAGE], image_rows, strict=True):
@@ -163,8 +165,8 @@ def test_extra_topics(tmp_path: Path) -> None:
         recorder.write_message("/gsrmr/schedule", ros_wire.schedule_to_msg(schedule), T0_SLOT * SLOT_NS)
         for k in range(5):
             key = wire.PoseKey(T0_SLOT + k, 0.1 * k, 0.0, 0.5)
-            recorder.write_message("/gsrmr/pose_key", ros_wire.pose_key_to_msg(key, SLOT_NS),
-                                   wire.slot_start_ns(key.slot, SLOT_NS))
+            recorder.write_message("/gsrmr/pose_key", ros_wire.pose_key_to_msg(key, CLOCK),
+                                   CLOCK.start_ns(key.slot))
             recorder.write_slot(make_row(k), None, None)
         with pytest.raises(ValueError, match="recorded as"):
             recorder.write_message("/gsrmr/pose_key", String(data="x"), 0)
@@ -173,7 +175,7 @@ def test_extra_topics(tmp_path: Path) -> None:
     with (tmp_path / "run.mcap").open("rb") as f:
         raw = [(c.topic, s.name, m.data) for s, c, m in make_reader(f).iter_messages()]
     keys = [deserialize_message(d, Vector3Stamped) for t, _, d in raw if t == "/gsrmr/pose_key"]
-    assert [ros_wire.pose_key_from_msg(m, SLOT_NS).slot for m in keys] == [T0_SLOT + k for k in range(5)]
+    assert [ros_wire.pose_key_from_msg(m, CLOCK).slot for m in keys] == [T0_SLOT + k for k in range(5)]
     (sched_data,) = [d for t, name, d in raw if t == "/gsrmr/schedule" and name == "std_msgs/msg/Float64MultiArray"]
     back = ros_wire.schedule_from_msg(deserialize_message(sched_data, Float64MultiArray))
     np.testing.assert_array_equal(back.x, schedule.x)

@@ -30,6 +30,7 @@ from std_msgs.msg import Float64MultiArray
 from gsrmr_common import ros_wire, wire
 from gsrmr_common.camera import Intrinsics
 from gsrmr_common.jpeg import decode_jpeg
+from gsrmr_common.slot_clock import SlotClock
 from gsrmr_common.wire import LEDGER_FIELDS
 from gsrmr_server import recording as rec
 from gsrmr_server.recording import RunRecorder, read_slots_csv
@@ -37,7 +38,8 @@ from gsrmr_server.recording import RunRecorder, read_slots_csv
 sys.path.insert(0, str(Path(__file__).parent))
 from stack_harness import HEIGHT, WIDTH, make_point_model, ros_client, spin_until
 
-SLOT_NS = wire.slot_ns(0.1)
+CLOCK = SlotClock(0.1)
+SLOT_NS = CLOCK.slot_len_ns
 T0_SLOT = 17_638_000_000
 N_SLOTS = 11
 TOPIC_POSE_KEY = "/gsrmr/pose_key"
@@ -49,7 +51,7 @@ KILTED = get_typestore(Stores.ROS2_KILTED)
 
 def make_row(k: int) -> dict:
     slot = T0_SLOT + k
-    return {"slot": slot, "stamp_s": wire.slot_start_ns(slot, SLOT_NS) / 1e9, "x": k % 2,
+    return {"slot": slot, "stamp_s": CLOCK.start_ns(slot) / 1e9, "x": k % 2,
             "power_w": 0.05 + 0.01 * k, "bytes_sent": 24 if k % 2 == 0 else 15_000 + k, "energy_j": 1e-3 * (k + 1),
             "loss": 0.1 / (k + 1), "psnr_db": 20.0 + k, "ssim": 0.9, "source": ("render", "image", "fallback")[k % 3],
             "pose_a_m": 0.1 * k, "pose_b_m": -0.2 * k, "pose_theta_rad": math.pi / 7 * k, "latency_ms": 12.5,
@@ -67,7 +69,7 @@ def make_image(k: int) -> np.ndarray:
 
 def make_odom(k: int) -> Odometry:
     msg = Odometry()
-    msg.header.stamp = ros_wire.ns_to_stamp(wire.slot_start_ns(T0_SLOT + k, SLOT_NS))
+    msg.header.stamp = ros_wire.ns_to_stamp(CLOCK.start_ns(T0_SLOT + k))
     msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
     msg.pose.pose.position.x, msg.pose.pose.position.y = 0.5 * k, -0.25 * k
     msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = math.sin(0.05 * k), math.cos(0.05 * k)
@@ -132,14 +134,14 @@ def test_synthetic_run_decodes_with_rosbags(tmp_path: Path) -> None:
     info = ros_wire.camera_info_from_intrinsics(Intrinsics.from_fov(160, 120, math.radians(70)), 5,
                                                 "camera_optical_frame")
     schedule = wire.ScheduleMsg(T0_SLOT, 0.1, 3, np.array([1, 0, 0], np.int8), np.array([0.1, 0.02, 0.02]))
-    t0 = wire.slot_start_ns(T0_SLOT, SLOT_NS)
+    t0 = CLOCK.start_ns(T0_SLOT)
     with RunRecorder(tmp_path, segment_slots=4) as recorder:
         recorder.write_message(rec.TOPIC_CAMERA_INFO, info, t0 - 1)
         recorder.write_message(TOPIC_SCHEDULE, ros_wire.schedule_to_msg(schedule), t0)
         for k in range(N_SLOTS):
-            start = wire.slot_start_ns(T0_SLOT + k, SLOT_NS)
+            start = CLOCK.start_ns(T0_SLOT + k)
             key = wire.PoseKey(T0_SLOT + k, 0.1 * k, -0.2 * k, 0.3)
-            recorder.write_message(TOPIC_POSE_KEY, ros_wire.pose_key_to_msg(key, SLOT_NS), start)
+            recorder.write_message(TOPIC_POSE_KEY, ros_wire.pose_key_to_msg(key, CLOCK), start)
             recorder.write_message(TOPIC_LEDGER, Float64MultiArray(data=[float(T0_SLOT + k)] + [0.5 * k] * (
                 len(LEDGER_FIELDS) - 1)), start)
             if k % 3 == 0:
@@ -172,7 +174,7 @@ def test_synthetic_run_decodes_with_rosbags(tmp_path: Path) -> None:
 
     rows = [make_row(k) for k in range(N_SLOTS)]
     for (log_time, log), row in zip(by_topic[rec.TOPIC_SLOT_LOG], rows, strict=True):
-        assert log_time == wire.slot_start_ns(row["slot"], SLOT_NS)
+        assert log_time == CLOCK.start_ns(row["slot"])
         assert json.loads(log.data) == {**row, "faults": row["faults"] or None}
     for k, (log_time, key) in enumerate(by_topic[TOPIC_POSE_KEY]):
         assert key.header.frame_id == "map" and stamp_ns(key.header.stamp) == log_time

@@ -18,8 +18,10 @@ from gsrmr_common import ros_wire as rw
 from gsrmr_common import wire
 from gsrmr_common.camera import Intrinsics
 from gsrmr_common.jpeg import ImageRejected, encode_jpeg
+from gsrmr_common.slot_clock import SlotClock
 
-SLOT_NS = wire.slot_ns(0.1)
+CLOCK = SlotClock(0.1)
+SLOT_NS = CLOCK.slot_len_ns
 
 
 def cdr_round_trip(msg: object) -> object:
@@ -52,28 +54,28 @@ def test_stamp_rejects_bad_values() -> None:
        theta=st.floats(-math.pi, math.pi))
 def test_pose_key_round_trip(slot: int, a: float, b: float, theta: float) -> None:
     key = wire.PoseKey(slot, a, b, theta)
-    msg = rw.pose_key_to_msg(key, SLOT_NS)
+    msg = rw.pose_key_to_msg(key, CLOCK)
     assert msg.header.frame_id == "map"
     assert rw.stamp_to_ns(msg.header.stamp) == slot * SLOT_NS
-    assert rw.pose_key_from_msg(cdr_round_trip(msg), SLOT_NS) == key
+    assert rw.pose_key_from_msg(cdr_round_trip(msg), CLOCK) == key
 
 
 def test_pose_key_fields_and_frame() -> None:
-    msg = rw.pose_key_to_msg(wire.PoseKey(42, 1.5, -2.0, 0.25), SLOT_NS)
+    msg = rw.pose_key_to_msg(wire.PoseKey(42, 1.5, -2.0, 0.25), CLOCK)
     assert (msg.vector.x, msg.vector.y, msg.vector.z) == (1.5, -2.0, 0.25)
     # A stamp jittered by a few ms still names the same slot (the wire's nearest-slot rule).
     msg.header.stamp = rw.ns_to_stamp(42 * SLOT_NS + 3_000_000)
-    assert rw.pose_key_from_msg(msg, SLOT_NS).slot == 42
+    assert rw.pose_key_from_msg(msg, CLOCK).slot == 42
     msg.header.frame_id = "odom"
     with pytest.raises(ValueError, match="map"):
-        rw.pose_key_from_msg(msg, SLOT_NS)
+        rw.pose_key_from_msg(msg, CLOCK)
 
 
 def test_pose_key_nan_survives_for_is_valid() -> None:
     msg = Vector3Stamped()
     msg.header.frame_id = "map"
     msg.vector.x = float("nan")
-    assert not rw.pose_key_from_msg(msg, SLOT_NS).is_valid()
+    assert not rw.pose_key_from_msg(msg, CLOCK).is_valid()
 
 
 def make_schedule(n: int = 5) -> wire.ScheduleMsg:

@@ -19,7 +19,8 @@ from std_msgs.msg import Float64MultiArray
 
 from gsrmr_common.ros_node import aligned_timer, declare, declare_link_budget, run_node
 from gsrmr_common.ros_wire import channel_sample_to_msg
-from gsrmr_common.wire import CHANNEL_TOPIC, slot_ns
+from gsrmr_common.slot_clock import SlotClock
+from gsrmr_common.wire import CHANNEL_TOPIC
 from gsrmr_sim.world.true_channel import TrueChannel
 
 
@@ -35,14 +36,14 @@ class ChannelNode(Node):
                                          "starts [s]", min_value=0.0, max_value=0.05, read_only=True))
         odom_topic = declare(self, "odom_topic", "sim/ground_truth/odom", "true pose (nav_msgs/Odometry, map)",
                              read_only=True)
-        self.slot_len_ns = slot_ns(slot_s)
+        self.clock = SlotClock(slot_s)
         self.truth = TrueChannel(self.link)
         self.next_slot: int | None = None
         self.published = 0
         self.pub = self.create_publisher(Float64MultiArray, CHANNEL_TOPIC, 10)
         self.create_subscription(Odometry, odom_topic, self._on_odom, qos_profile_sensor_data)
         # wake once per slot, 1 ms after slot t's lead point (polling at 200 Hz cost 11 % of a core)
-        aligned_timer(self, self.slot_len_ns / 1e9, (1_000_000 - self.lead_ns) / 1e9, self._tick)
+        aligned_timer(self, self.clock, (1_000_000 - self.lead_ns) / 1e9, self._tick)
         self.get_logger().info(f"simulated radio: channel seed {self.link.channel_seed}, server at "
                                f"{self.link.server_position_m}, gains on {CHANNEL_TOPIC} {self.lead_ns / 1e6:.0f} ms "
                                "ahead of each slot")
@@ -54,7 +55,7 @@ class ChannelNode(Node):
 
     def _tick(self) -> None:
         ahead_ns = self.get_clock().now().nanoseconds + self.lead_ns
-        upcoming = ahead_ns // self.slot_len_ns  # the slot that starts within lead_s (or already has)
+        upcoming = self.clock.slot_at(ahead_ns)  # the slot that starts within lead_s (or already has)
         if self.next_slot is None:
             self.next_slot = upcoming + 1
             return
