@@ -7,46 +7,28 @@ parallel runs on one machine (or a developer's other ROS graph) never see each o
 from __future__ import annotations
 
 from collections.abc import Iterator
-import itertools
 import os
 from pathlib import Path
-import random
 import signal
 import subprocess
 import time
 
 import pytest
+from ros_domain import USED_DOMAINS, mark_pytest_session, next_domain_id, stop_ros2_daemons
 
 REPO = Path(__file__).resolve().parents[1]
-_domains = itertools.count(random.Random(os.getpid() ^ time.time_ns()).randrange(1, 101))
 
 
-USED_DOMAINS: set[int] = set()
-
-
-def next_domain_id() -> int:
-    """A ROS domain id in 1..101 (valid on Linux), different for every call in this session."""
-    domain = 1 + next(_domains) % 101
-    USED_DOMAINS.add(domain)
-    return domain
+def pytest_configure(config) -> None:
+    """This session hands out the ROS domains (:func:`next_domain_id`, one per test); ``launch_support``
+    asks it instead of picking a free domain of its own, as it does under a plain ``launch_test``."""
+    mark_pytest_session()
 
 
 def pytest_sessionfinish(session, exitstatus) -> None:
     """Stop the ros2 CLI daemons that this session's `ros2 service call`/`ros2 topic` started (one per
     domain it used): no process outlives the test run."""
-    for proc in Path("/proc").glob("[0-9]*"):
-        try:
-            argv = (proc / "cmdline").read_bytes().split(b"\0")
-        except OSError:
-            continue
-        if not any(b"ros2cli.daemon.daemonize" in a for a in argv) or b"--ros-domain-id" not in argv:
-            continue
-        try:
-            domain = int(argv[argv.index(b"--ros-domain-id") + 1])
-            if domain in USED_DOMAINS:
-                os.kill(int(proc.name), signal.SIGTERM)
-        except (ValueError, IndexError, OSError):
-            continue
+    stop_ros2_daemons(USED_DOMAINS)
 
 
 def ros_env(domain_id: int | None = None) -> dict[str, str]:

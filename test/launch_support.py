@@ -4,10 +4,15 @@ They test what a ROS user types: the launch files are found through the ament in
 and a sourced ``install/setup.bash``, which ``make test`` does), and the CLI is the real ``ros2``
 (``ros2cli`` from ``../shared/ros-tooling`` or a ROS install). Where that tooling is missing (a fresh
 clone without ``../shared``), :func:`require_ros_tooling` skips the module with the reason.
+
+No conftest needed: a launch test run by plain ``launch_test test/<file>`` (no pytest) imports this module
+too, after putting its own folder on ``sys.path`` (:func:`isolate_this_process` then picks a free ROS
+domain itself and says which).
 """
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 from dataclasses import dataclass
 import os
@@ -16,10 +21,15 @@ import re
 import shutil
 import signal
 import subprocess
+import sys
 import time
 
-from conftest import next_domain_id
 import pytest
+from ros_domain import free_domain_id, in_pytest_session, next_domain_id, stop_ros2_daemons
+
+from gsrmr_sim.sim_stack import sim_stack
+
+DOMAIN_NOTE = "[launch_support] ROS_DOMAIN_ID="  # how a plain launch_test run says which domain it picked
 
 
 def ros_tooling_missing() -> str | None:
@@ -64,9 +74,31 @@ def launch_file(name: str) -> str:
     return os.path.join(get_package_share_directory("gsrmr"), "launch", name)
 
 
+def sim_process_names() -> list[str]:
+    """The node names of the processes ``sim.launch.py`` starts: it builds them from
+    :func:`gsrmr_sim.sim_stack.sim_stack`, so the tests count them from there too."""
+    return [spec.name for spec in sim_stack(model_path="model.ply")]
+
+
 def isolate_this_process() -> int:
-    """Give this test process (and what it launches) a fresh ROS domain with localhost discovery."""
-    domain = next_domain_id()
+    """Give this test process (and what it launches) a fresh ROS domain with localhost discovery; the domain.
+
+    Under pytest (``colcon test``, ``make test``) the session's conftest hands the domain out. Under a
+    plain ``launch_test test/<file>`` there is no conftest: the domain is a free one of this host
+    (:func:`ros_domain.free_domain_id`), printed on stdout, and any ros2 daemon the test's CLI calls
+    started in it is stopped when the process exits. There, missing tooling is an error with its reason
+    (``launch_test`` ignores the pytest skip mark).
+    """
+    if in_pytest_session():
+        domain = next_domain_id()
+    else:
+        missing = ros_tooling_missing()
+        if missing is not None:
+            raise RuntimeError(missing)
+        domain = free_domain_id()
+        atexit.register(stop_ros2_daemons, {domain})
+        print(f"{DOMAIN_NOTE}{domain} (no DDS port of it bound on this host), ROS_AUTOMATIC_DISCOVERY_RANGE="
+              f"LOCALHOST: this launch test's processes and ros2 calls use that domain", file=sys.stdout, flush=True)
     os.environ["ROS_DOMAIN_ID"] = str(domain)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.pop("ROS_LOCALHOST_ONLY", None)

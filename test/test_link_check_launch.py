@@ -1,19 +1,26 @@
 """launch_testing: the DDS link check pair, as ``colcon test`` runs it on a ROS 2 workspace.
 
 The probe sends 50 pings to the echo over DDS and prints one JSON report on stdout; the test parses
-it and checks that every ping came back and that the echo counted all of them. Self-contained, so
-that ``launch_test test/test_link_check_launch.py`` runs it too (README "Use it from ROS 2").
+it and checks that every ping came back and that the echo counted all of them. ``launch_test
+test/test_link_check_launch.py`` runs it too (README "Use it from ROS 2"), in a free ROS domain of its own.
 """
 
+from __future__ import annotations
+
 import json
-import os
-import random
+from pathlib import Path
+import sys
 import unittest
 
+# `launch_test test/<file>` loads this file by its path, with no conftest and test/ not on sys.path: put it there
+# for the helpers below (under pytest, which imports test/conftest.py first, it already is).
+if str(Path(__file__).resolve().parent) not in sys.path:
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from launch_support import isolate_this_process, require_ros_tooling
 import pytest
 
-for _module in ("launch", "launch_ros", "launch_testing"):
-    pytest.importorskip(_module, reason=f"{_module} is not installed: no ROS 2 install and no ../shared/ros-tooling")
+needs_ros_tooling = require_ros_tooling()
 
 import launch  # noqa: E402
 import launch_ros.actions  # noqa: E402
@@ -23,23 +30,10 @@ import launch_testing.asserts  # noqa: E402
 PINGS = 50
 
 
-def _gsrmr_not_indexed() -> bool:
-    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
-
-    try:
-        get_package_prefix("gsrmr")
-    except (PackageNotFoundError, LookupError, OSError):
-        return True
-    return False
-
-
-# Not a module-level skip: with launch_testing installed its plugin imports this module while collecting
-# the whole test/ folder, and a module-level skip there would skip every test of the folder.
-@pytest.mark.skipif(_gsrmr_not_indexed(), reason="gsrmr is not ament-indexed: run `make test` (colcon build)")
+@needs_ros_tooling
 @pytest.mark.launch_test
 def generate_test_description():
-    os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randrange(1, 102))  # isolated from other runs
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    isolate_this_process()
     echo = launch_ros.actions.Node(package="gsrmr", executable="gsrmr-link-echo", output="screen")
     probe = launch_ros.actions.Node(package="gsrmr", executable="gsrmr-link-probe", output="screen",
                                     parameters=[{"count": PINGS, "rate_hz": 50.0, "settle_s": 0.5}])

@@ -9,17 +9,24 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+import re
+import shutil
+import subprocess
 import time
+import xml.etree.ElementTree as ET
 
 from launch_support import (
+    DOMAIN_NOTE,
     exit_codes_from_launch_log,
     isolate_this_process,
     require_ros_tooling,
     ros2,
     ros2_until,
+    sim_process_names,
     start_ros2_launch,
 )
 import pytest
+from ros_domain import DOMAIN_MAX, DOMAIN_MIN
 
 pytestmark = require_ros_tooling()
 
@@ -27,7 +34,7 @@ from stack_harness import make_point_model  # noqa: E402
 
 from gsrmr_common.wire import JPEG_FORMAT  # noqa: E402
 
-SIM_PROCESSES = 8  # gsrmr_sim.sim_stack: mock LIMO, base, camera, radio, route follower, robot, server, scheduler
+PACKAGE_ROOT = Path(__file__).resolve().parents[1]  # where a ROS user types `launch_test test/<file>`
 
 
 @pytest.mark.ros
@@ -45,7 +52,7 @@ def test_ros2_launch_sim_ctrl_c_every_process_exits_zero(tmp_path):
         if run.proc.poll() is None:
             run.kill()
     codes = exit_codes_from_launch_log(run.launch_log())
-    assert len(codes) == SIM_PROCESSES, codes
+    assert len(codes) == len(sim_process_names()), codes
     assert all(code == 0 for code in codes.values()), f"exit codes after Ctrl-C: {codes}\n{run.output()[-3000:]}"
     assert rc == 0, f"ros2 launch exit code {rc}"
     assert ros2("node", "list", "--no-daemon").stdout.strip() == "", "nodes left running after Ctrl-C"
@@ -128,16 +135,23 @@ def test_ros2_launch_robot_ctrl_c(ros_processes, tmp_path, stop_after_s):
 
 @pytest.mark.ros
 def test_launch_test_command_runs_the_link_check(tmp_path):
-    """``launch_test test/test_link_check_launch.py``, the launch_testing runner a ROS user types."""
-    import subprocess
-
-    isolate_this_process()
-    test_file = Path(__file__).with_name("test_link_check_launch.py")
-    result = subprocess.run(["launch_test", str(test_file)], capture_output=True, text=True, timeout=120,
-                            cwd=tmp_path, env=dict(os.environ, ROS_LOG_DIR=str(tmp_path / "log")))
+    """``launch_test test/test_link_check_launch.py`` typed in the package root, as a ROS user runs a launch test:
+    no pytest and no conftest, so the file must import its helpers by itself, and the helper picks a free ROS
+    domain of its own and says which. Every test of the file (active and post-shutdown) must pass."""
+    exe = shutil.which("launch_test")
+    assert exe is not None, "launch_test is not on PATH (launch_testing installs it)"
+    junit = tmp_path / "launch_test.xml"
+    result = subprocess.run([exe, "test/test_link_check_launch.py", "--junit-xml", str(junit)], capture_output=True,
+                            text=True, timeout=180, cwd=PACKAGE_ROOT,
+                            env=dict(os.environ, ROS_LOG_DIR=str(tmp_path / "log"), PYTHONUNBUFFERED="1"))
     said = result.stdout + result.stderr
     assert result.returncode == 0, said[-3000:]
-    assert "test_probe_reports_every_ping_answered" in said and "FAILED" not in said, said[-3000:]
+    picked = re.search(re.escape(DOMAIN_NOTE) + r"(\d+) ", said)
+    assert picked is not None and DOMAIN_MIN <= int(picked.group(1)) <= DOMAIN_MAX, said[-3000:]
+    cases = ET.parse(junit).getroot().findall(".//testcase")
+    assert {"test_probe_reports_every_ping_answered", "test_exit_codes"} <= {c.get("name") for c in cases}, said[-3000:]
+    bad = [c.get("name") for c in cases if any(c.find(tag) is not None for tag in ("failure", "error", "skipped"))]
+    assert bad == [], f"{bad}:\n{said[-3000:]}"
 
 
 @pytest.mark.ros

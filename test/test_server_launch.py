@@ -9,8 +9,14 @@ that a node-keyed YAML also set was silently ignored (rcl applies node-name keys
 from __future__ import annotations
 
 from pathlib import Path
+import sys
 import tempfile
 import unittest
+
+# `launch_test test/<file>` loads this file by its path, with no conftest and test/ not on sys.path: put it there
+# for the helpers below (under pytest, which imports test/conftest.py first, it already is).
+if str(Path(__file__).resolve().parent) not in sys.path:
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from launch_support import isolate_this_process, launch_file, require_ros_tooling, ros2, ros2_until
 import pytest

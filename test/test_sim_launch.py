@@ -11,12 +11,18 @@ process's exit code 0 when launch stops them with SIGINT.
 from __future__ import annotations
 
 from pathlib import Path
+import sys
 import tempfile
 import threading
 import time
 import unittest
 
-from launch_support import isolate_this_process, launch_file, require_ros_tooling, ros2_until
+# `launch_test test/<file>` loads this file by its path, with no conftest and test/ not on sys.path: put it there
+# for the helpers below (under pytest, which imports test/conftest.py first, it already is).
+if str(Path(__file__).resolve().parent) not in sys.path:
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from launch_support import isolate_this_process, launch_file, require_ros_tooling, ros2_until, sim_process_names
 import pytest
 
 needs_ros_tooling = require_ros_tooling()
@@ -29,8 +35,6 @@ from stack_harness import make_point_model  # noqa: E402
 
 SLOT_S = 0.1
 ROUND_TIMEOUT_S = 150.0
-NODES = ("gsrmr_mock_limo", "gsrmr_limo_base", "gsrmr_mock_camera", "gsrmr_route_follower", "gsrmr_sim_channel",
-         "gsrmr_robot", "gsrmr_server", "gsrmr_scheduler")
 
 
 @needs_ros_tooling
@@ -126,7 +130,7 @@ class TestSimLaunch(unittest.TestCase):
             exited = {name: proc_info[name].returncode for name in proc_info.process_names()
                       if getattr(proc_info[name], "returncode", None) is not None}
             self.assertEqual(exited, {}, "processes that ended during the round")
-            self.assertEqual(len(proc_info.process_names()), len(NODES))
+            self.assertEqual(len(proc_info.process_names()), len(sim_process_names()))
         finally:
             probe.close()
         self.assertIsNotNone(probe.moved_at_s, "the robot never moved")
@@ -184,4 +188,4 @@ class TestSimLaunchCli(unittest.TestCase):
 class TestSimLaunchExit(unittest.TestCase):
     def test_every_process_exits_zero_on_sigint(self, proc_info):
         launch_testing.asserts.assertExitCodes(proc_info)
-        self.assertGreaterEqual(len(proc_info.process_names()), len(NODES))
+        self.assertGreaterEqual(len(proc_info.process_names()), len(sim_process_names()))
