@@ -16,33 +16,35 @@ def config_files() -> list[tuple[str, list[str]]]:
     return [(os.path.join("share", PACKAGE, folder), files) for folder, files in groups.items()]
 
 
-# Every node and CLI: `ros2 run gsrmr <name>` (colcon build / a ROS install), `.venv/bin/<name>` here.
-# Node entries go through gsrmr_common.interrupts: exit code 0 on Ctrl-C in any phase.
+# Every node and CLI: `ros2 run gsrmr <name>` (colcon build / a ROS install), `.venv/bin/<name>` here. Each points
+# at its module's main; a node's main is decorated with gsrmr_common.interrupts.console_main (exit code 0 on Ctrl-C
+# in any phase, also while the module loads: docs/architecture.md "Console scripts").
 CONSOLE_SCRIPTS = [
     # foundation: DDS link check between the robot and the workstation
-    "gsrmr-link-echo = gsrmr_common.interrupts:link_echo",
-    "gsrmr-link-probe = gsrmr_common.interrupts:link_probe",
+    "gsrmr-link-echo = gsrmr_common.link_check:echo_main",
+    "gsrmr-link-probe = gsrmr_common.link_check:probe_main",
     # scheduler (GSCLO): library CLI
     "gsrmr-schedule = gsrmr_server.scheduling.cli:main",
     # Gaussian-splatting engine
-    "gsrmr-train = gsrmr_server.splatting.cli:train_main",
+    "gsrmr-train = gsrmr_server.splatting.train_cli:train_main",
     "gsrmr-render = gsrmr_server.splatting.cli:render_main",
-    "gsrmr-compact = gsrmr_server.splatting.cli:compact_main",
+    "gsrmr-compact = gsrmr_server.splatting.train_cli:compact_main",
     # LIMO base: driver node and byte-exact mock base
-    "gsrmr-limo-base = gsrmr_common.interrupts:limo_base",
-    "gsrmr-mock-limo = gsrmr_sim.entries:mock_limo",
+    "gsrmr-limo-base = gsrmr_robot.limo.node:main",
+    "gsrmr-mock-limo = gsrmr_sim.limo.mock_ros:main",
     # simulated world: headless recorder, mock camera node, route follower node
     "gsrmr-sim = gsrmr_sim.world.cli:main",
-    "gsrmr-mock-camera = gsrmr_sim.entries:mock_camera",
-    "gsrmr-route-follower = gsrmr_sim.entries:route_follower",
-    "gsrmr-sim-channel = gsrmr_sim.entries:sim_channel",
+    "gsrmr-mock-camera = gsrmr_sim.world.camera_node:main",
+    "gsrmr-route-follower = gsrmr_sim.world.route_follower:main",
+    "gsrmr-sim-channel = gsrmr_sim.world.channel_node:main",
+    "gsrmr-sim-scorer = gsrmr_sim.world.scorer_node:main",
     # node suite, experiments and the main job
-    "gsrmr-robot = gsrmr_common.interrupts:robot",
-    "gsrmr-server = gsrmr_common.interrupts:server",
-    "gsrmr-scheduler = gsrmr_common.interrupts:scheduler",
+    "gsrmr-robot = gsrmr_robot.robot_node:main",
+    "gsrmr-server = gsrmr_server.server_node:main",
+    "gsrmr-scheduler = gsrmr_server.scheduler_node:main",
     "gsrmr-experiments = gsrmr_sim.experiments.cli:main",
     "gsrmr-demo = gsrmr_sim.demo:main",
-    "gsrmr-uplink-relay = gsrmr_sim.entries:uplink_relay",
+    "gsrmr-uplink-relay = gsrmr_sim.fault_relay_node:main",
 ]
 
 

@@ -12,7 +12,8 @@ The objects the nodes wire, wired the same way for ``bench/soak.py`` (default pa
   the assembler and (optionally) a :class:`~gsrmr_server.recording.RunRecorder`, built with the constructors
   ``ServerNode.__init__`` uses, over the node's parameters (:class:`~gsrmr_server.server_params.ServerParameters`:
   its defaults, which ``config/server.yaml`` repeats, unless overridden);
-  :meth:`ServerSide.process` is ``ServerNode.process_slot`` without the publishing.
+  :meth:`ServerSide.process` is ``ServerNode.process_slot`` without the publishing, plus — given the true
+  frame — the simulation scorer's work on the slot (:func:`gsrmr_server.scoring.score_slot`, in this process).
 
 No rclpy context, node or DDS participant is created. (``rclpy`` is still *imported*, as a module:
 ``gsrmr_server.recording`` → ``gsrmr_common.ros_wire`` → ``rclpy.qos``.)
@@ -36,12 +37,20 @@ if str(REPO) not in sys.path:
 from gsrmr_common.camera import Intrinsics  # noqa: E402
 from gsrmr_common.link_model import SLOT_S, LinkBudget  # noqa: E402
 from gsrmr_common.slot_clock import SlotClock  # noqa: E402
+from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME  # noqa: E402
 from gsrmr_common.wire import LedgerRow, PoseKey  # noqa: E402
 from gsrmr_robot.uplink_core import Pose, PoseHistory, SlotDecision, SlotInputs, UplinkCore  # noqa: E402
-from gsrmr_server.slot_core import count_composition_faults  # noqa: E402
+from gsrmr_server.ledger_book import SlotPlan  # noqa: E402
+from gsrmr_server.recording import RunRecorder  # noqa: E402
+from gsrmr_server.scoring import score_slot  # noqa: E402
+from gsrmr_server.server_params import ServerParameters  # noqa: E402
+from gsrmr_server.slot_core import SlotOutcome, build_server_core, count_composition_faults  # noqa: E402
+from gsrmr_server.slot_row import SlotScore  # noqa: E402
+from gsrmr_server.splatting.model import GaussianModel  # noqa: E402
+from gsrmr_server.uplink import UplinkAssembler  # noqa: E402
 from gsrmr_sim.fault_relay import Upload  # noqa: E402
 
-CAMERA_FRAME = "camera_optical_frame"
+CAMERA_FRAME = CAMERA_OPTICAL_FRAME
 FOV_RAD = math.radians(70)  # the synthetic camera's horizontal field of view (what the benches relay)
 
 
@@ -103,32 +112,25 @@ class ServerSide:
     def __init__(self, model_path: str | Path, camera: Intrinsics, **params) -> None:
         """``params``: :class:`~gsrmr_server.server_params.ServerParameters` fields other than the defaults
         (e.g. ``slot_s``, ``measure_loss``, ``record_dir``); ``camera`` is the robot's calibration."""
-        from gsrmr_server.server_params import ServerParameters
-        from gsrmr_server.slot_core import build_server_core
-        from gsrmr_server.splatting.model import GaussianModel
-        from gsrmr_server.uplink import UplinkAssembler
-
         p = self.params = ServerParameters(model_path=str(model_path), **params)
         self.slot_s, self.clock = p.slot_s, SlotClock(p.slot_s)
         self.core = build_server_core(p, GaussianModel.load_ply(p.model_path), camera)
         self.composer = self.core.composer
         self.uplink = UplinkAssembler()
-        self.recorder = None
-        if p.record_dir:
-            from gsrmr_server.recording import RunRecorder
-
-            self.recorder = RunRecorder(p.record_dir)
-        self.slots_done = 0
+        self.recorder = RunRecorder(p.record_dir) if p.record_dir else None
+        self.slots_done = self.scored = 0
         self.sources: dict[str, int] = {}
+        self.last_scores: SlotScore | None = None
 
     def process(self, slot: int, ledger: LedgerRow | None, *, t0_slot: int, truth: np.ndarray | None = None,
-                clock_ns: Callable[[], int] | None = None):
-        """Compose, encode, score (with ``truth``, the true camera frame) and record slot ``slot``; returns
-        ``(SlotOutcome, ms)`` with ``ms`` the wall time of the work (take → JPEG, before scoring). The
-        row's ``latency_ms`` is ``clock_ns() −`` slot start when a clock is given, else ``ms``."""
+                clock_ns: Callable[[], int] | None = None) -> tuple[SlotOutcome, float]:
+        """Compose, encode, score (with ``truth``, the true camera frame: ``last_scores``, counted in ``scored``)
+        and record slot ``slot``; returns ``(SlotOutcome, ms)`` with ``ms`` the wall time of the work (take → JPEG,
+        before scoring). The row's ``latency_ms`` is ``clock_ns() −`` slot start when a clock is given, else
+        ``ms``."""
         t0 = time.perf_counter()
         start_ns = self.clock.start_ns(slot)
-        uploads = self.uplink.take(slot, image_expected=None if ledger is None else bool(ledger.x))
+        uploads = self.uplink.take(slot, image_expected=SlotPlan(ledger).image_expected)
         best = self.uplink.best_pose(slot)
         out = self.core.process(uploads, best, time_s=(slot - t0_slot) * self.slot_s, stamp_s=start_ns / 1e9,
                                 ledger=ledger)
@@ -139,7 +141,8 @@ class ServerSide:
         self.slots_done += 1
         self.sources[out.composed.source] = self.sources.get(out.composed.source, 0) + 1
         if truth is not None:
-            self.core.score(out, truth)
+            self.last_scores = score_slot(out.composed, out.mr_u8, truth)
+            self.scored += int(self.last_scores.scored)
         if self.recorder is not None:
             self.recorder.write_slot(replace(out.row, latency_ms=latency_ms), jpeg, None, stamp_ns=start_ns)
         return out, ms

@@ -8,8 +8,9 @@ latency p50/p95/p99 over every robot's scored slots (``slots.csv`` ``latency_ms`
 start), the energy ratio upload-all / ours (median over robots), the mean loss of the worst robot, and CPU per
 robot in cores (CPU seconds per second of the round, read by the demo from ``/proc/<pid>/stat`` of every
 process of each robot): server + scheduler (the workstation's share), robot node + LIMO driver (the robot's
-computer) and the simulated world (mock LIMO, camera, radio, route follower; hardware and physics on a real
-deployment), plus the machine's 1-min load average before the runs and the CPU the rest of the machine used
+computer) and the simulated world (mock LIMO, camera, radio, route follower — hardware and physics on a real
+deployment — and the simulation's ground-truth scorer, ``gsrmr-sim-scorer``, which scores the MR images outside
+the server), plus the machine's 1-min load average before the runs and the CPU the rest of the machine used
 during them (``/proc/stat`` busy time minus the fleet's processes: this runner, the demo, other jobs). The last
 lines derive from the measured server + scheduler CPU how many robots one workstation core serves.
 """
@@ -28,6 +29,8 @@ import subprocess
 import sys
 import time
 
+import numpy as np
+
 REPO = Path(__file__).resolve().parents[1]
 ON_TIME_OK = 0.99  # a fleet size "keeps up" when its worst robot has at least this share of slots on time
 
@@ -35,8 +38,6 @@ ON_TIME_OK = 0.99  # a fleet size "keeps up" when its worst robot has at least t
 def run_demo(robots: int, demo_args: list[str], out: Path) -> dict:
     """One ``gsrmr-demo --robots N`` run: its fleet summary (the last stdout line), the wall time, the load
     average before it and the latency percentiles over every robot's scored slots."""
-    import numpy as np
-
     exe = Path(sys.executable).parent / "gsrmr-demo"
     load_before = os.getloadavg()[0]
     t0 = time.perf_counter()

@@ -52,6 +52,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME  # noqa: E402
+
 
 def _feeder_class():
     from nav_msgs.msg import Odometry
@@ -77,7 +79,7 @@ def _feeder_class():
 
         def _tick(self) -> None:
             now = self.get_clock().now()
-            self.img_pub.publish(image_to_msg(self.frame, now.nanoseconds, "camera_optical_frame"))
+            self.img_pub.publish(image_to_msg(self.frame, now.nanoseconds, CAMERA_OPTICAL_FRAME))
             t = time.monotonic() - self.t0
             msg = Odometry()
             msg.header.stamp = now.to_msg()
@@ -136,7 +138,7 @@ def run_servers(args: argparse.Namespace, model_path: Path) -> dict:
     params = [Parameter("model_path", value=str(model_path)), Parameter("measure_loss", value=True)]
     servers = [ServerNode(namespace=f"/r{i}", parameter_overrides=params) for i in range(args.robots)]
     info = camera_info_from_intrinsics(Intrinsics.from_fov(args.width, args.height, math.radians(70)), 0,
-                                       "camera_optical_frame")
+                                       CAMERA_OPTICAL_FRAME)
     for s in servers:  # the robots' calibration (what each robot relays on uplink/camera_info)
         s.use_camera_info(info)
     ex = MultiThreadedExecutor(num_threads=args.threads)
@@ -150,17 +152,15 @@ def run_servers(args: argparse.Namespace, model_path: Path) -> dict:
     try:
         time.sleep(args.warmup_s)
         for s in servers:  # measure from here on (the counters are only read and reset here)
-            s.latencies_ms = type(s.latencies_ms)(maxlen=100_000)
+            s.stats = type(s.stats)(s.params.slot_s, history=100_000)
             s.uplink.faults.clear()
-            s.slots_done = s.slots_on_time = 0
-            s.sources = {}
         cpu0 = proc.cpu_times()
         t0 = time.monotonic()
         time.sleep(args.duration_s)
         wall = time.monotonic() - t0
         cpu1 = proc.cpu_times()
-        snapshot = [(list(s.latencies_ms), dict(s.uplink.faults), s.slots_done, s.slots_on_time, dict(s.sources))
-                    for s in servers]
+        snapshot = [(list(s.stats.latencies_ms), dict(s.uplink.faults), s.stats.slots, s.stats.slots_on_time,
+                     dict(s.stats.sources)) for s in servers]
     finally:
         ex.shutdown(timeout_sec=5)
         robots.stop()

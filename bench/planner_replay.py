@@ -6,14 +6,19 @@ Usage: ``.venv/bin/python bench/planner_replay.py REPORT_DIR... [--vary horizon=
 parameters of that run (``config/scheduler.yaml`` + the run's overrides) changed by ``--set`` and the
 varied key; the table gives the median and worst over the runs of mean MR loss, runs within L_th, regret
 (against each run's hindsight optimum, computed after the run) and the planner's CPU time per replan.
-Keys: the :class:`~gsrmr_server.horizon.OnlinePlanner` keywords (horizon, method, loss_margin,
-calibration_quantile, explore_image_fraction, ...) plus ``replan_every`` (slots between timer replans) and
-``measurement_delay`` (slots before an image's L_t reaches the planner).
+Keys: the scheduler's parameters (:class:`~gsrmr_server.scheduler_params.SchedulerParameters`: horizon, method,
+loss_margin, margin_quantile, explore_image_fraction, probe_gap_slots, round_slots, ...), the planner's knobs that
+are no parameter (:class:`~gsrmr_server.planner.PlannerConfig`: refine_slots, round_start_m,
+margin_window_samples, startup_explore_samples) plus ``replan_every`` (slots between timer replans) and
+``measurement_delay`` (slots before an image's L_t reaches the planner). The planner is configured as the
+scheduler node configures it (:meth:`~gsrmr_server.scheduler_params.SchedulerParameters.planner_config`), always
+without the oracle.
 """
 
 from __future__ import annotations
 
 import argparse
+from dataclasses import fields, replace
 import json
 import os
 from pathlib import Path
@@ -22,43 +27,41 @@ import sys
 
 import yaml
 
+from gsrmr_common.link_model import LinkBudget
+from gsrmr_server.loss_map import LossMap
+from gsrmr_server.planner import OnlinePlanner, PlannerConfig, RoutePredictor, SlotLossModel
+from gsrmr_server.recording import read_slots_csv
+from gsrmr_server.scheduler_params import SchedulerParameters
+from gsrmr_sim.replay import TruthLossPredictor, recorded_slots, replay
+
 REPO = Path(__file__).resolve().parents[1]
 REPLAY_KEYS = {"replan_every", "measurement_delay"}
+PLANNER_KEYS = {f.name for f in fields(PlannerConfig)} - {f.name for f, _ in SchedulerParameters.specs()}
 
 
-def scheduler_params(report: Path) -> dict:
-    """config/scheduler.yaml overlaid with the run's own scheduler parameters."""
-    params: dict = {}
+def scheduler_params(report: Path) -> SchedulerParameters:
+    """config/scheduler.yaml overlaid with the run's own scheduler parameters (names that are no parameter of
+    the scheduler any more, e.g. an old run's ``loss_model``, are ignored)."""
+    values: dict = {}
     for path in (REPO / "config" / "scheduler.yaml", report / "params" / "gsrmr_scheduler.yaml"):
         if path.exists():
-            params.update(yaml.safe_load(path.read_text())["/**"]["ros__parameters"])
-    return params
+            values.update(yaml.safe_load(path.read_text())["/**"]["ros__parameters"])
+    return SchedulerParameters().with_values(values)
 
 
-def make_planner(params: dict, overrides: dict):
-    """An OnlinePlanner configured as the scheduler node configures it, with ``overrides``."""
-    from gsrmr_common.link_model import LinkBudget
-    from gsrmr_server.horizon import OnlinePlanner, RoutePredictor
-    from gsrmr_server.loss_map import LossMap
-
-    flat = params["route_waypoints_m"]
-    route = RoutePredictor([(flat[i], flat[i + 1]) for i in range(0, len(flat), 2)], params["route_speed_mps"])
-    loss_map = LossMap.load(params["loss_map_file"]) if params.get("loss_map_file") else LossMap(
-        prior=params["loss_prior"])
-    kw = dict(slot_s=0.1, image_bits=params["image_bits"], pose_bits=params["pose_bits"],
-              loss_threshold=params["loss_threshold"], horizon=params["horizon"], method=params["method"],
-              options=json.loads(params["solver_options"]), drift_threshold=params["drift_threshold"],
-              drift_window=params["drift_window"], loss_margin=params["loss_margin"],
-              oracle_channel=False, in_slot_decision=params["in_slot_decision"],
-              calibrate=params["calibrate_loss_map"], explore_image_fraction=params["explore_image_fraction"],
-              loss_model=params["loss_model"], margin_quantile=params["margin_quantile"],
-              burst_time_constant_slots=params["burst_time_constant_slots"],
-              probe_gap_slots=params["probe_gap_slots"], round_slots=params["round_slots"],
-              image_slot_loss=params["image_slot_loss"])
-    kw.update({k: v for k, v in overrides.items() if k not in REPLAY_KEYS})
-    if kw["image_slot_loss"] < 0:  # −1: the seed map's measured value, as the node reads it
-        kw["image_slot_loss"] = loss_map.image_loss or 0.0
-    return OnlinePlanner(route, loss_map, LinkBudget(), **kw)
+def make_planner(params: SchedulerParameters, overrides: dict,
+                 loss_model: SlotLossModel | None = None) -> OnlinePlanner:
+    """An OnlinePlanner configured as the scheduler node configures it (never the oracle), with ``overrides``
+    (scheduler parameters, planner knobs and the replay's own keys, which it ignores)."""
+    unknown = set(overrides) - REPLAY_KEYS - PLANNER_KEYS - {f.name for f, _ in SchedulerParameters.specs()}
+    if unknown:
+        raise SystemExit(f"planner_replay: unknown key(s) {sorted(unknown)}")
+    params = params.with_values({**{k: v for k, v in overrides.items() if SchedulerParameters.spec(k)},
+                                 "oracle_channel": False})
+    loss_map = LossMap.load(params.loss_map_file) if params.loss_map_file else LossMap(prior=params.loss_prior)
+    config = replace(params.planner_config(loss_map), **{k: v for k, v in overrides.items() if k in PLANNER_KEYS})
+    return OnlinePlanner(config, RoutePredictor(params.waypoints, params.route_speed_mps), loss_map, LinkBudget(),
+                         loss_model=loss_model)
 
 
 def parse_value(text: str):
@@ -70,9 +73,6 @@ def parse_value(text: str):
 
 
 def main() -> int:
-    from gsrmr_server.recording import read_slots_csv
-    from gsrmr_sim.replay import TruthLossPredictor, recorded_slots, replay
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("reports", nargs="+", type=Path)
     ap.add_argument("--vary", default="", help="key=v1,v2,... (one row per value)")
@@ -96,16 +96,15 @@ def main() -> int:
     for setting in settings:
         results = []
         for name, params, slots in runs:
-            p = {**params, **{k: v for k, v in setting.items() if k in params}}
-            planner = make_planner(p, setting)
-            if args.truth_loss:
-                planner.loss_model, planner.loss_predictor = "burst", TruthLossPredictor(slots)
-            r = replay(slots, planner, loss_threshold=p["loss_threshold"],
-                       replan_every=int(setting.get("replan_every", round(p["replan_period_s"] / 0.1))),
+            run = params.with_values({k: v for k, v in setting.items() if SchedulerParameters.spec(k)})
+            planner = make_planner(run, setting, TruthLossPredictor(slots) if args.truth_loss else None)
+            lth = planner.config.loss_threshold
+            r = replay(slots, planner, loss_threshold=lth,
+                       replan_every=int(setting.get("replan_every", round(run.replan_period_s / run.slot_s))),
                        measurement_delay=int(setting.get("measurement_delay", 1)))
-            results.append((name, p["loss_threshold"], r))
+            results.append((name, lth, r))
             if args.per_run:
-                print(f"|   {name} | {r.mean_loss:.4f} | {int(r.mean_loss <= p['loss_threshold'])} | {r.regret:.2f} | "
+                print(f"|   {name} | {r.mean_loss:.4f} | {int(r.mean_loss <= lth)} | {r.regret:.2f} | "
                       f"{r.images} | {1e3 * r.plan_time_s / max(r.replans, 1):.1f} |")
         losses = [r.mean_loss for _, _, r in results]
         regrets = [r.regret for _, _, r in results]
@@ -120,5 +119,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(REPO))
     sys.exit(main())

@@ -8,11 +8,13 @@ The uploads go through the uplink fault injector of :mod:`gsrmr_sim.fault_relay`
 3 % each other fault) into an :class:`~gsrmr_server.uplink.UplinkAssembler`; the ledger row reaches the
 server untouched (as on ``gsrmr/ledger``). Then, by default (pure path, no rclpy context, node or DDS;
 wiring in ``bench/core_path.py``): :meth:`ServerCore.process <gsrmr_server.slot_core.ServerCore.process>`
-composes the slot, its JPEG is encoded, :meth:`ServerCore.score` measures it against the true frame (off
-with ``--no-score``) and a :class:`~gsrmr_server.recording.RunRecorder` writes CSV + MCAP to a temp dir.
-With ``--node``: the same uploads go into a whole rclpy :class:`~gsrmr_server.server_node.ServerNode` in
-this process (ledger row and true frame through its callbacks, ``evaluate_ground_truth`` unless
-``--no-score``) and :meth:`ServerNode.process_slot` composes, publishes and records — to soak the ROS layer.
+composes the slot, its JPEG is encoded, :func:`gsrmr_server.scoring.score_slot` measures it against the true
+frame (the simulation scorer's work; off with ``--no-score``) and a :class:`~gsrmr_server.recording.RunRecorder`
+writes CSV + MCAP to a temp dir. With ``--node``: the same uploads go into a whole rclpy
+:class:`~gsrmr_server.server_node.ServerNode` in this process (ledger row through its callback) and
+:meth:`ServerNode.process_slot` composes, publishes and records — to soak the ROS layer; unless ``--no-score``
+a :class:`~gsrmr_sim.world.scorer_node.ScorerNode` in this process gets what it publishes (``mr/image``,
+``mr/slot_info``), the ledger row and the true frame through its callbacks and scores each slot.
 
 Resident set size (psutil, MiB) is sampled every ``--sample-every`` slots; growth is measured from the
 sample after ``--warmup`` slots to the end (the acceptance bound is 5 %; exit status 1 above it).
@@ -34,10 +36,35 @@ import sys
 import tempfile
 import time
 
+import psutil
+import rclpy
+from rclpy.parameter import Parameter
+
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "test"))
 sys.path.insert(0, str(REPO / "bench"))
+
+from core_path import CAMERA_FRAME, RobotSide, ServerSide, deliver, intrinsics, synthetic_frames  # noqa: E402
+from stack_harness import make_point_model  # noqa: E402
+
+from gsrmr_common.link_model import SLOT_S  # noqa: E402
+from gsrmr_common.ros_wire import camera_info_from_intrinsics, image_to_msg, ledger_to_msg  # noqa: E402
+from gsrmr_common.slot_clock import SlotClock  # noqa: E402
+from gsrmr_server.server_node import ServerNode  # noqa: E402
+from gsrmr_sim.fault_relay import FaultInjector, FaultRates  # noqa: E402
+from gsrmr_sim.world.scorer_node import ScorerNode  # noqa: E402
+
+
+def tee(publisher, callback) -> None:
+    """Hand every message ``publisher`` publishes to ``callback`` too (the subscriber in this process)."""
+    publish = publisher.publish
+
+    def both(msg) -> None:
+        publish(msg)
+        callback(msg)
+
+    publisher.publish = both
 
 
 def main() -> int:
@@ -58,14 +85,6 @@ def main() -> int:
         os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid()).randrange(1, 101)))
         os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
-    from core_path import CAMERA_FRAME, RobotSide, ServerSide, deliver, intrinsics, synthetic_frames
-    import psutil
-    from stack_harness import make_point_model
-
-    from gsrmr_common.link_model import SLOT_S
-    from gsrmr_common.slot_clock import SlotClock
-    from gsrmr_sim.fault_relay import FaultInjector, FaultRates
-
     tmp = Path(tempfile.mkdtemp(prefix="gsrmr-soak-"))
     model = make_point_model(tmp, n=args.gaussians)
     camera = intrinsics(args.width, args.height)
@@ -73,27 +92,32 @@ def main() -> int:
     clock = SlotClock(SLOT_S)
     k0 = clock.slot_at(time.time_ns())
     if args.node:
-        import rclpy
-        from rclpy.parameter import Parameter
-
-        from gsrmr_common.ros_wire import camera_info_from_intrinsics, image_to_msg, ledger_to_msg
-        from gsrmr_server.server_node import ServerNode
-
         rclpy.init()
         node = ServerNode(parameter_overrides=[Parameter("model_path", value=str(model)),
-                                               Parameter("record_dir", value=str(tmp / "rec")),
-                                               Parameter("evaluate_ground_truth", value=score)])
-        node.use_camera_info(camera_info_from_intrinsics(camera, 0, CAMERA_FRAME))  # what the robot relays
+                                               Parameter("record_dir", value=str(tmp / "rec"))])
+        info = camera_info_from_intrinsics(camera, 0, CAMERA_FRAME)  # what the robot relays
+        node.use_camera_info(info)
         assert node.clock == clock, "the node's slot_s differs from SLOT_S"
         node.cursor.first = k0  # round time 0 of the MR content
         uplink = node.uplink
+        scorer = None
+        if score:
+            scorer = ScorerNode(worker=False, parameter_overrides=[Parameter("model_path", value=str(model)),
+                                                                   Parameter("record_dir", value=str(tmp / "rec"))])
+            scorer.use_camera_info(info)
+            tee(node._pub_mr, scorer.on_mr_image)
+            tee(node._pub_info, scorer.on_slot_info)
 
         def server_slot(k: int, ledger, frame) -> None:
             if ledger is not None:
                 node._on_ledger(ledger_to_msg(ledger))  # what gsrmr/ledger delivers
-            if score:
-                node._on_camera(image_to_msg(frame, clock.start_ns(k), CAMERA_FRAME))  # camera/image_raw
+            if scorer is not None:
+                if ledger is not None:
+                    scorer.on_ledger(ledger_to_msg(ledger))
+                scorer.on_camera(image_to_msg(frame, clock.start_ns(k), CAMERA_FRAME))  # camera/image_raw
             node.process_slot(k)
+            if scorer is not None:
+                scorer.score_ready(flush=True)
     else:
         server = ServerSide(model, camera, slot_s=SLOT_S, record_dir=str(tmp / "rec"))
         uplink = server.uplink
@@ -135,22 +159,28 @@ def main() -> int:
             print(f"#   {done:6d} slots  rss {samples[-1][1]:7.1f} MiB  {samples[-1][2]:6.1f} s", flush=True)
     if args.node:
         node.on_shutdown()
-        composed = node.slots_done
+        composed = node.stats.slots
+        scored = 0
+        if scorer is not None:
+            scorer.on_shutdown()
+            scored = scorer.scored
     else:
         server.close()
-        composed = server.slots_done
+        composed, scored = server.slots_done, server.scored
     base = next(s for s in samples if s[0] >= args.warmup)
     final = samples[-1]
     growth = (final[1] - base[1]) / base[1]
     faults = {str(f): n for f, n in uplink.faults.items()}
-    print("| slots | composed | rss after warm-up MiB | rss end MiB | growth % | slots/s | faults counted |")
-    print("|---|---|---|---|---|---|---|")
-    print(f"| {args.slots} | {composed} | {base[1]:.1f} | {final[1]:.1f} | {100 * growth:+.2f} | "
+    print("| slots | composed | scored | rss after warm-up MiB | rss end MiB | growth % | slots/s | faults counted |")
+    print("|---|---|---|---|---|---|---|---|")
+    print(f"| {args.slots} | {composed} | {scored} | {base[1]:.1f} | {final[1]:.1f} | {100 * growth:+.2f} | "
           f"{args.slots / final[2]:.0f} | {sum(faults.values())} |")
     print(f"# faults: {faults}")
     print(f"# injected: {dict(sorted(injector.injected.items()))}")
     print(f"# acceptance (growth <= 5 %): {'PASS' if growth <= 0.05 else 'FAIL'}")
     if args.node:
+        if scorer is not None:
+            scorer.destroy_node()
         node.destroy_node()
         rclpy.try_shutdown()
     return 0 if growth <= 0.05 else 1

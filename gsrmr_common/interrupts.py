@@ -3,11 +3,16 @@
 A shell's Ctrl-C sends SIGINT to the whole process group: ``ros2 launch`` and every node get it at
 once, and ``launch`` then sends each node a SIGINT of its own (SIGTERM 5 s later, SIGKILL after 10 s).
 A Python process that lets the resulting ``KeyboardInterrupt`` escape ends by signal (exit code −2)
-and ``launch`` reports "process has died". That happens in three places, each handled here:
+and ``launch`` reports "process has died". That happens in four places, each handled here:
 
-* **start-up** (importing numba/torch, loading a model, compiling kernels — seconds): the interrupt
-  must stop the process at once. :class:`InterruptPolicy` raises ``KeyboardInterrupt`` in this phase;
-  :func:`node_entry` catches it around the import and the node's ``main`` and returns 0.
+* **loading** (the console script importing its node module: numpy, rclpy, numba kernels, torch —
+  up to seconds): :func:`guard_console_start_up`, called by every package that holds a console script's
+  module (its ``__init__``, which Python runs before any of the package's modules), installs
+  :data:`POLICY` in a gsrmr console script and an exception hook: an interrupt that ends the program
+  while it still loads its entry module ends it with code 0.
+* **start-up** (``main`` building the node: loading a model, compiling kernels): the interrupt must stop
+  the process at once. :class:`InterruptPolicy` raises ``KeyboardInterrupt`` in this phase;
+  :func:`console_main`, the decorator on every node module's ``main``, catches it and returns 0.
 * **running**: the spin must end through rclpy, never through an exception raised at an arbitrary
   bytecode: a ``KeyboardInterrupt`` that lands between an executor's ``ExitStack.enter_context(handle)``
   and the registration of its exit leaves the handle "in use", and ``destroy_node`` then spins forever
@@ -19,21 +24,30 @@ and ``launch`` reports "process has died". That happens in three places, each ha
   SIGINT — the one ``launch`` forwards — must not interrupt it. The policy ignores it; only a third
   signal (a user who insists) raises.
 
-* **interpreter exit**: :func:`node_entry` ignores both signals once ``main`` has returned.
+* **interpreter exit**: :func:`console_main` ignores both signals once ``main`` has returned, and so
+  does the exception hook once it has decided the exit code.
 
-SIGTERM is treated as SIGINT. Pure Python, no rclpy: the robot, the server and the tests use it.
+SIGTERM is treated as SIGINT. Pure Python, no rclpy, no gsrmr import: every package imports it first.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-import importlib
+import functools
+import os
 import signal
 import sys
 import threading
-from types import FrameType
+from types import FrameType, TracebackType
+from typing import ParamSpec
+
+P = ParamSpec("P")
 
 START, RUNNING, CLEANUP = "start", "running", "cleanup"
+#: Every console script of setup.py is named ``gsrmr-…``: a process whose program has such a name is one.
+CONSOLE_SCRIPT_PREFIX = "gsrmr-"
+#: The attribute :func:`console_main` sets on the function it returns (what the import-rule tests look for).
+CONSOLE_MAIN_MARK = "__gsrmr_console_main__"
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
 # Signals received during clean-up before a KeyboardInterrupt is raised anyway (a user who insists).
 CLEANUP_PATIENCE = 2
@@ -93,49 +107,111 @@ def _in_finalizer(frame: FrameType | None) -> bool:
 POLICY = InterruptPolicy()
 
 
-def node_entry(target: str) -> Callable[[], int]:
-    """A console-script entry for ``"package.module:function"`` that exits 0 when interrupted.
+def ignore_signals() -> None:
+    """Ignore SIGINT and SIGTERM from now on: the process is ending.
 
-    The module is imported inside the guard, so a Ctrl-C during the (slow) import ends the process
-    with code 0 instead of a traceback and −2.
+    The interpreter's own shutdown (atexit, joining threads, freeing numba/torch) can take a moment, and
+    Python restores SIG_DFL for handled signals on the way: a signal arriving then (launch's SIGINT after
+    the terminal's) would kill the process with −2. Ignored handlers are kept.
     """
-    module_name, function_name = target.split(":")
+    if threading.current_thread() is threading.main_thread():
+        for sig in _SIGNALS:
+            signal.signal(sig, signal.SIG_IGN)
 
-    def main() -> int:
+
+def _program() -> str:
+    return os.path.basename(sys.argv[0]) if getattr(sys, "argv", None) else "python"
+
+
+def console_main(main: Callable[P, int | None]) -> Callable[P, int]:
+    """Decorate the ``main`` a console script calls (a node module's): exit code 0 when interrupted.
+
+    The returned function installs :data:`POLICY` (phase START), returns 0 at once for a signal deferred
+    while the module loaded, calls ``main`` and returns its code; a ``KeyboardInterrupt`` returns 0, and so
+    does any other exception raised after a signal (library code that turned the interrupt into another
+    error: a C extension's callback, a half-done ``rclpy.init``), with a note on stderr. Afterwards the
+    process ignores SIGINT/SIGTERM (:func:`ignore_signals`): it is a process's entry, not a function to
+    call in a longer-lived process (``main.__wrapped__`` is the plain function).
+    """
+
+    @functools.wraps(main)
+    def entry(*args: P.args, **kwargs: P.kwargs) -> int:
         POLICY.install()
         POLICY.enter(START)
         try:
-            function = getattr(importlib.import_module(module_name), function_name)
-            if POLICY.stop_requested:  # a signal deferred during the import (see InterruptPolicy._handle)
+            if POLICY.stop_requested:  # a signal deferred while the module loaded (InterruptPolicy._handle)
                 return 0
-            return int(function() or 0)
+            return int(main(*args, **kwargs) or 0)
         except KeyboardInterrupt:
             return 0
         except Exception as err:
             if POLICY.received == 0:
                 raise
-            # An interrupt landed inside library code that turned it into another exception (a C
-            # extension's callback, a half-done rclpy.init): the stop was still asked for.
-            print(f"{target}: stopped by a signal during {POLICY.phase} ({type(err).__name__}: {err})",
+            print(f"{_program()}: stopped by a signal during {POLICY.phase} ({type(err).__name__}: {err})",
                   file=sys.stderr, flush=True)
             return 0
         finally:
-            # The interpreter's own shutdown (atexit, joining threads, freeing numba/torch) can take a
-            # moment, and Python restores SIG_DFL for handled signals on the way: a signal arriving then
-            # (launch's SIGINT after the terminal's) would kill the process with −2. Ignored handlers
-            # are kept; the process is ending anyway.
-            for sig in _SIGNALS:
-                signal.signal(sig, signal.SIG_IGN)
+            ignore_signals()
 
-    main.__doc__ = f"Console entry of {target} (exit 0 on SIGINT/SIGTERM)."
-    return main
+    setattr(entry, CONSOLE_MAIN_MARK, True)
+    return entry
 
 
-# The deployment nodes' console scripts (setup.py): every one ends with code 0 on Ctrl-C. The simulator's
-# are in gsrmr_sim.entries.
-link_echo = node_entry("gsrmr_common.link_check:echo_main")
-link_probe = node_entry("gsrmr_common.link_check:probe_main")
-limo_base = node_entry("gsrmr_robot.limo.node:main")
-robot = node_entry("gsrmr_robot.robot_node:main")
-server = node_entry("gsrmr_server.server_node:main")
-scheduler = node_entry("gsrmr_server.scheduler_node:main")
+def is_console_script(program: str | None = None) -> bool:
+    """Whether this process runs one of gsrmr's console scripts (``program``: default ``sys.argv[0]``).
+
+    ``ros2 run``, ``ros2 launch`` (``lib/gsrmr/gsrmr-…``, also behind ``nice``) and a venv's ``bin/gsrmr-…``
+    all start the script file itself, so the program's name is the console script's name."""
+    name = os.path.basename(program if program is not None else _program())
+    return name.startswith(CONSOLE_SCRIPT_PREFIX)
+
+
+_guarded = False
+
+
+def guard_console_start_up() -> None:
+    """In a gsrmr console script, before its entry module loads: Ctrl-C while it loads ends it with code 0.
+
+    Called by the ``__init__`` of every package that holds a console script's module (Python imports the
+    package before the module). In a console script (:func:`is_console_script`), in the main thread, once:
+    install :data:`POLICY` (phase START: a signal raises ``KeyboardInterrupt``, or is deferred inside a
+    finalizer) and an exception hook that turns an interrupt ending the program *while it loads its entry
+    module* into exit code 0 (silently for the ``KeyboardInterrupt``, with a note for an exception raised
+    after a signal). An exception raised once the script's entry function runs keeps Python's handling;
+    a node's ``main`` handles its own (:func:`console_main`). Anywhere else (pytest, a Python shell,
+    ``python -m``) it does nothing.
+    """
+    global _guarded
+    if _guarded or threading.current_thread() is not threading.main_thread() or not is_console_script():
+        return
+    _guarded = True
+    POLICY.install()
+    POLICY.enter(START)
+    previous = sys.excepthook
+
+    def start_up_excepthook(exc_type: type[BaseException], exc: BaseException, tb: TracebackType | None) -> None:
+        interrupted = issubclass(exc_type, KeyboardInterrupt) or POLICY.received > 0
+        if interrupted and POLICY.phase == START and _while_loading(tb):
+            ignore_signals()
+            if not issubclass(exc_type, KeyboardInterrupt):
+                print(f"{_program()}: stopped by a signal while loading ({exc_type.__name__}: {exc})",
+                      file=sys.stderr, flush=True)
+            raise SystemExit(0)  # from an exception hook: CPython exits with this code (after its clean-up)
+        previous(exc_type, exc, tb)
+
+    sys.excepthook = start_up_excepthook
+
+
+def _while_loading(tb: TracebackType | None) -> bool:
+    """Whether the traceback of an exception that ended the program shows it still loading its entry module.
+
+    The first entry is ``__main__``'s code (the console script); the second is what it called: a module
+    body (``from package.module import main``: the import machinery's frames are left out of tracebacks),
+    or a helper of the script itself (``load_entry_point``, as colcon's scripts load the entry) — or, once
+    loaded, the entry function, which is no longer loading."""
+    called = tb.tb_next if tb is not None else None
+    if called is None:  # raised in the script's own statements (its first imports)
+        return True
+    frame = called.tb_frame
+    module = str(frame.f_globals.get("__name__", ""))
+    return frame.f_code.co_name == "<module>" or module == "__main__" or module.startswith("importlib")

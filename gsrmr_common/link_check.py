@@ -26,6 +26,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
+from gsrmr_common.interrupts import console_main
 from gsrmr_common.ros_node import declare, run_node
 
 LINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
@@ -137,11 +138,13 @@ class LinkProbe(Node):
             print(json.dumps(self.report()), flush=True)
 
 
+@console_main
 def echo_main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-link-echo``."""
     return run_node(LinkEcho, args)
 
 
+@console_main
 def probe_main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-link-probe``."""
     try:

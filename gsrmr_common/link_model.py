@@ -1,8 +1,8 @@
 """The uplink link model (pure numpy, no rclpy): rate, required power and energy, and the link budget.
 
 One module for the robot (its energy ledger), the scheduler (its plan) and the experiments. The
-parameters live in :class:`LinkBudget` (SI units; ``config/link.yaml`` on the nodes, declared by
-:func:`gsrmr_common.ros_node.declare_link_budget`); the fading draws in :mod:`gsrmr_common.channel`.
+parameters live in :class:`LinkBudget` (SI units; ``config/link.yaml``'s names, units and ranges are
+:class:`gsrmr_common.link_params.LinkParameters`); the fading draws in :mod:`gsrmr_common.channel`.
 
 Closed forms, in the log domain:
 
@@ -157,19 +157,3 @@ class LinkBudget:
                          noise_w: float) -> float:
         """Minimum power to carry ``bits`` in one slot (:func:`required_power_w`)."""
         return float(required_power_w(bits, gain, slot_s, bandwidth_hz, noise_w))
-
-
-def link_budget_from_parameters(params: dict) -> LinkBudget:
-    """The :class:`LinkBudget` a ``config/link.yaml`` parameter mapping describes (``ros__parameters``:
-    ``bandwidth_hz``, ``noise_dbm``, ``pathloss_db_at_1m``, ``pathloss_exponent``, ``rician_k``,
-    ``server_position_m`` [x, y] m, ``channel_seed``); missing keys take the defaults."""
-    d = LinkBudget()
-    noise_w = 10 ** (float(params["noise_dbm"]) / 10) / 1e3 if "noise_dbm" in params else d.noise_w
-    server = params.get("server_position_m", d.server_position_m)
-    if len(server) != 2:
-        raise ValueError("server_position_m must be [x_m, y_m]")
-    return LinkBudget(float(params.get("bandwidth_hz", d.bandwidth_hz)), noise_w,
-                      float(params.get("pathloss_db_at_1m", d.pathloss_db_at_1m)),
-                      float(params.get("pathloss_exponent", d.pathloss_exponent)),
-                      float(params.get("rician_k", d.rician_k)), (float(server[0]), float(server[1])),
-                      int(params.get("channel_seed", d.channel_seed)))

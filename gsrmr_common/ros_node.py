@@ -6,8 +6,8 @@ Imports rclpy; keep pure logic elsewhere.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-import math
 import sys
+import time
 from typing import Any, TypeVar
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -19,6 +19,7 @@ from rclpy.node import Node
 from gsrmr_common.camera import CameraMount
 from gsrmr_common.interrupts import CLEANUP, POLICY, RUNNING, START
 from gsrmr_common.link_model import LinkBudget
+from gsrmr_common.link_params import LinkParameters
 from gsrmr_common.node_params import NodeParameters
 from gsrmr_common.slot_clock import SlotClock
 
@@ -137,27 +138,10 @@ def declare_camera_mount(node: Node) -> CameraMount:
 
 
 def declare_link_budget(node: Node) -> LinkBudget:
-    """Declare the uplink parameters (``config/link.yaml``) on ``node`` with descriptors and ranges,
-    read-only, and return the :class:`~gsrmr_common.link_model.LinkBudget` they describe (SI units)."""
-    d = LinkBudget()
-    bw = declare(node, "bandwidth_hz", d.bandwidth_hz, "Uplink bandwidth B [Hz]", min_value=1.0,
-                 max_value=1e12, read_only=True)
-    noise_dbm = declare(node, "noise_dbm", 10 * math.log10(d.noise_w * 1e3), "Noise power σ² [dBm]",
-                        min_value=-250.0, max_value=100.0, read_only=True)
-    pl = declare(node, "pathloss_db_at_1m", d.pathloss_db_at_1m, "Path loss ρ0 at 1 m [dB]",
-                 min_value=-300.0, max_value=0.0, read_only=True)
-    alpha = declare(node, "pathloss_exponent", d.pathloss_exponent, "Path-loss exponent α", min_value=0.0,
-                    max_value=10.0, read_only=True)
-    k = declare(node, "rician_k", d.rician_k, "Rician K-factor (LoS/NLoS power)", min_value=0.0,
-                max_value=1e6, read_only=True)
-    server = list(declare(node, "server_position_m", list(d.server_position_m),
-                          "Server (x, y) in map [m]", read_only=True))
-    seed = declare(node, "channel_seed", d.channel_seed, "Seed of the per-slot fading realisation",
-                   min_value=0, max_value=2**31 - 1, read_only=True)
-    if len(server) != 2 or not all(math.isfinite(v) for v in server):
-        raise ValueError("parameter server_position_m must be 2 finite numbers [x_m, y_m]")
-    return LinkBudget(float(bw), 10 ** (noise_dbm / 10) / 1e3, float(pl), float(alpha), float(k),
-                      (float(server[0]), float(server[1])), int(seed))
+    """Declare the uplink parameters (``config/link.yaml``: :class:`~gsrmr_common.link_params.LinkParameters`,
+    read-only, with descriptors and ranges) on ``node`` and return the
+    :class:`~gsrmr_common.link_model.LinkBudget` they describe (SI units)."""
+    return declare_parameters(node, LinkParameters).budget()
 
 
 def aligned_timer(node: Node, clock: SlotClock, phase_s: float, callback: Callable[[], None]) -> None:
@@ -168,8 +152,6 @@ def aligned_timer(node: Node, clock: SlotClock, phase_s: float, callback: Callab
     periodic timer: rcl timers fire at ``start + k·period`` and never early, so every call is at or just
     after its instant (late by the executor's wake-up). The callback should still work out *which* slot
     is due from the clock, as a late call must do the right thing anyway."""
-    import time
-
     period_ns = clock.slot_len_ns
     wait_ns = (round(phase_s * 1e9) - clock.phase_ns(node.get_clock().now().nanoseconds)) % period_ns
     time.sleep(wait_ns / 1e9)

@@ -8,8 +8,9 @@ module only maps fields:
   ``header.stamp`` = start of the key's slot.
 * schedule ↔ ``std_msgs/Float64MultiArray``: ``layout.dim = [meta(4), x(n), power_w(n)]``, plus
   ``gain_threshold(n)`` when it carries the in-slot rule (+inf sent as −1).
-* ledger row, loss sample and channel sample ↔ ``std_msgs/Float64MultiArray``: ``layout.dim =
-  [ledger(13)]`` / ``[loss_sample(5)]`` / ``[channel_sample(3)]`` (an empty layout is accepted too).
+* ledger row, loss sample, channel sample and MR slot info ↔ ``std_msgs/Float64MultiArray``: ``layout.dim =
+  [ledger(13)]`` / ``[loss_sample(5)]`` / ``[channel_sample(3)]`` / ``[mr_slot_info(6)]`` (an empty layout is
+  accepted too).
 * raw image ↔ ``sensor_msgs/Image``: our in-process images are H×W×3 ``uint8`` RGB; the pixel work
   is :mod:`gsrmr_common.image_bridge` (``cv_bridge`` where a ROS install has it, else the project's
   own conversion with the same semantics). ``image_from_msg`` accepts ``rgb8``, ``bgr8``, ``rgba8``,
@@ -48,7 +49,7 @@ _RGB_SOURCE_ENCODINGS = frozenset({"rgb8", "bgr8", "rgba8", "bgra8", "mono8", "m
 
 
 # QoS of the robot ↔ workstation topics (camera and odometry inputs use the sensor-data profile).
-#: pose keys, ledger rows, loss samples: reliable, a few seconds of slots queued.
+#: pose keys, ledger rows, loss samples, MR slot infos: reliable, a few seconds of slots queued.
 UPLINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 #: JPEG uploads: reliable, depth 10 (each is 5–40 kB).
 IMAGE_UPLOAD_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -181,6 +182,18 @@ def channel_sample_from_msg(msg: Float64MultiArray) -> wire.ChannelSample:
     """``Float64MultiArray`` → channel sample; ValueError if it does not parse."""
     _check_flat_layout(msg, "channel_sample")
     return wire.ChannelSample.from_data(np.asarray(msg.data, dtype=np.float64))
+
+
+def mr_slot_info_to_msg(info: wire.MRSlotInfo) -> Float64MultiArray:
+    """MR slot info → ``Float64MultiArray`` (``layout.dim = [mr_slot_info(6)]``: slot, source, a_m, b_m, theta_rad,
+    content_time_s; see :class:`gsrmr_common.wire.MRSlotInfo`)."""
+    return _flat_record_msg("mr_slot_info", info.to_data())
+
+
+def mr_slot_info_from_msg(msg: Float64MultiArray) -> wire.MRSlotInfo:
+    """``Float64MultiArray`` → MR slot info; ValueError if it does not parse."""
+    _check_flat_layout(msg, "mr_slot_info")
+    return wire.MRSlotInfo.from_data(np.asarray(msg.data, dtype=np.float64))
 
 
 def image_to_msg(rgb: np.ndarray, stamp_ns: int, frame_id: str) -> Image:

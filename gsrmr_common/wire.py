@@ -21,16 +21,36 @@ frame. The robot also sends the pose key in image slots (192 extra bits) so the 
 GS loss L_t at that pose.
 
 Schedule: ``std_msgs/Float64MultiArray``; ``data`` = ``[first_slot, slot_s, seq, slots]`` followed by
-``x[slots]`` (0 = pose key, 1 = image) and ``power_w[slots]`` (transmit power, watts). ``layout.dim``
-labels the three consecutive blocks ``meta``, ``x``, ``power_w`` with their sizes (``stride`` = size).
-``first_slot`` is an absolute slot index (exact in float64 up to 2^53).
+``x[slots]`` (0 = pose key, 1 = image), ``power_w[slots]`` (transmit power, watts) and, when the scheduler
+sends the in-slot rule, ``gain_threshold[slots]`` (send an image iff the radio's measured gain g_t ≥ the
+threshold; dimensionless |h|², +inf sent as −1). ``layout.dim`` labels the consecutive blocks ``meta``,
+``x``, ``power_w`` (and ``gain_threshold``) with their sizes (``stride`` = size). ``first_slot`` is an
+absolute slot index (exact in float64 up to 2^53).
 
-Ledger row (one per slot, robot → server, ``gsrmr/ledger``): ``std_msgs/Float64MultiArray`` whose
-``data`` are the fields of :class:`LedgerRow` in :data:`LEDGER_FIELDS` order.
+Ledger row (one per slot, robot → server and scheduler, ``gsrmr/ledger``): ``std_msgs/Float64MultiArray``
+whose ``data`` are the fields of :class:`LedgerRow` in :data:`LEDGER_FIELDS` order: ``[slot, x,
+scheduled_power_w, bits_sent, gain, power_w, energy_j, upload_all_bits, upload_all_energy_j, frame_stamp_s,
+round_slot, held_back, uplink_rate_bps]`` (W, J, s, bit/s; ``round_slot`` the radio's index of the slot in
+the round, −1 unknown; ``held_back`` 1 when an image was asked for and only the key was sent, the last image
+still unacknowledged; ``uplink_rate_bps`` the robot's throughput estimate from image acknowledgements, NaN
+without one).
+
+Channel sample (the radio → robot, ``radio/channel_gain``, before the slot starts): ``std_msgs/Float64MultiArray``
+with ``data = [slot, round_slot, gain]`` (:class:`ChannelSample`).
 
 Loss sample (server → scheduler, ``gsrmr/loss_sample``): ``std_msgs/Float64MultiArray`` with
 ``data = [slot, a_m, b_m, theta_rad, loss]`` (:class:`LossSample`): the GS loss L_t measured in an image
 slot at the pose the robot reported.
+
+MR slot info (server → any monitor, ``mr/slot_info``, published right after each ``mr/image``):
+``std_msgs/Float64MultiArray`` with ``data = [slot, source, a_m, b_m, theta_rad, content_time_s]``
+(:class:`MRSlotInfo`, ``layout.dim = [mr_slot_info(6)]``): ``source`` is the index of the slot's
+:class:`RealSource` in :data:`REAL_SOURCES` (0 image, 1 render, 2 fallback, 3 none); ``a_m, b_m, theta_rad``
+the pose in ``map`` the MR image was composed at — the slot's pose key, or the fallback estimate when the key
+was missing; NaN ×3 when the server had no pose at all (source ``none``) —; ``content_time_s`` the MR content
+time (seconds since the first composed slot) the virtual agents were drawn at. Deployment telemetry: with the
+model, the MR content, the camera mount and the intrinsics a monitor follows the server's decisions and can
+rebuild the slot's virtual view v and mask d (:class:`gsrmr_server.scoring.SlotScorer`).
 
 Names that cross a boundary as strings (CSV cells, diagnostics JSON, the demo summary) are enums here:
 :class:`Delivery` (what reached the server), :class:`RealSource` (where the server's real-view estimate
@@ -187,6 +207,57 @@ class LossSample:
         return cls(int(arr[0]), float(arr[1]), float(arr[2]), float(arr[3]), float(arr[4]))
 
 
+MR_SLOT_INFO_FIELDS = ("slot", "source", "a_m", "b_m", "theta_rad", "content_time_s")
+#: Topic (relative: in the server's namespace) of the per-slot :class:`MRSlotInfo`, published after ``mr/image``.
+MR_SLOT_INFO_TOPIC = "mr/slot_info"
+
+
+@dataclass(frozen=True)
+class MRSlotInfo:
+    """What the server composed slot ``slot``'s MR image from (see the module docstring): where r̂ came from,
+    the pose it was composed at (map, m, rad; NaN without one) and the MR content time [s]."""
+
+    slot: int
+    source: RealSource
+    a_m: float
+    b_m: float
+    theta_rad: float
+    content_time_s: float
+
+    @classmethod
+    def of(cls, slot: int, source: RealSource, pose: PoseKey | None, content_time_s: float) -> MRSlotInfo:
+        """The record of a slot composed from ``source`` at ``pose`` (None: no pose) and ``content_time_s``."""
+        a, b, th = (pose.a_m, pose.b_m, pose.theta_rad) if pose is not None else (math.nan,) * 3
+        return cls(int(slot), RealSource(source), float(a), float(b), float(th), float(content_time_s))
+
+    @property
+    def pose(self) -> PoseKey | None:
+        """The pose the MR image was composed at, as a key of this slot (None when there was none)."""
+        key = PoseKey(self.slot, self.a_m, self.b_m, self.theta_rad)
+        return key if key.is_valid() else None
+
+    def to_data(self) -> list[float]:
+        """Flat float64 list for ``Float64MultiArray.data`` (:data:`MR_SLOT_INFO_FIELDS` order)."""
+        return [float(self.slot), float(REAL_SOURCES.index(self.source)), self.a_m, self.b_m, self.theta_rad,
+                self.content_time_s]
+
+    @classmethod
+    def from_data(cls, data: list[float] | np.ndarray) -> MRSlotInfo:
+        """Parse ``Float64MultiArray.data``; ValueError unless 6 values with a finite slot, a known source,
+        a finite content time and a pose that is finite (NaN ×3 only for source ``none``)."""
+        arr = np.asarray(data, dtype=np.float64)
+        if arr.shape != (len(MR_SLOT_INFO_FIELDS),) or not np.all(np.isfinite(arr[[0, 1, 5]])):
+            raise ValueError(f"MR slot info: expected {len(MR_SLOT_INFO_FIELDS)} values {MR_SLOT_INFO_FIELDS} "
+                             "with a finite slot, source and content time")
+        if arr[1] not in range(len(REAL_SOURCES)):
+            raise ValueError(f"MR slot info: source {arr[1]} is not an index of {[str(s) for s in REAL_SOURCES]}")
+        source = REAL_SOURCES[int(arr[1])]
+        pose = arr[2:5]
+        if not (np.all(np.isfinite(pose)) or (source == RealSource.NONE and np.all(np.isnan(pose)))):
+            raise ValueError("MR slot info: the pose must be finite (NaN ×3 only for source none)")
+        return cls(int(arr[0]), source, float(pose[0]), float(pose[1]), float(pose[2]), float(arr[5]))
+
+
 CHANNEL_SAMPLE_FIELDS = ("slot", "round_slot", "gain")
 #: Topic (relative, so it lands in the robot's namespace) of the radio's per-slot channel measurement.
 CHANNEL_TOPIC = "radio/channel_gain"
@@ -266,6 +337,10 @@ class RealSource(WireName):
     RENDER = "render"  # the GS render at the slot's pose key
     FALLBACK = "fallback"  # the GS render at the best pose estimate (upload missing, late or refused)
     NONE = "none"  # no pose ever received: the background colour
+
+
+#: The sources in their wire order (the ``source`` index of :class:`MRSlotInfo`).
+REAL_SOURCES = tuple(RealSource)
 
 
 class UplinkFault(WireName):

@@ -22,30 +22,28 @@ the driver's topic) is republished on ``uplink/camera_info`` (reliable, transien
 latched, a server started later still gets it) whenever it changes (K, D, width, height, distortion
 model or frame_id; the stamp alone is no change), so the server knows the intrinsics of the images.
 
-TF (REP-105, frames of :mod:`gsrmr_common.tf_tree`): where ``tf2_ros`` imports (a ROS install) the node
-publishes on ``/tf_static`` ``map → odom`` from ``map_from_odom`` (re-sent when the parameter changes)
-and ``base_link → camera_frame_id`` from the ``camera_mount.*`` parameters; ``odom → base_link`` comes
-from the base driver (``gsrmr-limo-base`` with ``publish_tf``). Without ``tf2_ros`` it logs once, at
-INFO, that no TF is published.
+TF (REP-105, frames of :mod:`gsrmr_common.tf_tree`): where ``tf2_ros`` imports (a ROS install,
+:func:`gsrmr_common.tf_ros.load_tf2_ros`) the node publishes on ``/tf_static`` ``map → odom`` from
+``map_from_odom`` (re-sent when the parameter changes) and ``base_link → camera_frame_id`` from the
+``camera_mount.*`` parameters; ``odom → base_link`` comes from the base driver (``gsrmr-limo-base`` with
+``publish_tf``). Without ``tf2_ros`` it logs once, at INFO, that no TF is published.
 
 What to send in a slot and its energy are decided by the pure slot core
 (:class:`gsrmr_robot.uplink_core.UplinkCore`: the energy ledger under the link model of
 :mod:`gsrmr_common.link_model`); the node publishes each slot's ledger row on ``gsrmr/ledger``
 (``std_msgs/Float64MultiArray``, fields :data:`gsrmr_common.wire.LEDGER_FIELDS`) and totals on
-``/diagnostics`` once a second. Live parameters (:class:`RobotParameters`) are checked in the on-set
-callback and applied in the post-set callback.
+``/diagnostics`` once a second. Its parameters (:class:`gsrmr_robot.robot_params.RobotParameters`) are
+checked in the on-set callback and applied in the post-set callback.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 import math
 import threading
-from types import ModuleType
 
-from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import TransformStamped, Vector3Stamped
+from geometry_msgs.msg import Vector3Stamped
 from nav_msgs.msg import Odometry
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
@@ -55,12 +53,12 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray
 
-from gsrmr_common.link_model import SLOT_S
+from gsrmr_common.interrupts import console_main
 from gsrmr_common.ros_node import (
     aligned_timer,
-    declare,
     declare_camera_mount,
     declare_link_budget,
+    declare_parameters,
     diagnostics_msg,
     run_node,
 )
@@ -78,73 +76,13 @@ from gsrmr_common.ros_wire import (
     stamp_to_ns,
 )
 from gsrmr_common.slot_clock import SlotClock, SlotTicker
-from gsrmr_common.tf_tree import (
-    BASE_FRAME,
-    CAMERA_OPTICAL_FRAME,
-    MAP_FRAME,
-    ODOM_FRAME,
-    Transform,
-    base_from_camera_optical_transform,
-    map_from_odom_transform,
-)
+from gsrmr_common.tf_ros import load_tf2_ros, transform_to_msg
+from gsrmr_common.tf_tree import MAP_FRAME, base_from_camera_optical_transform, map_from_odom_transform
 from gsrmr_common.wire import CHANNEL_TOPIC, ScheduleMsg
 from gsrmr_robot.dds_profile import use_uplink_profile
+from gsrmr_robot.robot_params import RobotParameters
 from gsrmr_robot.uplink_backlog import UplinkBacklog
 from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, odom_to_map
-
-
-@dataclass(frozen=True)
-class RobotParameters:
-    """The robot node's live parameters (ROS names; units in the names)."""
-
-    jpeg_quality: int = 80  # JPEG quality of uploaded images, 1–100
-    default_upload_image: bool = True  # upload the image in slots no schedule covers
-    max_frame_age_s: float = 0.5  # older camera frames are not uploaded
-    map_from_odom: tuple[float, float, float] = (0.0, 0.0, 0.0)  # pose of odom in map [a_m, b_m, theta_rad]
-    camera_frame_id: str = CAMERA_OPTICAL_FRAME  # frame of uploaded images (the camera's optical frame)
-    hold_images_while_queued: bool = True  # send the key only while the last image is unacknowledged
-    uplink_ack_stale_s: float = 1.0  # an image unacknowledged this long no longer holds the next one back [s]
-
-    @staticmethod
-    def problem(name: str, value: object) -> str | None:
-        """Why ``value`` cannot be set for ``name`` beyond its descriptor's range, or None."""
-        if name == "map_from_odom":
-            v = list(value)  # type: ignore[call-overload]
-            if len(v) != 3 or not all(math.isfinite(x) for x in v):
-                return "map_from_odom must be 3 finite numbers [a_m, b_m, theta_rad]"
-        if name == "camera_frame_id" and not str(value):
-            return "camera_frame_id must not be empty"
-        return None
-
-    def with_values(self, values: dict[str, object]) -> RobotParameters:
-        """A copy with the given parameters (names of this class's fields; others ignored)."""
-        known = {k: (tuple(v) if k == "map_from_odom" else v) for k, v in values.items()
-                 if k in self.__dataclass_fields__}
-        return replace(self, **known)
-
-
-def load_tf2_ros() -> tuple[ModuleType | None, str]:
-    """``(tf2_ros, "")`` where tf2_ros imports (a ROS 2 install), else ``(None, why)``.
-
-    The one guarded import of tf2_ros (the PyPI wheels this project also runs on do not ship it).
-    """
-    try:
-        import tf2_ros
-    except ImportError as err:
-        return None, f"tf2_ros does not import ({err})"
-    return tf2_ros, ""
-
-
-def transform_to_msg(parent_frame: str, child_frame: str, transform: Transform, stamp: Time) -> TransformStamped:
-    """``geometry_msgs/TransformStamped``: the pose of ``child_frame`` in ``parent_frame`` (metres, unit quaternion)."""
-    msg = TransformStamped()
-    msg.header.stamp = stamp
-    msg.header.frame_id = parent_frame
-    msg.child_frame_id = child_frame
-    t, q = msg.transform.translation, msg.transform.rotation
-    t.x, t.y, t.z = transform.translation
-    q.x, q.y, q.z, q.w = transform.rotation
-    return msg
 
 
 def camera_info_key(msg: CameraInfo) -> tuple:
@@ -163,37 +101,11 @@ class RobotNode(Node):
 
     def __init__(self, **node_kwargs) -> None:
         super().__init__("gsrmr_robot", **node_kwargs)
-        self.slot_s = declare(self, "slot_s", SLOT_S, "Slot length τ [s]; must equal the server's", min_value=0.01,
-                              max_value=10.0, read_only=True)
-        d = RobotParameters()
-        self.params = RobotParameters(
-            jpeg_quality=declare(self, "jpeg_quality", d.jpeg_quality, "JPEG quality of uploaded images (1-100)",
-                                 min_value=1, max_value=100),
-            default_upload_image=declare(self, "default_upload_image", d.default_upload_image,
-                                         "Upload the image in slots no schedule covers"),
-            max_frame_age_s=declare(self, "max_frame_age_s", d.max_frame_age_s,
-                                    "Older camera frames are not uploaded [s]", min_value=0.0, max_value=10.0),
-            map_from_odom=tuple(declare(self, "map_from_odom", list(d.map_from_odom),
-                                        "Pose of the odom frame in map: [a_m, b_m, theta_rad]")),
-            camera_frame_id=declare(self, "camera_frame_id", d.camera_frame_id, "Frame of uploaded images: the "
-                                    "camera's optical frame (x right, y down, z forward)"),
-            hold_images_while_queued=declare(
-                self, "hold_images_while_queued", d.hold_images_while_queued,
-                "Send the pose key only (ledger held_back = 1) when the schedule asks for an image while the last "
-                "one is still unacknowledged by the server (queued on the link)"),
-            uplink_ack_stale_s=declare(
-                self, "uplink_ack_stale_s", d.uplink_ack_stale_s, "An image unacknowledged this long no longer "
-                "holds the next one back [s]", min_value=0.05, max_value=60.0))
-        problem = next((msg for name in ("map_from_odom", "camera_frame_id")
-                        if (msg := RobotParameters.problem(name, getattr(self.params, name)))), None)
-        if problem:
-            raise ValueError(problem)
-        self.odom_frame = declare(self, "odom_frame_id", ODOM_FRAME, "Odometry frame (child of map in TF)",
-                                  read_only=True)
-        self.base_frame = declare(self, "base_frame_id", BASE_FRAME, "Robot body frame (parent of the camera in TF)",
-                                  read_only=True)
-        self.mount = declare_camera_mount(self)
-        self.link = declare_link_budget(self)
+        self.params: RobotParameters = replace(declare_parameters(self, RobotParameters),
+                                               camera_mount=declare_camera_mount(self), link=declare_link_budget(self))
+        p = self.params
+        self.slot_s, self.odom_frame, self.base_frame = p.slot_s, p.odom_frame_id, p.base_frame_id
+        self.mount, self.link = p.camera_mount, p.link
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._after_set)
         self.clock = SlotClock(self.slot_s)
@@ -257,9 +169,10 @@ class RobotNode(Node):
                              base_from_camera_optical_transform(self.mount), stamp)])
 
     def _validate(self, params) -> SetParametersResult:
-        """On-set: refuse what the descriptors cannot express; change nothing."""
+        """On-set: refuse a change :class:`RobotParameters` gives a reason for (read-only, type, range, an empty
+        frame, a map_from_odom that is no pose); change nothing."""
         for p in params:
-            problem = RobotParameters.problem(p.name, p.value)
+            problem = RobotParameters.change_problem(p.name, p.value)
             if problem:
                 return SetParametersResult(successful=False, reason=problem)
         return SetParametersResult(successful=True)
@@ -399,6 +312,7 @@ class RobotNode(Node):
             values={**totals, **extra}, problems=["missing frames or pose"] if self.no_frame or self.no_pose else []))
 
 
+@console_main
 def main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-robot`` (the uplink DDS profile unless one is set: :mod:`gsrmr_robot.dds_profile`)."""
     use_uplink_profile()

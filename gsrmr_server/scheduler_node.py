@@ -1,6 +1,6 @@
 """The scheduler node (``gsrmr-scheduler``): solves P_GS online and publishes the schedule.
 
-Replans (see :class:`~gsrmr_server.horizon.OnlinePlanner`) every ``replan_period_s``, on
+Replans (see :class:`~gsrmr_server.planner.OnlinePlanner`) every ``replan_period_s``, on
 ``/gsrmr/replan`` (``std_srvs/Trigger``, relative name ``gsrmr/replan``), after any accepted parameter
 change, and by itself when measured losses drift from the prediction by more than ``drift_threshold``.
 
@@ -13,8 +13,10 @@ at start, so a restarted scheduler resumes from its last schedule.
 
 Parameters: :class:`~gsrmr_server.scheduler_params.SchedulerParameters` (``self.params``); a change is
 checked in the on-set callback (read-only ones, values out of range or of the wrong type, an unknown
-``method``, ``solver_options`` that are no JSON object are refused with the reason) and applied in the
-post-set callback.
+``method``, ``solver_options`` that are no JSON object, values the planner's configuration refuses — e.g.
+``image_bits`` ≤ ``pose_bits`` — are refused with the reason) and applied in the post-set callback: a planning
+parameter builds a new :class:`~gsrmr_server.planner.PlannerConfig` (:meth:`SchedulerParameters.planner_config`)
+that the planner takes with :meth:`~gsrmr_server.planner.OnlinePlanner.reconfigure`.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
+from gsrmr_common.interrupts import console_main
 from gsrmr_common.ros_node import declare_link_budget, declare_parameters, diagnostics_msg, run_node
 from gsrmr_common.ros_wire import (
     SCHEDULE_QOS,
@@ -47,9 +50,10 @@ from gsrmr_common.ros_wire import (
 )
 from gsrmr_common.slot_clock import SlotClock
 from gsrmr_common.wire import CHANNEL_TOPIC, ScheduleMsg
-from gsrmr_server.horizon import OnlinePlanner, PlanResult, RoutePredictor
 from gsrmr_server.loss_map import LossMap
+from gsrmr_server.planner import OnlinePlanner, PlanResult, RoutePredictor
 from gsrmr_server.scheduler_params import PLANNING_PARAMETERS, SchedulerParameters
+from gsrmr_server.scheduling import Problem, exact, solve
 
 
 class SchedulerNode(Node):
@@ -63,12 +67,8 @@ class SchedulerNode(Node):
         self.clock = SlotClock(p.slot_s)
         # Load the compiled knapsack kernel now (1–2 s from the numba cache, ~8 s cold) rather than in the
         # first replan, so the first schedule follows start-up at once.
-        from gsrmr_server.scheduling import exact
-
         self.get_logger().info(f"knapsack kernel ready in {exact.warm_up():.2f} s")
         if p.method != "exact":  # the method's own first call too (APO imports CVXPY: ~1 s)
-            from gsrmr_server.scheduling import Problem, solve
-
             t0 = time.perf_counter()
             solve(Problem(channel_gain=np.array([1e-6, 2e-6, 3e-6, 4e-6]), gs_loss=np.array([0.04, 0.01, 0.03, 0.02]),
                           loss_threshold=0.012), p.method, **p.options)
@@ -80,19 +80,8 @@ class SchedulerNode(Node):
                 loss_map = LossMap.load(candidate)
                 self.get_logger().info(f"loss map loaded from {candidate} ({len(loss_map.cells)} cells)")
                 break
-        self.planner = OnlinePlanner(RoutePredictor(p.waypoints, p.route_speed_mps), loss_map,
-                                     p.link, slot_s=p.slot_s, image_bits=p.image_bits,
-                                     pose_bits=p.pose_bits, loss_threshold=p.loss_threshold,
-                                     horizon=p.horizon, method=p.method, options=p.options,
-                                     drift_threshold=p.drift_threshold, drift_window=p.drift_window,
-                                     loss_margin=p.loss_margin, oracle_channel=p.oracle_channel,
-                                     in_slot_decision=p.in_slot_decision, rician_k=p.link.rician_k,
-                                     calibrate=p.calibrate_loss_map, explore_image_fraction=p.explore_image_fraction,
-                                     loss_model=p.loss_model, margin_quantile=p.margin_quantile,
-                                     burst_time_constant_slots=p.burst_time_constant_slots,
-                                     probe_gap_slots=p.probe_gap_slots, round_slots=p.round_slots,
-                                     image_slot_loss=(p.image_slot_loss if p.image_slot_loss >= 0
-                                                      else loss_map.image_loss or 0.0))
+        self.planner = OnlinePlanner(p.planner_config(loss_map), RoutePredictor(p.waypoints, p.route_speed_mps),
+                                     loss_map, p.link)
         self._lock = threading.RLock()
         self._pose: tuple[float, float, float] | None = None
         self._replan_reason: str | None = "start"
@@ -134,31 +123,35 @@ class SchedulerNode(Node):
             return
         if sample.round_slot >= 0 and self.planner.round_start_slot is None:
             with self._lock:
-                self.planner.round_start_slot = sample.slot - sample.round_slot
+                self.planner.learn_round_start(sample.slot - sample.round_slot)
             self._request("channel round start")
 
     # ---------------------------------------------------------------- parameters
     def _validate(self, params: list[Parameter]) -> SetParametersResult:
         """On-set: refuse a change :class:`SchedulerParameters` gives a reason for (type, range, read-only,
-        method, solver_options); change nothing."""
+        method, solver_options) or the planner's configuration refuses (image_bits ≤ pose_bits); change
+        nothing."""
         for param in params:
             reason = SchedulerParameters.change_problem(param.name, param.value)
             if reason:
                 return SetParametersResult(successful=False, reason=reason)
+        if any(param.name in PLANNING_PARAMETERS for param in params):
+            try:
+                self.params.with_values({param.name: param.value for param in params}).planner_config(
+                    self.planner.loss_map)
+            except ValueError as err:
+                return SetParametersResult(successful=False, reason=str(err))
         return SetParametersResult(successful=True)
 
     def _apply(self, params: list[Parameter]) -> None:
-        """Post-set: take the accepted values into ``self.params``; hand planning ones to the planner and
-        request a replan; re-time the replan timer for ``replan_period_s``."""
+        """Post-set: take the accepted values into ``self.params``; a planning one gives the planner a new
+        configuration and requests a replan; ``replan_period_s`` re-times the replan timer."""
         names = {param.name for param in params}
         changed = [param.name for param in params if param.name in PLANNING_PARAMETERS]
         with self._lock:
             self.params = self.params.with_values({param.name: param.value for param in params})
-            for name in changed:
-                if name == "solver_options":
-                    self.planner.options = self.params.options
-                else:
-                    setattr(self.planner, name, getattr(self.params, name))
+            if changed:
+                self.planner.reconfigure(self.params.planner_config(self.planner.loss_map))
         if "replan_period_s" in names:
             self._replan_timer.timer_period_ns = round(self.params.replan_period_s * 1e9)
         if changed:
@@ -230,10 +223,11 @@ class SchedulerNode(Node):
         cap = self.planner.last_image_cap
         if (cap is None) != (self._logged_cap is None) or (cap is not None and abs(cap - self._logged_cap) >= 0.05):
             self._logged_cap = cap
+            link_cap = self.planner.link_cap
             self.get_logger().info(
                 "uplink image cap: image_cap=none (the link carries an image per slot)" if cap is None else
-                f"uplink image cap: image_cap={cap:.3f} ({self.planner.images_held_back()} held back in the last "
-                f"slots, {_ratio(self.planner.image_delivery_ratio())} of the last images composed in their slot; "
+                f"uplink image cap: image_cap={cap:.3f} ({link_cap.images_held_back()} held back in the last "
+                f"slots, {_ratio(link_cap.delivery_ratio())} of the last images composed in their slot; "
                 "the plan keeps the images saving the most loss per joule)")
         if reason != "period":
             self.get_logger().info(f"replan ({reason}): {self._summary(result, changed)}")
@@ -267,7 +261,7 @@ class SchedulerNode(Node):
         tmp.replace(state / "schedule.json")
         self.planner.loss_map.save(state / "loss_map.json")
         stats = state / "plan_stats.json.tmp"  # every replan's solve time (bench/demo.py reads it)
-        stats.write_text(json.dumps({"method": self.planner.method, "solve_time_s": self.solve_times_s,
+        stats.write_text(json.dumps({"method": self.planner.config.method, "solve_time_s": self.solve_times_s,
                                      "slack_s": self.plan_slack_s}))
         stats.replace(state / "plan_stats.json")
 
@@ -282,27 +276,27 @@ class SchedulerNode(Node):
             return
         now_slot = self.clock.slot_at(self.get_clock().now().nanoseconds)
         if sched.lookup(now_slot + 1) is not None:
-            self.planner._active = sched
-            self.planner.seq = sched.seq
+            self.planner.resume(sched)
             self._pub.publish(schedule_to_msg(sched))
             self.get_logger().info(f"resumed schedule seq {sched.seq} from {state_dir}")
 
     def _publish_diagnostics(self) -> None:
         r = self.last
         p = self.planner
+        cfg, budget, lp = p.config, p.budget, p.forecast.model
         values = {"replans": json.dumps(self.replans), "loss_map_cells": len(p.loss_map.cells),
-                  "loss_spent": round(p.loss_spent, 6), "slots_accounted": p.slots_done,
-                  "loss_model": p.loss_model, "image_slot_loss": round(p.image_slot_loss, 6),
+                  "loss_spent": round(budget.loss_spent, 6), "slots_accounted": budget.slots_done,
+                  # what L_t is predicted by: the burst model, or the loss map as it is (the oracle's survey)
+                  "loss_model": "map" if lp is None else "burst", "image_slot_loss": round(cfg.image_slot_loss, 6),
                   # the image fraction the last plan was held to because the robot held images back (-1: none)
                   "link_image_cap": -1 if p.last_image_cap is None else round(p.last_image_cap, 4),
-                  "images_held_back": p.images_held_back(),
-                  "image_delivery_ratio": _ratio(p.image_delivery_ratio())}
-        if p.loss_model == "burst":
-            lp = p.loss_predictor
+                  "images_held_back": p.link_cap.images_held_back(),
+                  "image_delivery_ratio": _ratio(p.link_cap.delivery_ratio())}
+        if lp is not None:
             values.update({"loss_level_ratio": round(math.exp(lp.level), 4), "loss_margin_factor": round(lp.margin, 4),
                            "loss_burst_factor": round(lp.burst_factor, 4)})
-        if p.round_slots:
-            remaining = p.round_remaining(self.clock.slot_at(self.get_clock().now().nanoseconds) + 1)
+        if cfg.round_slots:
+            remaining = budget.round_remaining(self.clock.slot_at(self.get_clock().now().nanoseconds) + 1)
             values["round_slots_remaining"] = -1 if remaining is None else remaining
         if r is not None:
             values.update({"method": r.method, "horizon": len(r.schedule.x), "images": r.images,
@@ -317,6 +311,7 @@ def _ratio(value: float | None) -> str:
     return "n/a" if value is None else f"{value:.0%}"
 
 
+@console_main
 def main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-scheduler``."""
     return run_node(SchedulerNode, args)

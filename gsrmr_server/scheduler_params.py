@@ -16,13 +16,17 @@ from typing import Any
 
 from gsrmr_common.link_model import IMAGE_BITS, KEY_BITS, SLOT_S, LinkBudget
 from gsrmr_common.node_params import NodeParameters, ros_parameter
-from gsrmr_server.horizon import LOSS_MODELS
+from gsrmr_server.loss_map import LossMap
+from gsrmr_server.planner import PlannerConfig
 from gsrmr_server.scheduling import METHODS
 
-# Live parameters the plan depends on: a change updates the planner (same attribute names; solver_options →
-# options) and requests a replan.
+# Live parameters the plan depends on: a change builds a new planner configuration (planner_config) and requests
+# a replan.
 PLANNING_PARAMETERS = frozenset({"loss_threshold", "horizon", "method", "solver_options", "image_bits", "pose_bits",
                                  "drift_threshold", "drift_window", "loss_margin"})
+# In-slot rule: images in the better half of the fades until the L_t model holds this many measurements (the seed
+# map may be far off a round with changes)
+STARTUP_EXPLORE_SAMPLES = 3
 
 
 def route_waypoints(flat: list[float] | tuple[float, ...]) -> list[tuple[float, float]]:
@@ -85,16 +89,11 @@ class SchedulerParameters(NodeParameters):
     explore_image_fraction: float = ros_parameter(
         0.1, "In-slot rule: send an image at least when the slot's fade is in this best fraction (cheap images "
         "that keep measuring L_t)", min_value=0.0, max_value=1.0, read_only=True)
-    calibrate_loss_map: bool = ros_parameter(
-        True, "Scale the loss map's predictions by the median measured/predicted ratio of the last image slots",
-        read_only=True)
     oracle_channel: bool = ros_parameter(
-        False, "Plan with the simulator's future channel realisation (learnt from radio/channel_gain; "
-        "simulation only, an upper bound — a deployment plans with the channel's statistics)", read_only=True)
-    loss_model: str = ros_parameter(
-        "burst", "L_t predictor: 'burst' (seed map × an online correction that decays from the last "
-        "measurement, gsrmr_server.loss_predictor) or 'map' (seed map × a quantile of measured/predicted)",
-        constraints=f"one of {list(LOSS_MODELS)}", read_only=True)
+        False, "Plan with the simulator's future channel realisation (learnt from radio/channel_gain) and on the "
+        "loss map as it is (loss_map_file: a survey of the scored round; no burst correction, no learned margin); "
+        "simulation only, an upper bound — a deployment plans with the channel's statistics",
+        read_only=True)
     image_slot_loss: float = ros_parameter(
         -1.0, "MR loss an image slot leaves (its JPEG); −1 = the seed loss map's image_loss (measured on the "
         "mapping round), 0 without one", min_value=-1.0, max_value=1.0, read_only=True)
@@ -115,11 +114,9 @@ class SchedulerParameters(NodeParameters):
 
     @classmethod
     def rule(cls, name: str, value: Any) -> str | None:
-        """``method`` and ``loss_model`` from their lists, ``solver_options`` a JSON object, the route usable."""
+        """``method`` from its list, ``solver_options`` a JSON object, the route usable."""
         if name == "method" and value not in METHODS:
             return f"method {value!r} is not one of {list(METHODS)}"
-        if name == "loss_model" and value not in LOSS_MODELS:
-            return f"loss_model must be one of {list(LOSS_MODELS)}, got {value!r}"
         if name == "solver_options":
             return solver_options_problem(value)
         if name == "route_waypoints_m":
@@ -135,3 +132,20 @@ class SchedulerParameters(NodeParameters):
     def waypoints(self) -> list[tuple[float, float]]:
         """``route_waypoints_m`` as (x, y) pairs in map [m]."""
         return route_waypoints(self.route_waypoints_m)
+
+    def planner_config(self, loss_map: LossMap) -> PlannerConfig:
+        """The planner's configuration: the one place that maps these parameters onto
+        :class:`~gsrmr_server.planner.PlannerConfig`'s fields. ``image_slot_loss`` −1 takes the seed ``loss_map``'s
+        measured ``image_loss`` (0 without one); ``oracle_channel`` also plans on the loss map as it is
+        (``trust_loss_map``: the oracle's map is a survey of the scored round). Raises ValueError for values the
+        planner refuses (e.g. ``image_bits`` ≤ ``pose_bits``)."""
+        return PlannerConfig(
+            loss_threshold=self.loss_threshold, horizon_slots=self.horizon, slot_s=self.slot_s,
+            image_bits=self.image_bits, pose_bits=self.pose_bits, method=self.method, solver_options=self.options,
+            drift_threshold=self.drift_threshold, drift_window_samples=self.drift_window, loss_margin=self.loss_margin,
+            oracle_channel=self.oracle_channel, trust_loss_map=self.oracle_channel,
+            in_slot_decision=self.in_slot_decision, explore_image_fraction=self.explore_image_fraction,
+            startup_explore_samples=STARTUP_EXPLORE_SAMPLES, probe_gap_slots=self.probe_gap_slots,
+            image_slot_loss=(self.image_slot_loss if self.image_slot_loss >= 0 else loss_map.image_loss or 0.0),
+            burst_time_constant_slots=self.burst_time_constant_slots, margin_quantile=self.margin_quantile,
+            round_slots=self.round_slots)

@@ -3,6 +3,8 @@
 :class:`gsrmr_server.server_node.ServerNode` declares them, refuses a change :meth:`ServerParameters.change_problem`
 gives a reason for (on-set callback) and applies an accepted one by replacing its ``params`` (post-set callback).
 Live: ``process_delay_s``, ``measure_loss``, ``jpeg_quality``, ``max_backlog_slots``; the others are read-only.
+The server declares no simulation-only parameter: scoring its MR images against the simulator's truth is the
+simulation's scorer node (``gsrmr-sim-scorer``, :mod:`gsrmr_sim.world.scorer_node`).
 """
 
 from __future__ import annotations
@@ -33,16 +35,6 @@ class ServerParameters(NodeParameters):
         (0.5, 0.55, 0.6), "Colour where the GS model has no density (its training background), linear RGB in "
         "[0, 1]", read_only=True)
     measure_loss: bool = ros_parameter(True, "Render Φ(s_t) in image slots and publish the measured GS loss")
-    evaluate_ground_truth: bool = ros_parameter(False, "Simulation only: compare m̂_t with the true m_t built "
-                                                "from camera/image_raw", read_only=True)
-    hindsight_jpeg_quality: int = ros_parameter(
-        0, "Simulation only, with evaluate_ground_truth: also measure what the other choice would have given in "
-        "each slot (GS render, and the true frame as a JPEG of this quality = the robot's) for the hindsight "
-        "optimum; 0 = off", min_value=0, max_value=100, read_only=True)
-    ground_truth_dir: str = ros_parameter(
-        "", "Simulation only, with evaluate_ground_truth: read the true frames from this folder (the mock camera's "
-        "truth_dir, the simulation backplane) instead of subscribing to camera/image_raw, so raw frames stay off "
-        "a rate-limited uplink; '' = subscribe", read_only=True)
     record_dir: str = ros_parameter("", "Write slots.csv and MCAP here ('' = off)", read_only=True)
     jpeg_quality: int = ros_parameter(85, "JPEG quality of mr/image/compressed", min_value=1, max_value=100)
     max_backlog_slots: int = ros_parameter(
@@ -69,7 +61,3 @@ class ServerParameters(NodeParameters):
         """``render_threads`` as the renderer takes it: None = every core."""
         return self.render_threads or None
 
-    @property
-    def hindsight_jpeg_quality_or_off(self) -> int | None:
-        """``hindsight_jpeg_quality`` as the slot core takes it: None = off."""
-        return self.hindsight_jpeg_quality or None

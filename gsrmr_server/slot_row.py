@@ -1,7 +1,9 @@
 """One slot of the server's record (pure, light): the typed row behind ``slots.csv``.
 
 The CSV columns are this dataclass's fields in order (:data:`SLOT_ROW_COLUMNS`); the codec is
-:mod:`gsrmr_server.recording`. Units are in the names: seconds, watts, joules, metres, radians, ms.
+:mod:`gsrmr_server.recording`. :class:`SlotScore` is a slot's quality against a reference frame
+(:mod:`gsrmr_server.scoring`): in simulation the scorer's ``scores.csv``, which the demo's report joins in.
+Units are in the names: seconds, watts, joules, metres, radians, ms.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ class SlotRow:
     power_w: float | None = None  # transmit power the robot needed for what it sent
     bytes_sent: int | None = None
     energy_j: float | None = None
-    loss: float | None = None  # MR loss of m̂ against the true m (simulation only)
+    loss: float | None = None  # MR loss of m̂ against the true m (simulation: the scorer's, joined by the report)
     psnr_db: float | None = None
     ssim: float | None = None
     source: RealSource | None = None  # where r̂ came from
@@ -33,7 +35,8 @@ class SlotRow:
     gs_loss: float | None = None  # measured L_t (image slots with a key)
     energy_upload_all_j: float | None = None  # the same frame uploaded as an image (the RoboMR reference)
     channel_gain: float | None = None  # g = |h|² the robot's ledger booked the slot at (the radio's measurement)
-    # hindsight (what either choice would have given in this slot; evaluate_hindsight, simulation only):
+    # hindsight (what either choice would have given in this slot): energies from the robot's ledger row, losses
+    # from the simulation's scorer (joined by the report; the server leaves them empty):
     energy_image_j: float | None = None  # this slot's JPEG + key at channel_gain
     energy_key_j: float | None = None  # the key alone at channel_gain
     gs_truth_loss: float | None = None  # MR loss vs the truth of the composite from the GS render
@@ -45,3 +48,29 @@ class SlotRow:
 
 
 SLOT_ROW_COLUMNS = tuple(f.name for f in fields(SlotRow))
+
+
+@dataclass(frozen=True)
+class SlotScore:
+    """One slot's scores against a reference frame (:mod:`gsrmr_server.scoring`; None = not measured: no
+    reference, or hindsight off): the columns of ``slots.csv`` the simulation's scorer fills."""
+
+    slot: int
+    loss: float | None = None  # 3DGS image loss of m̂ against m
+    psnr_db: float | None = None
+    ssim: float | None = None
+    gs_truth_loss: float | None = None  # hindsight: the composite from the GS render at the slot's pose
+    image_truth_loss: float | None = None  # hindsight: the composite from the reference frame's JPEG
+
+    @property
+    def scored(self) -> bool:
+        """Whether m̂ was measured against a reference."""
+        return self.loss is not None
+
+    def columns(self) -> dict[str, float | None]:
+        """The scores by column name (:data:`SCORE_COLUMNS` but ``slot``)."""
+        return {name: getattr(self, name) for name in SCORE_COLUMNS[1:]}
+
+
+#: The columns of a slot's scores (``slot`` first): a subset of :data:`SLOT_ROW_COLUMNS`.
+SCORE_COLUMNS = tuple(f.name for f in fields(SlotScore))

@@ -18,6 +18,7 @@ import math
 import numpy as np
 
 from gsrmr_common import link_model as link
+from gsrmr_server.scheduling import Problem, solve
 
 
 @dataclass(frozen=True)
@@ -50,8 +51,6 @@ def hindsight_summary(rows: list[dict], loss_threshold: float) -> dict:
 
 def hindsight_optimum(energy_image_j, energy_key_j, image_loss, gs_loss, loss_threshold: float) -> Hindsight:
     """Exact 0/1 optimum (see the module docstring); inputs are per-slot arrays of one length."""
-    from gsrmr_server.scheduling import Problem, solve
-
     e_img, e_key = np.asarray(energy_image_j, float), np.asarray(energy_key_j, float)
     l_img, l_gs = np.asarray(image_loss, float), np.asarray(gs_loss, float)
     n = e_img.size

@@ -22,8 +22,12 @@ from pathlib import Path
 import shutil
 import time
 
+from gsrmr_common.nerfstudio import read_dataset
+from gsrmr_server.splatting.compact import CompactConfig, Compactor
 from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.train import HistoryRow, TrainConfig
+from gsrmr_server.splatting.train import HistoryRow, Trainer, holdout_split
+from gsrmr_server.splatting.train_config import TrainConfig
+from gsrmr_sim.world.recorder import record_round1, with_resolution
 from gsrmr_sim.world.scene import Scene, load_scene, resolve_scene_path
 
 CACHE_VERSION = 1  # bump when the pipeline changes what a recipe builds
@@ -53,8 +57,6 @@ class ModelRecipe:
 
     def recorded_scene(self) -> Scene:
         """The scene at the recording size."""
-        from gsrmr_sim.world.recorder import with_resolution
-
         return with_resolution(load_scene(self.scene), self.width, self.height)
 
 
@@ -88,9 +90,6 @@ def history_rows(history: list) -> list[dict]:
 def build_model(recipe: ModelRecipe, *, cache: str | Path | None = None, folder: str | Path | None = None,
                 log: Callable[[str], None] = print) -> BuiltModel:
     """Record round 1 and train (or load the cached result); exactly one of ``cache`` and ``folder``."""
-    from gsrmr_server.splatting.train import Trainer
-    from gsrmr_sim.world.recorder import record_round1
-
     if (cache is None) == (folder is None):
         raise ValueError("build_model: give either cache (reused by key) or folder (always built)")
     out = Path(folder) if folder is not None else Path(cache) / f"{recipe.scene}-{recipe.key()}"  # type: ignore[arg-type]
@@ -132,10 +131,6 @@ def compact_built(built: BuiltModel, recipe: ModelRecipe, max_psnr_drop_db: floa
     (:mod:`gsrmr_server.splatting.compact`), cached beside it as ``model-compact-<tol>.ply`` +
     ``compact-<tol>.json``. The info also holds both models' held-out PSNR at the dataset's own (full)
     resolution, which is the live image size."""
-    from gsrmr_common.nerfstudio import read_dataset
-    from gsrmr_server.splatting.compact import CompactConfig, Compactor
-    from gsrmr_server.splatting.train import holdout_split
-
     tag = f"{max_psnr_drop_db:g}"
     path, info_path = built.folder / f"model-compact-{tag}.ply", built.folder / f"compact-{tag}.json"
     if path.exists() and info_path.exists():

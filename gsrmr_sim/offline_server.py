@@ -4,9 +4,9 @@ the live server, the survey (seed loss map) and the experiments.
 For slot t of a :class:`~gsrmr_sim.world.recorder.Round2Record` and a delivery (what reached the server),
 :class:`OfflineServer` builds the :class:`~gsrmr_server.uplink.SlotUploads` the robot would have produced,
 runs :meth:`gsrmr_server.slot_core.ServerCore.process` (the node's own composition: decode, render Φ,
-virtual view and mask from the GS depth, m̂ = d·r̂ + (1 − d)·v, 8-bit image) and
-:meth:`~gsrmr_server.slot_core.ServerCore.score` against the true frame r_t (the simulator's camera at the
-true pose), exactly as ``gsrmr-demo`` scores its slots:
+virtual view and mask from the GS depth, m̂ = d·r̂ + (1 − d)·v, 8-bit image) and scores it with
+:func:`gsrmr_server.scoring.score_slot` against the true frame r_t (the simulator's camera at the true pose),
+exactly as ``gsrmr-demo``'s scorer scores its slots:
 
 * ``image`` — the robot's JPEG of r_t (``jpeg_quality``: the robot's configured quality) and its pose key;
 * ``key``   — the pose key only: the pose the robot reports (``reported_poses``; the true pose if None);
@@ -29,8 +29,10 @@ from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.wire import PoseKey
 from gsrmr_server.mr.blend import mr_image
 from gsrmr_server.scheduling.problem import IMAGE, KEY, NONE
+from gsrmr_server.scoring import score_slot
 from gsrmr_server.server_params import ServerParameters
 from gsrmr_server.slot_core import SlotOutcome, build_server_core
+from gsrmr_server.slot_row import SlotScore
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.uplink import SlotUploads, UplinkAssembler
 from gsrmr_sim.world.recorder import Round2Record
@@ -87,10 +89,13 @@ class OfflineServer:
         return self._frame[1]
 
     def outcome(self, uploads: SlotUploads, best_pose: PoseKey | None) -> SlotOutcome:
-        """One slot composed and scored by the live core (``outcome.quality``, ``outcome.mr_u8``)."""
+        """One slot composed by the live core (``outcome.mr_u8``: m̂ as published)."""
         t = uploads.slot
-        out = self.core.process(uploads, best_pose, time_s=float(self._times[t]), stamp_s=float(self._times[t]))
-        return self.core.score(out, self.frame_u8(t))
+        return self.core.process(uploads, best_pose, time_s=float(self._times[t]), stamp_s=float(self._times[t]))
+
+    def score(self, outcome: SlotOutcome) -> SlotScore:
+        """A composed slot's scores against the true frame of its slot (the deployment's scoring library)."""
+        return score_slot(outcome.composed, outcome.mr_u8, self.frame_u8(outcome.composed.slot))
 
     def _scored(self, uploads: SlotUploads, best_pose: PoseKey | None) -> SlotQuality:
         """:meth:`outcome`'s scores, cached per (slot, what the server composes from)."""
@@ -98,10 +103,10 @@ class OfflineServer:
         k = (uploads.slot, uploads.jpeg is not None,
              None if shown is None else (round(shown.a_m, 9), round(shown.b_m, 9), round(shown.theta_rad, 9)))
         if k not in self._cache:
-            q = self.outcome(uploads, best_pose).quality
-            if q is None:
+            q = self.score(self.outcome(uploads, best_pose))
+            if not q.scored:
                 raise ValueError(f"slot {uploads.slot}: the recorded frame does not match the camera")
-            self._cache[k] = SlotQuality(float(q["loss"]), float(q["psnr_db"]), float(q["ssim"]))
+            self._cache[k] = SlotQuality(float(q.loss), float(q.psnr_db), float(q.ssim))  # type: ignore[arg-type]
         return self._cache[k]
 
     def quality(self, t: int, delivery: str, pose: str = REPORTED) -> SlotQuality:

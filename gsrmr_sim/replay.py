@@ -29,10 +29,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 import math
+import time
 
 import numpy as np
 
-from gsrmr_server.horizon import OnlinePlanner
+from gsrmr_server.planner import OnlinePlanner
 from gsrmr_sim.hindsight import hindsight_optimum
 
 
@@ -92,8 +93,8 @@ class ReplayResult:
 
 
 class TruthLossPredictor:
-    """Hindsight bound for studies only: the recorded truth L of every slot in place of the predictor
-    (``planner.loss_predictor = TruthLossPredictor(slots)``, with ``loss_model="burst"``). What the
+    """Hindsight bound for studies only: the recorded truth L of every slot in place of the burst model
+    (``OnlinePlanner(config, route, loss_map, link, loss_model=TruthLossPredictor(slots))``). What the
     planner would do if it knew L_t exactly — never available live."""
 
     margin = 1.0
@@ -109,17 +110,17 @@ class TruthLossPredictor:
         """Measurements add nothing to the truth."""
 
     def predict(self, slots: np.ndarray, _poses: np.ndarray) -> np.ndarray:
+        """The recorded truth of ``slots``."""
         return np.array([self._truth.get(int(k), self._default) for k in slots], np.float64)
 
     def estimate(self, slot: int, _pose: tuple[float, float, float]) -> float:
+        """The recorded truth of ``slot``."""
         return self._truth.get(int(slot), self._default)
 
 
 def replay(slots: list[RecordedSlot], planner: OnlinePlanner, *, loss_threshold: float, replan_every: int = 20,
            measurement_delay: int = 1, on_plan: Callable[[int, object], None] | None = None) -> ReplayResult:
     """Play ``slots`` through ``planner`` (a fresh :class:`OnlinePlanner`); see the module docstring."""
-    import time
-
     if replan_every < 1 or measurement_delay < 0:
         raise ValueError("replay: replan_every ≥ 1 and measurement_delay ≥ 0")
     x = np.zeros(len(slots), np.int8)

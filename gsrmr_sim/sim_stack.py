@@ -19,14 +19,13 @@ from typing import Any
 
 import yaml
 
-from gsrmr_common.link_model import LinkBudget, link_budget_from_parameters
+from gsrmr_common.link_model import LinkBudget
+from gsrmr_common.link_params import LinkParameters
+from gsrmr_sim.limo.mock import GROUND_TRUTH_TOPIC
 from gsrmr_sim.world.kinematics import start_pose
 from gsrmr_sim.world.scene import load_scene
 
 REPO_CONFIG = Path(__file__).resolve().parents[1] / "config"
-# The mock LIMO's true pose (gsrmr_sim.limo.mock_ros). Relative, so that each robot of a fleet has its own
-# (/robot2/sim/ground_truth/odom); a node in the root namespace resolves it to /sim/ground_truth/odom.
-GROUND_TRUTH_TOPIC = "sim/ground_truth/odom"
 
 
 def config_dir() -> Path:
@@ -63,12 +62,13 @@ class ProcessSpec:
 # priority, so that it takes the cores the system under test leaves idle instead of delaying the
 # server's slots; it still gets most of a core when the system idles.
 WORLD_NICE = 10
+# The scorer is bookkeeping, not the world: nothing waits for it during a round (it queues a round's slots and the
+# demo waits for it afterwards), so it takes only the CPU that the system and the world leave.
+SCORER_NICE = 19
 
 
 def robot_jpeg_quality(robot_yaml: str) -> int:
-    """The robot's JPEG quality from its parameter file (the server's hindsight encodes true frames alike)."""
-    import yaml
-
+    """The robot's JPEG quality from its parameter file (the scorer's hindsight encodes true frames alike)."""
     data = yaml.safe_load(Path(robot_yaml).read_text()) or {}
     for section in data.values():
         quality = (section or {}).get("ros__parameters", {}).get("jpeg_quality")
@@ -79,16 +79,16 @@ def robot_jpeg_quality(robot_yaml: str) -> int:
 
 def link_budget(link_yaml: str, channel_seed: int | None = None) -> LinkBudget:
     """The uplink a ``link.yaml`` describes (the robot's, the scheduler's and the simulated radio's), with
-    ``channel_seed`` overriding its fading seed (as ``gsrmr-demo --channel-seed`` does)."""
-    import yaml
-
+    ``channel_seed`` overriding its fading seed (as ``gsrmr-demo --channel-seed`` does): the file's values
+    go through the nodes' parameter table (:class:`~gsrmr_common.link_params.LinkParameters`: names, types,
+    ranges; ValueError for a value a node would refuse), missing ones take its defaults."""
     data = yaml.safe_load(Path(link_yaml).read_text()) or {}
     params: dict[str, Any] = {}
     for section in data.values():
         params.update((section or {}).get("ros__parameters", {}))
     if channel_seed is not None:
         params["channel_seed"] = int(channel_seed)
-    return link_budget_from_parameters(params)
+    return LinkParameters().with_values(params).budget()
 
 
 def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", loss_threshold: float = 0.03,
@@ -100,8 +100,9 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
 
     Each process says which machine it belongs to (``host``): the robot (base, camera, robot node and the
     simulated world that stands in for the robot's hardware and surroundings) or the server (server,
-    scheduler). ``truth_dir`` routes the server's ground-truth frames through that folder (the simulation
-    backplane, :mod:`gsrmr_common.truth_frames`) instead of over DDS, as two hosts need.
+    scheduler, and the simulation's scorer, which scores every MR image against the truth into
+    ``record_dir/scores.csv``). ``truth_dir`` routes the scorer's ground-truth frames through that folder (the
+    simulation backplane, :mod:`gsrmr_sim.truth_frames`) instead of over DDS, as two hosts need.
 
     ``channel_seed`` overrides ``config/link.yaml``'s for the simulated radio (and the scheduler, which
     only uses it with ``oracle_channel``: planning with the simulator's future fading, an upper bound).
@@ -116,6 +117,10 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
              "camera_mount.forward_m": m.forward_m, "camera_mount.left_m": m.left_m}
     over = overrides or {}
     seed = {} if channel_seed is None else {"channel_seed": int(channel_seed)}
+    # what the server composes with: the scorer rebuilds its slots with the same (and the server's overrides of it)
+    composition = {"mr_content": sc.mr_content, "background_rgb": [float(c) for c in sc.background], **mount,
+                   "model_path": model_path}
+    composition.update({k: v for k, v in over.get("gsrmr_server", {}).items() if k in composition})
     specs = [
         ProcessSpec("gsrmr-mock-limo", "gsrmr_mock_limo", ros=True,
                     arguments=["--link", link_path, f"--start-pose={a0},{b0},{t0}"], nice=WORLD_NICE),
@@ -128,18 +133,19 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
         ProcessSpec("gsrmr-robot", "gsrmr_robot", [link, robot],
                     {"map_from_odom": [a0, b0, t0], **mount}),
         ProcessSpec("gsrmr-server", "gsrmr_server", [link, server], host="server",
-                    params={"mr_content": sc.mr_content, "background_rgb": [float(c) for c in sc.background], **mount,
-                     "model_path": model_path, "record_dir": record_dir, "evaluate_ground_truth": True,
-                     "ground_truth_dir": truth_dir,
-                     "hindsight_jpeg_quality": robot_jpeg_quality(robot)}),
+                    params={**composition, "record_dir": record_dir}),
+        # the simulation's ground-truth scoring of the server's MR images, beside the server (scores.csv in its
+        # record_dir); composes as the server does, at the lowest priority (SCORER_NICE)
+        ProcessSpec("gsrmr-sim-scorer", "gsrmr_sim_scorer", [link], host="server", nice=SCORER_NICE,
+                    params={**composition, "record_dir": record_dir, "truth_dir": truth_dir,
+                            "hindsight_jpeg_quality": robot_jpeg_quality(robot)}),
         ProcessSpec("gsrmr-scheduler", "gsrmr_scheduler", [link, scheduler], host="server",
                     params={"route_waypoints_m": [float(v) for xy in sc.route.waypoints for v in xy],
                      "route_speed_mps": float(sc.route.speed_mps), "loss_threshold": loss_threshold, "method": method,
+                     # oracle_channel also plans on the loss map as it is: the oracle's map is a survey of the
+                     # scored round itself (the paper's "L_t known"), not corrected from the few images it sends
                      "loss_map_file": loss_map_file, "state_dir": state_dir, "oracle_channel": oracle_channel,
-                     "round_slots": int(sc.slots), **seed,
-                     # the oracle's loss map is a survey of the scored round itself: used as it is (the
-                     # paper's "L_t known"), not corrected from the few images its blind x sends
-                     **({"loss_model": "map", "calibrate_loss_map": False} if oracle_channel else {})}),
+                     "round_slots": int(sc.slots), **seed}),
     ]
     for spec in specs:
         spec.params.update(over.get(spec.name, {}))

@@ -1,11 +1,12 @@
 """GS losses L_t of a recorded round: what each slot would lose with Φ(s_t) instead of r_t.
 
 ``L_t = MR loss(m_t, m̂_t)`` with m̂_t the live server's composite of a key-only slot at the true pose s_t,
-and — with ``jpeg_quality`` — ``J_t``, the loss of an image slot (the robot's JPEG of r_t), both made and
-scored by the live slot core through :class:`~gsrmr_sim.offline_server.OfflineServer` (the one
-composition pipeline). This is the L_t the paper's optimisation assumes known; the experiments use it
-directly, and ``make demo`` uses it to seed the scheduler's loss map (a rehearsal of the operating round),
-which the running system then corrects online from the losses it measures in image slots.
+and — with ``jpeg_quality`` — ``J_t``, the loss of an image slot (the robot's JPEG of r_t), both made by the
+live slot core and scored by the deployment's scoring library (:mod:`gsrmr_server.scoring`) through
+:class:`~gsrmr_sim.offline_server.OfflineServer` (the one composition pipeline). This is the L_t the paper's
+optimisation assumes known; the experiments use it directly, and ``make demo`` uses it to seed the
+scheduler's loss map (a rehearsal of the operating round), which the running system then corrects online
+from the losses it measures in image slots.
 """
 
 from __future__ import annotations

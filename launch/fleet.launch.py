@@ -11,9 +11,9 @@ gsrmr_sim.sim_stack.fleet_stack (sim.launch.py's list once per robot), the one `
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
 
-from gsrmr_sim.sim_stack import fleet_stack, nice_prefix
+from gsrmr_sim.launch_nodes import launch_node
+from gsrmr_sim.sim_stack import fleet_stack
 
 
 def _nodes(context):
@@ -23,10 +23,7 @@ def _nodes(context):
                         record_dir=arg("record_dir"), loss_threshold=float(arg("loss_threshold")),
                         laps=int(arg("laps")), method=arg("method"), link_path=arg("serial_link"),
                         channel_seed=int(seed) if seed else None)
-    return [Node(package="gsrmr", executable=s.executable, name=s.name, namespace=s.namespace, output="screen",
-                 arguments=s.arguments, parameters=[*s.param_files, s.params] if s.params else s.param_files,
-                 remappings=s.remappings, prefix=" ".join(nice_prefix(s)) or None)
-            for s in specs]
+    return [launch_node(s) for s in specs]
 
 
 def generate_launch_description() -> LaunchDescription:

@@ -2,16 +2,17 @@
 
 ros2 launch gsrmr sim.launch.py model_path:=/path/to/sandbox.ply record_dir:=/tmp/gsrmr_run
 
-The process list comes from gsrmr_sim.sim_stack, the same definition `make demo` runs. Every
-config file is keyed ``/**`` and the launch arguments come after them, so the arguments always win.
+The process list comes from gsrmr_sim.sim_stack, the same definition `make demo` runs, each process a
+launch Node by gsrmr_sim.launch_nodes. Every config file is keyed ``/**`` and the launch arguments come
+after them, so the arguments always win.
 """
 
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
 
-from gsrmr_sim.sim_stack import nice_prefix, sim_stack
+from gsrmr_sim.launch_nodes import launch_node
+from gsrmr_sim.sim_stack import sim_stack
 
 
 def _nodes(context):
@@ -19,11 +20,7 @@ def _nodes(context):
     specs = sim_stack(scene=arg("scene"), model_path=arg("model_path"), record_dir=arg("record_dir"),
                       loss_threshold=float(arg("loss_threshold")), laps=int(arg("laps")), method=arg("method"),
                       link_path=arg("serial_link"))
-    namespace = arg("namespace")
-    return [Node(package="gsrmr", executable=s.executable, name=s.name, namespace=namespace, output="screen",
-                 arguments=s.arguments, parameters=[*s.param_files, s.params] if s.params else s.param_files,
-                 remappings=s.remappings, prefix=" ".join(nice_prefix(s)) or None)
-            for s in specs]
+    return [launch_node(s, namespace=arg("namespace")) for s in specs]
 
 
 def generate_launch_description() -> LaunchDescription:

@@ -3,16 +3,21 @@ robot books the radio's measured gain, the scheduler plans with statistics unles
 
 from __future__ import annotations
 
+from dataclasses import replace
+import itertools
 import math
 
 import numpy as np
 import pytest
 
 from gsrmr_common.link_model import LinkBudget
+from gsrmr_common.ros_wire import channel_sample_from_msg, channel_sample_to_msg
 from gsrmr_common.wire import ChannelSample
 from gsrmr_robot.uplink_core import SlotInputs, UplinkCore
-from gsrmr_server.horizon import OnlinePlanner, RoutePredictor
 from gsrmr_server.loss_map import LossMap
+from gsrmr_server.planner import OnlinePlanner, PlannerConfig, RoutePredictor
+from gsrmr_server.slot_price import DEEP_FADE_FRACTION, gain_thresholds, rician_power_samples, saving_coefficient_j
+from gsrmr_sim.hindsight import hindsight_optimum
 from gsrmr_sim.world.true_channel import TrueChannel
 
 
@@ -44,8 +49,6 @@ def test_same_seed_same_channel_whatever_the_wall_clock():
 
 
 def test_channel_sample_wire_round_trip_and_refusals():
-    from gsrmr_common.ros_wire import channel_sample_from_msg, channel_sample_to_msg
-
     s = ChannelSample(123, 4, 2.5e-6)
     assert channel_sample_from_msg(channel_sample_to_msg(s)) == s
     for bad in ([1.0, 2.0], [1.0, 0.0, 0.0], [1.0, 0.0, float("nan")]):
@@ -76,20 +79,18 @@ def test_robot_books_the_measured_gain_or_the_expected_one():
 def test_planner_uses_statistics_unless_it_is_the_oracle():
     link = LinkBudget(channel_seed=3)
     route = [(0.0, 0.0), (2.0, 0.0), (2.0, 2.0), (0.0, 2.0)]
-    kw = dict(slot_s=0.1, image_bits=67_200.0, pose_bits=192.0, loss_threshold=0.03, horizon=20)
-    honest = OnlinePlanner(RoutePredictor(route, 0.3), LossMap(prior=0.05), link, **kw)
-    poses = honest.predictor.predict((0.0, 0.0, 0.0), 20, 0.1)
+    config = PlannerConfig(loss_threshold=0.03, horizon_slots=20, slot_s=0.1, image_bits=67_200.0, pose_bits=192.0)
+    honest = OnlinePlanner(config, RoutePredictor(route, 0.3), LossMap(prior=0.05), link)
+    poses = honest.route.predict((0.0, 0.0, 0.0), 20, 0.1)
     np.testing.assert_allclose(honest.gains(1000, poses), [link.mean_gain(p[:2]) for p in poses])
-    oracle = OnlinePlanner(RoutePredictor(route, 0.3), LossMap(prior=0.05), link, oracle_channel=True, **kw)
-    oracle.round_start_slot = 990
+    oracle = OnlinePlanner(replace(config, oracle_channel=True), RoutePredictor(route, 0.3), LossMap(prior=0.05), link)
+    np.testing.assert_allclose(oracle.gains(1000, poses), honest.gains(1000, poses))  # round start not yet learnt
+    oracle.learn_round_start(990)
+    assert oracle.round_start_slot == 990
     np.testing.assert_allclose(oracle.gains(1000, poses), [link.gain(10 + i, p[:2]) for i, p in enumerate(poses)])
 
 
 def test_hindsight_optimum_is_the_brute_force_optimum():
-    import itertools
-
-    from gsrmr_sim.hindsight import hindsight_optimum
-
     rng = np.random.default_rng(5)
     for trial in range(20):
         n = 10
@@ -113,8 +114,6 @@ def test_hindsight_optimum_is_the_brute_force_optimum():
 
 
 def test_gain_thresholds_spend_the_loss_budget_in_expectation():
-    from gsrmr_server.slot_price import DEEP_FADE_FRACTION, gain_thresholds, rician_power_samples, saving_coefficient_j
-
     samples = rician_power_samples(1.0)
     assert samples.mean() == pytest.approx(1.0) and np.all(np.diff(samples) >= 0)
     c = saving_coefficient_j(67_200, 192, 0.1, 1e6, 1e-9)
@@ -146,9 +145,10 @@ def test_robot_decides_in_the_slot_and_the_planner_sends_thresholds():
     assert (good.x, bad.x, blind.x) == (1, 0, 1) and good.jpeg is not None and bad.jpeg is None
 
     route = [(0.0, 0.0), (2.0, 0.0), (2.0, 2.0), (0.0, 2.0)]
-    kw = dict(slot_s=0.1, image_bits=67_200.0, pose_bits=192.0, loss_threshold=0.03, horizon=30)
+    config = PlannerConfig(loss_threshold=0.03, horizon_slots=30, slot_s=0.1, image_bits=67_200.0, pose_bits=192.0,
+                           in_slot_decision=True)
     lm = LossMap(prior=0.05)
-    planner = OnlinePlanner(RoutePredictor(route, 0.3), lm, link, in_slot_decision=True, **kw)
+    planner = OnlinePlanner(config, RoutePredictor(route, 0.3), lm, link)
     plan = planner.plan(100, (0.0, 0.0, 0.0))
     thr = plan.schedule.gain_threshold
     assert thr is not None and thr.shape == (30,) and np.all(thr > 0) and planner.last_price > 0
@@ -157,7 +157,7 @@ def test_robot_decides_in_the_slot_and_the_planner_sends_thresholds():
     # key slots are charged by what the robot did: an image it chose in the slot costs no loss
     for k in range(101, 111):
         planner.record_action(k, 1)
-    planner.account_until(111)
-    assert planner.loss_spent == 0.0 and planner.slots_done == 10
-    oracle = OnlinePlanner(RoutePredictor(route, 0.3), lm, link, in_slot_decision=True, oracle_channel=True, **kw)
+    planner.budget.account_until(111, planner.active)
+    assert planner.budget.loss_spent == 0.0 and planner.budget.slots_done == 10
+    oracle = OnlinePlanner(replace(config, oracle_channel=True), RoutePredictor(route, 0.3), lm, link)
     assert oracle.plan(100, (0.0, 0.0, 0.0)).schedule.gain_threshold is None

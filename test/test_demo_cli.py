@@ -2,20 +2,26 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
-from gsrmr_common.truth_frames import TruthFrameReader, TruthFrameWriter
 from gsrmr_sim import demo
+from gsrmr_sim.link_events import parse_link_events
+import gsrmr_sim.netns as netns
+from gsrmr_sim.report import link_summary, write_report
+from gsrmr_sim.round_start import first_round_row
+from gsrmr_sim.truth_frames import TruthFrameReader, TruthFrameWriter
 
 
 def test_link_events_parse_and_refuse_nonsense():
-    events = demo.parse_link_events("down@100, up@120,rate=1.5@150")
+    events = parse_link_events("down@100, up@120,rate=1.5@150")
     assert [(e.at_slot, e.action, e.mbit) for e in events] == [(100, "down", 0.0), (120, "up", 0.0), (150, "rate", 1.5)]
     assert events[2].as_dict() == {"at_slot": 150, "action": "rate", "mbit": 1.5}
     for bad in ("down", "down@x", "rate@10", "up=3@10", "reboot@5"):
         with pytest.raises(ValueError):
-            demo.parse_link_events(bad)
+            parse_link_events(bad)
 
 
 def test_params_parse_as_yaml_values():
@@ -29,8 +35,6 @@ def test_params_parse_as_yaml_values():
 
 
 def test_two_hosts_without_root_exits_2_with_one_line(monkeypatch, capsys):
-    import gsrmr_sim.netns as netns
-
     monkeypatch.setattr(netns, "unavailable_reason", lambda: "needs root (network namespaces and veth pairs)")
     assert demo.main(["--hosts", "2"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -38,8 +42,6 @@ def test_two_hosts_without_root_exits_2_with_one_line(monkeypatch, capsys):
 
 
 def test_two_hosts_refuses_the_oracle_and_link_events_need_two_hosts(monkeypatch):
-    import gsrmr_sim.netns as netns
-
     monkeypatch.setattr(netns, "unavailable_reason", lambda: None)
     with pytest.raises(SystemExit):
         demo.main(["--hosts", "2", "--oracle"])
@@ -58,11 +60,32 @@ def test_link_summary_counts_what_crossed_between_start_and_end():
            "end": {"uplink": 1_251_000, "downlink": 20_500, "uplink_dropped": 7, "wall_s": 30.0},
            "events": [{"at_slot": 100, "action": "down"}]}
     rows = [{"bytes_sent": 24}, {"bytes_sent": 8000}, {"bytes_sent": None}]
-    got = demo.link_summary(log, rows, 5.0)
+    got = link_summary(log, rows, 5.0)
     assert got["link_uplink_bytes"] == 1_250_000 and got["link_downlink_bytes"] == 20_000
     assert got["link_uplink_mbit_mean"] == pytest.approx(0.5) and got["link_seconds"] == 20.0
     assert got["ledger_bytes_sent"] == 8024 and got["link_uplink_dropped_packets"] == 4
     assert got["link_events"] == log["events"]
+
+
+def test_report_folder_has_the_profile_plot_and_the_summary(tmp_path):
+    rows = [{"slot": 500 + k, "x": k % 2, "power_w": 0.2 if k % 2 else None, "stamp_s": 50.0 + 0.1 * k,
+             "source": "image" if k % 2 else "render"} for k in range(12)]
+    summary = {"slots": 12, "energy_ratio_vs_upload_all": 2.5}
+    write_report(tmp_path / "report", rows, summary)
+    assert (tmp_path / "report" / "profile_x_p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert json.loads((tmp_path / "report" / "summary.json").read_text()) == summary
+    assert not (tmp_path / "report" / "mr_strip.png").exists()  # no run.mcap, no strip
+
+
+def test_round_starts_where_the_radio_round_slot_is_zero_else_where_the_key_moved():
+    def row(round_slot, a_m=-1.0):
+        return {"round_slot": round_slot, "pose_a_m": a_m, "pose_b_m": -1.1, "pose_theta_rad": 0.0,
+                "source": "image"}
+
+    # the ledger's round slots reached the server from round slot 2 on (row 7): the round starts at row 5
+    assert first_round_row([row(None)] * 5 + [row(-1)] * 2 + [row(2), row(3)]) == 5
+    assert first_round_row([row(None)] * 3 + [row(None, -0.9)]) == 3  # no round slots: the first moved key
+    assert first_round_row([row(None)] * 4) is None
 
 
 def test_truth_frames_round_trip_by_capture_stamp_and_prune(tmp_path):

@@ -7,6 +7,7 @@ nothing on the root namespace's topics, distinct channels, CPU counted per robot
 
 from __future__ import annotations
 
+import ast
 import os
 from pathlib import Path
 import shutil
@@ -15,17 +16,37 @@ import sys
 import threading
 import time
 
+from conftest import next_domain_id
 import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from sensor_msgs.msg import Image
+from stack_harness import HEIGHT, WIDTH, make_point_model
+import yaml
+
+from gsrmr_sim.cpu_usage import CpuMeter, CpuSnapshot, cpu_group, cpu_seconds_by_session
+from gsrmr_sim.fleet import run_fleet
+from gsrmr_sim.limo.mock import GROUND_TRUTH_TOPIC
+from gsrmr_sim.limo.mock_ros import GroundTruthPublisher
+from gsrmr_sim.round_start import RADIO_GRACE_SLOTS, radio_round_row
+from gsrmr_sim.scores import read_scores
+from gsrmr_sim.sim_stack import (
+    command_line,
+    fleet_stack,
+    link_budget,
+    mock_limo_link,
+    per_robot_path,
+    sim_stack,
+)
+from gsrmr_sim.stack_runner import process_name, robot_runs
 
 REPO = Path(__file__).resolve().parents[1]
 FLEET_LAUNCH = REPO / "launch" / "fleet.launch.py"
 NODES = ("gsrmr_mock_limo", "gsrmr_limo_base", "gsrmr_mock_camera", "gsrmr_route_follower", "gsrmr_sim_channel",
-         "gsrmr_robot", "gsrmr_server", "gsrmr_scheduler")
+         "gsrmr_robot", "gsrmr_server", "gsrmr_sim_scorer", "gsrmr_scheduler")
 
 
 def _fleet(robots: int = 3, **kw):
-    from gsrmr_sim.sim_stack import fleet_stack
-
     return fleet_stack(robots=robots, model_path="/m.ply", config=REPO / "config", **kw)
 
 
@@ -37,8 +58,6 @@ def _by_robot(specs) -> dict[str, dict[str, object]]:
 
 
 def test_fleet_stack_is_the_single_stack_once_per_namespace():
-    from gsrmr_sim.sim_stack import sim_stack
-
     specs = _fleet(3, record_dir="/rec")
     robots = _by_robot(specs)
     assert list(robots) == ["/robot1", "/robot2", "/robot3"]
@@ -52,8 +71,6 @@ def test_fleet_stack_is_the_single_stack_once_per_namespace():
 
 
 def test_fleet_robots_have_their_own_pty_recording_state_truth_and_channel():
-    from gsrmr_sim.sim_stack import link_budget, mock_limo_link
-
     specs = _fleet(3, record_dir="/rec", state_dir="/out/{robot}/scheduler_state", truth_dir="/out/{robot}/truth",
                    link_path="/tmp/limo")
     robots = _by_robot(specs)
@@ -65,8 +82,10 @@ def test_fleet_robots_have_their_own_pty_recording_state_truth_and_channel():
     assert [n["gsrmr_scheduler"].params["state_dir"] for n in robots.values()] == \
         [f"/out/robot{k}/scheduler_state" for k in (1, 2, 3)]
     assert [n["gsrmr_mock_camera"].params["truth_dir"] for n in robots.values()] == \
-        [n["gsrmr_server"].params["ground_truth_dir"] for n in robots.values()] == \
+        [n["gsrmr_sim_scorer"].params["truth_dir"] for n in robots.values()] == \
         [f"/out/robot{k}/truth" for k in (1, 2, 3)]
+    assert [n["gsrmr_sim_scorer"].params["record_dir"] for n in robots.values()] == \
+        ["/rec/robot1", "/rec/robot2", "/rec/robot3"]  # scores.csv beside each robot's slots.csv
     base = link_budget(str(REPO / "config" / "link.yaml")).channel_seed
     seeds = [n["gsrmr_sim_channel"].params["channel_seed"] for n in robots.values()]
     assert seeds == [base, base + 1, base + 2]  # robot 1 sees the single robot's channel
@@ -77,28 +96,39 @@ def test_fleet_robots_have_their_own_pty_recording_state_truth_and_channel():
     assert {n["gsrmr_server"].params["record_dir"] for n in _by_robot(_fleet(2)).values()} == {""}
 
 
-def test_ground_truth_topic_is_relative_so_each_robot_has_its_own():
-    from gsrmr_sim.sim_stack import GROUND_TRUTH_TOPIC, sim_stack
-
-    assert GROUND_TRUTH_TOPIC == "sim/ground_truth/odom"
-    for spec in [*sim_stack(model_path="/m.ply", config=REPO / "config"), *_fleet(2)]:
+def test_ground_truth_topic_is_relative_and_wired_from_its_one_definition(monkeypatch):
+    """The mock LIMO publishes its true pose on GROUND_TRUTH_TOPIC (gsrmr_sim.limo.mock), relative so that each
+    robot of a fleet has its own; the stacks point the route follower at it, and the simulated camera's and
+    radio's ``odom_topic`` default to it."""
+    assert not GROUND_TRUTH_TOPIC.startswith("/")
+    stacks = [*sim_stack(model_path="/m.ply", config=REPO / "config"), *_fleet(2)]
+    for spec in stacks:
         for key, value in spec.params.items():
             if key.endswith("_topic"):
                 assert not str(value).startswith("/"), (spec.name, key, value)
-    pytest.importorskip("nav_msgs")
-    from gsrmr_sim.limo import mock_ros
-
-    assert mock_ros.GROUND_TRUTH_TOPIC == GROUND_TRUTH_TOPIC
-    for path in ("gsrmr_sim/world/camera_node.py", "gsrmr_sim/world/channel_node.py"):  # their defaults too
-        text = (REPO / path).read_text()
-        assert '"odom_topic", "sim/ground_truth/odom"' in text, path
+    assert {s.params["odom_topic"] for s in stacks if s.executable == "gsrmr-route-follower"} == {GROUND_TRUTH_TOPIC}
+    for path in ("gsrmr_sim/world/camera_node.py", "gsrmr_sim/world/channel_node.py"):  # the subscribers' defaults
+        calls = [c for c in ast.walk(ast.parse((REPO / path).read_text())) if isinstance(c, ast.Call)
+                 and len(c.args) > 2 and isinstance(c.args[1], ast.Constant) and c.args[1].value == "odom_topic"]
+        assert len(calls) == 1, path
+        default = calls[0].args[2]
+        assert getattr(default, "id", None) == "GROUND_TRUTH_TOPIC" or getattr(default, "value", None) == \
+            GROUND_TRUTH_TOPIC, (path, ast.dump(default))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=next_domain_id())
+    try:
+        mock = type("Mock", (), {"rate_hz": 50.0, "link_path": "/tmp/no_limo"})()
+        node = GroundTruthPublisher(mock, context=context, namespace="/robot2")  # the publisher, as a fleet runs it
+        try:
+            assert node._pub.topic_name == f"/robot2/{GROUND_TRUTH_TOPIC}"
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
 
 
 def test_command_line_puts_each_robot_in_its_namespace(tmp_path):
-    import yaml
-
-    from gsrmr_sim.sim_stack import command_line, sim_stack
-
     specs = _fleet(2, record_dir="/rec")
     argvs = {(s.namespace, s.name): command_line(s, tmp_path, tmp_path / "params") for s in specs}
     server2 = argvs[("/robot2", "gsrmr_server")]
@@ -121,23 +151,18 @@ def test_command_line_puts_each_robot_in_its_namespace(tmp_path):
 
 
 def test_per_robot_path_and_cpu_groups():
-    from gsrmr_sim.fleet import cpu_group
-    from gsrmr_sim.sim_stack import per_robot_path
-
     assert per_robot_path("", "robot2") == ""
     assert per_robot_path("/a", "robot2") == "/a/robot2"
     assert per_robot_path("/a/{robot}/rec", "robot2") == "/a/robot2/rec"
     groups = {s.name: cpu_group(s) for s in _fleet(1)}
     assert groups == {"gsrmr_mock_limo": "world", "gsrmr_limo_base": "robot", "gsrmr_mock_camera": "world",
                       "gsrmr_route_follower": "world", "gsrmr_sim_channel": "world", "gsrmr_robot": "robot",
-                      "gsrmr_server": "server", "gsrmr_scheduler": "server"}
+                      "gsrmr_server": "server", "gsrmr_sim_scorer": "world", "gsrmr_scheduler": "server"}
     with pytest.raises(ValueError):
         _fleet(0)
 
 
 def test_round_start_from_the_radio_log_when_the_server_saw_neither_round_slot_nor_motion():
-    from gsrmr_sim.fleet import RADIO_GRACE_SLOTS, radio_round_row
-
     rows = [{"slot": 1000 + i} for i in range(50)]
     log = "[INFO] [1.0] [robot2.gsrmr_sim_channel]: robot moving: round clock of the channel starts at slot 1012\n"
     assert radio_round_row(rows, log) == 12
@@ -145,9 +170,39 @@ def test_round_start_from_the_radio_log_when_the_server_saw_neither_round_slot_n
     assert radio_round_row(rows[:12 + RADIO_GRACE_SLOTS - 1], log) is None  # too early to give up on slots.csv
 
 
-def test_cpu_seconds_by_session_counts_a_busy_process():
-    from gsrmr_sim.fleet import cpu_seconds_by_session
+def test_runner_finds_each_robot_in_the_process_list():
+    """The stack runner takes everything per robot from the specs: recording (its server's), seed (its radio's)."""
+    (single,) = robot_runs(sim_stack(model_path="/m.ply", config=REPO / "config", record_dir="/out/recording",
+                                     channel_seed=3)).values()
+    assert (single.name, single.namespace, single.label) == ("", "", "the robot")
+    assert (single.record_dir, single.report_dir, single.channel_seed) == (Path("/out/recording"), Path("/out"), 3)
+    assert single.processes["gsrmr-sim-scorer"] == "gsrmr_sim_scorer"
+    runs = robot_runs(_fleet(3, record_dir="/out/{robot}/recording", channel_seed=20))
+    assert list(runs) == ["robot1", "robot2", "robot3"]
+    assert [r.report_dir for r in runs.values()] == [Path(f"/out/robot{k}") for k in (1, 2, 3)]
+    assert [r.channel_seed for r in runs.values()] == [20, 21, 22]
+    assert runs["robot2"].processes["gsrmr-sim-channel"] == "robot2/gsrmr_sim_channel"
+    assert {process_name(s) for s in _fleet(2)} == {f"robot{k}/{n}" for k in (1, 2) for n in NODES}
+    with pytest.raises(ValueError, match="records nowhere"):
+        robot_runs(_fleet(2))  # no record_dir: the round's slots.csv is nowhere to follow
 
+
+def test_cpu_meter_counts_from_the_last_snapshot_before_the_round_to_the_last_one():
+    meter = CpuMeter([11, 12])
+    meter.snapshots += [CpuSnapshot(100.0, {11: 1.0, 12: 2.0}, 50.0), CpuSnapshot(101.0, {11: 1.5, 12: 2.0}, 51.0),
+                        CpuSnapshot(105.0, {11: 3.5, 12: 4.0}, 58.0)]
+    usage = meter.round_usage(round_start_s=102.0)  # from the snapshot at 101 s to the one at 105 s
+    assert usage.window_s == 4.0 and usage.by_session_s == {11: 2.0, 12: 2.0}
+    assert usage.machine_busy_cores == pytest.approx(7.0 / 4.0)
+    assert usage.other_cores == pytest.approx(7.0 / 4.0 - 4.0 / 4.0)
+    assert meter.round_usage(round_start_s=50.0).window_s == 5.0  # before every snapshot: from the first
+    with pytest.raises(ValueError):
+        CpuMeter([11]).round_usage(0.0)
+    snap = CpuMeter([]).take()
+    assert snap.by_session_s == {} and snap.machine_busy_s > 0
+
+
+def test_cpu_seconds_by_session_counts_a_busy_process():
     proc = subprocess.Popen([sys.executable, "-c", "import time\nt = time.process_time()\n"
                              "while time.process_time() - t < 0.6: pass\ntime.sleep(30)"], start_new_session=True)
     try:
@@ -184,8 +239,6 @@ def _launch_nodes(robots: int, **args: str):
 
 
 def test_fleet_launch_file_declares_the_sim_arguments_and_robots():
-    import ast
-
     tree = ast.parse(FLEET_LAUNCH.read_text())
     declared = {n.args[0].value for n in ast.walk(tree) if isinstance(n, ast.Call)
                 and getattr(n.func, "id", "") == "DeclareLaunchArgument"}
@@ -231,10 +284,6 @@ class _Probe:
     """Counts MR images per robot namespace (and on the root namespace's topic, which must stay silent)."""
 
     def __init__(self, domain: int, robots: int) -> None:
-        import rclpy
-        from rclpy.executors import SingleThreadedExecutor
-        from sensor_msgs.msg import Image
-
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain)
         self.node = rclpy.create_node("fleet_probe", context=self.context)
@@ -260,11 +309,6 @@ class _Probe:
 @pytest.mark.ros
 @pytest.mark.slow
 def test_live_fleet_of_two_robots(tmp_path, monkeypatch):
-    from conftest import next_domain_id
-    from stack_harness import HEIGHT, WIDTH, make_point_model
-
-    from gsrmr_sim.fleet import run_fleet
-
     domain = next_domain_id()
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     model = make_point_model(tmp_path, n=2000)
@@ -306,6 +350,9 @@ def test_live_fleet_of_two_robots(tmp_path, monkeypatch):
     assert runs[0].channel_seed + 1 == runs[1].channel_seed
     for r in runs:
         assert (r.report_dir / "recording" / "slots.csv").is_file()
+        # the scorer caught up with the round: every composed slot scored, its columns joined into the rows
+        assert {row["slot"] for row in r.rows} <= set(read_scores(r.report_dir / "recording"))
+        assert sum(row["loss"] is not None for row in r.rows) >= 0.9 * slots
         assert r.cpu["server_cores"] > 0.01 and r.cpu["world_cores"] > 0.01 and r.cpu["window_s"] > 4.0, r.cpu
         assert set(r.cpu["by_node_cpu_s"]) == set(NODES)
         assert (tmp_path / "fleet" / "logs" / r.name / "gsrmr_server.log").is_file()

@@ -1,7 +1,10 @@
 """Ctrl-C ends a node with exit code 0 in every phase (gsrmr_common.interrupts), tested on real processes.
 
-A stand-in node module (slow import, a spin loop, a slow clean-up) runs under ``node_entry`` in a child
-process; the test sends SIGINT at the moment it wants, as a terminal and ``ros2 launch`` do.
+A stand-in package laid out like ours (its ``__init__`` calls ``guard_console_start_up``; its node module has a
+slow import, a ``@console_main`` ``main`` with a start-up, a spin loop and a slow clean-up) runs through a
+console-script file named ``gsrmr-…`` — setuptools' template (``from pkg.node import main``) or colcon's
+(``load_entry_point``) — in a child process; the test sends SIGINT at the moment it wants, as a terminal and
+``ros2 launch`` do. One test does the same to the real ``gsrmr-robot`` while it loads.
 """
 
 from __future__ import annotations
@@ -11,26 +14,31 @@ from pathlib import Path
 import signal
 import subprocess
 import sys
+import threading
 import time
 
+from conftest import ros_env
 import pytest
 
-from gsrmr_common.interrupts import CLEANUP, RUNNING, START, InterruptPolicy
+from gsrmr_common.interrupts import CLEANUP, RUNNING, START, InterruptPolicy, is_console_script
 
+PACKAGE_INIT = "from gsrmr_common.interrupts import guard_console_start_up\n\nguard_console_start_up()\n"
 STAND_IN = '''
-import os, sys, time
-print("importing", flush=True)
+import os, time
+from gsrmr_common.interrupts import CLEANUP, POLICY, RUNNING, console_main
 try:
+    print("importing", flush=True)
     time.sleep(float(os.environ.get("IMPORT_S", "0")))
-except KeyboardInterrupt:
+except BaseException:
     if os.environ.get("CONVERT"):  # what a C extension's callback may do with an interrupt
         raise RuntimeError("interrupted inside an extension") from None
     raise
 if os.environ.get("FAIL"):
     raise RuntimeError("a real start-up error")
 
-def main():
-    from gsrmr_common.interrupts import CLEANUP, POLICY, RUNNING
+def run():
+    print("starting", flush=True)
+    time.sleep(float(os.environ.get("START_S", "0")))  # building the node: a KeyboardInterrupt may land here
     POLICY.enter(RUNNING)
     print("running", flush=True)
     while not POLICY.stop_requested:  # as run_node's spin loop: nothing is raised while running
@@ -40,16 +48,43 @@ def main():
     time.sleep(1.0)
     print("done", flush=True)
     return 0
+
+main = console_main(run)
+plain_main = run  # the same without the decorator
 '''
+# The console-script files setuptools (pip) and colcon (setup.py develop) write, for stand_in.node:<entry>.
+SETUPTOOLS_SCRIPT = '''import re
+import sys
+from stand_in.node import {entry} as main
+if __name__ == "__main__":
+    sys.argv[0] = re.sub(r"(-script\\.pyw|\\.exe)?$", "", sys.argv[0])
+    sys.exit(main())
+'''
+COLCON_SCRIPT = '''import importlib
+import re
+import sys
+
+def importlib_load_entry_point(module, attr):
+    return getattr(importlib.import_module(module), attr)
+
+if __name__ == "__main__":
+    sys.argv[0] = re.sub(r"(-script\\.pyw?|\\.exe)?$", "", sys.argv[0])
+    sys.exit(importlib_load_entry_point("stand_in.node", "{entry}")())
+'''
+TEMPLATES = {"setuptools": SETUPTOOLS_SCRIPT, "colcon": COLCON_SCRIPT}
 
 
-def start(tmp_path: Path, import_s: float, **flags: str) -> subprocess.Popen:
-    (tmp_path / "stand_in_node.py").write_text(STAND_IN)
-    code = "import sys; from gsrmr_common.interrupts import node_entry; sys.exit(node_entry('stand_in_node:main')())"
-    env = dict(os.environ, IMPORT_S=str(import_s), **flags,
-               PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]))
-    return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=env)
+def start(tmp_path: Path, import_s: float = 0.0, *, template: str = "setuptools", entry: str = "main",
+          script: str = "gsrmr-stand-in", **flags: str) -> subprocess.Popen:
+    """Run the stand-in through a console-script file named ``script`` (setuptools' or colcon's template)."""
+    package = tmp_path / "stand_in"
+    package.mkdir(exist_ok=True)
+    (package / "__init__.py").write_text(PACKAGE_INIT)
+    (package / "node.py").write_text(STAND_IN)
+    (tmp_path / script).write_text(TEMPLATES[template].format(entry=entry))
+    env = dict(os.environ, IMPORT_S=str(import_s), **flags, PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]))
+    return subprocess.Popen([sys.executable, str(tmp_path / script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env)
 
 
 def wait_line(proc: subprocess.Popen, text: str, timeout_s: float = 20.0) -> list[str]:
@@ -64,36 +99,114 @@ def wait_line(proc: subprocess.Popen, text: str, timeout_s: float = 20.0) -> lis
     pytest.fail(f"{text!r} not printed: {lines}")
 
 
-def test_sigint_during_the_import_exits_zero(tmp_path):
-    proc = start(tmp_path, import_s=30.0)
+@pytest.mark.parametrize("template", sorted(TEMPLATES))
+def test_sigint_while_the_node_module_loads_exits_zero(tmp_path, template):
+    proc = start(tmp_path, import_s=30.0, template=template)
     wait_line(proc, "importing")
     proc.send_signal(signal.SIGINT)
-    out, _ = proc.communicate(timeout=10)
-    assert proc.returncode == 0 and "running" not in out
+    out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0 and "starting" not in out and "Traceback" not in err, err
 
 
-def test_interrupt_turned_into_another_exception_still_exits_zero(tmp_path):
+def test_interrupt_turned_into_another_exception_while_loading_still_exits_zero(tmp_path):
     proc = start(tmp_path, import_s=30.0, CONVERT="1")
     wait_line(proc, "importing")
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=10)
-    assert proc.returncode == 0 and "stopped by a signal" in err, err
+    assert proc.returncode == 0 and "stopped by a signal while loading (RuntimeError" in err, err
 
 
 def test_a_real_error_without_a_signal_still_fails(tmp_path):
-    proc = start(tmp_path, import_s=0.0, FAIL="1")
+    proc = start(tmp_path, FAIL="1")
     _, err = proc.communicate(timeout=20)
-    assert proc.returncode == 1 and "a real start-up error" in err, err
+    assert proc.returncode == 1 and "a real start-up error" in err and "Traceback" in err, err
 
 
-def test_second_sigint_does_not_cut_the_cleanup_short(tmp_path):
-    proc = start(tmp_path, import_s=0.0)
+def test_sigint_while_main_builds_the_node_exits_zero(tmp_path):
+    proc = start(tmp_path, START_S="30")
+    wait_line(proc, "starting")
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0 and "running" not in out and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("template", sorted(TEMPLATES))
+def test_second_sigint_does_not_cut_the_cleanup_short(tmp_path, template):
+    proc = start(tmp_path, template=template)
     wait_line(proc, "running")
     proc.send_signal(signal.SIGINT)  # the terminal's
     wait_line(proc, "cleanup")
     proc.send_signal(signal.SIGINT)  # launch's, while the node cleans up
     out, _ = proc.communicate(timeout=10)
     assert proc.returncode == 0 and "done" in out, out
+
+
+def test_the_guard_is_only_armed_in_a_gsrmr_console_script(tmp_path):
+    """A program of another name (here ``stand-in``) keeps Python's own handling: the interrupt ends it by signal."""
+    proc = start(tmp_path, import_s=30.0, script="stand-in")
+    wait_line(proc, "importing")
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=10)
+    assert proc.returncode == -signal.SIGINT and "KeyboardInterrupt" in err, err
+    code = ("import signal, sys; import stand_in.node; print(signal.getsignal(signal.SIGINT) is "
+            "signal.default_int_handler, sys.excepthook is sys.__excepthook__)")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]))
+    shown = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60)
+    assert shown.stdout.split()[-2:] == ["True", "True"], shown.stderr  # importing our packages changed nothing
+
+
+def test_an_interrupt_after_loading_is_the_entry_functions_to_handle(tmp_path):
+    """The loading guard ends with the import: a ``main`` without ``console_main`` that lets the interrupt
+    escape while it builds its node ends by signal, as any Python program would."""
+    proc = start(tmp_path, START_S="30", entry="plain_main")
+    wait_line(proc, "starting")
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=10)
+    assert proc.returncode == -signal.SIGINT and "KeyboardInterrupt" in err, err
+
+
+def test_a_signal_deferred_while_loading_stops_main_before_it_starts():
+    """A start-up signal that landed in a finalizer only asks for the stop: the decorated main returns 0 at once."""
+    code = ("from gsrmr_common.interrupts import POLICY, console_main; POLICY.stop_requested = True; called = []; "
+            "main = console_main(lambda: called.append(1) or 5); code = main(); print(code, len(called)); "
+            "print(main.__wrapped__(), len(called))")
+    shown = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert shown.stdout.split() == ["0", "0", "5", "1"], shown.stderr
+
+
+def test_console_script_names():
+    assert is_console_script("/opt/ros/install/lib/gsrmr/gsrmr-server")
+    assert is_console_script(".venv/bin/gsrmr-robot")
+    assert not is_console_script("/usr/bin/pytest") and not is_console_script("-c")
+
+
+@pytest.mark.ros
+def test_ctrl_c_while_gsrmr_robot_loads_exits_zero(tmp_path):
+    """The real console script: SIGINT once its package's guard is in place and its node module is loading
+    (``PYTHONPROFILEIMPORTTIME`` reports each import as it ends) exits 0 without a traceback."""
+    from gsrmr_sim.sim_stack import executable_path
+
+    env = dict(ros_env(), PYTHONPROFILEIMPORTTIME="1")
+    proc = subprocess.Popen([str(executable_path("gsrmr-robot"))], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    watchdog = threading.Timer(120.0, proc.kill)  # the lines below never come: fail instead of hanging
+    watchdog.start()
+    try:
+        seen = []
+        for wanted in ("gsrmr_common.interrupts", "numpy"):  # the guard's module; then the node's imports
+            for line in proc.stderr:
+                seen.append(line)
+                if line.split("|")[-1].strip() == wanted:
+                    break
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        watchdog.cancel()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0 and "Traceback" not in err, "".join(seen[-5:]) + err[-2000:]
+    assert "robot uplink:" not in out + err  # stopped before the node was built
 
 
 def test_policy_phases():
@@ -118,8 +231,6 @@ def test_start_up_signal_inside_a_finalizer_is_deferred_not_raised():
     """A KeyboardInterrupt raised inside __del__ is swallowed by Python and cuts the object's clean-up short
     (an rclpy logger finalised that way crashed a node with −11): during start-up such a signal only asks
     for the stop, which run_node honours before spinning."""
-    import sys
-
     policy = InterruptPolicy()
     policy.enter(START)
     seen = {}

@@ -138,3 +138,27 @@ def test_shipped_link_and_plan_constants_are_the_link_models():
         (problem.bandwidth_hz, problem.noise_w, channel.RICIAN_K)
     assert (problem.image_bits, problem.pose_bits, problem.slot_s) == (67_200.0, 192.0, 0.1)
     assert math.isclose(10 * math.log10(budget.noise_w * 1e3), -60.0)
+
+
+def test_launch_nodes_come_from_the_process_specs_through_one_function():
+    """sim.launch.py and fleet.launch.py build every Node with gsrmr_sim.launch_nodes (none by hand): the
+    spec's executable, name, arguments, parameter files then overrides (last, as command_line passes them),
+    remappings, niceness and namespace."""
+    pytest.importorskip("launch_ros")
+    from gsrmr_sim.launch_nodes import launch_node, node_arguments
+    from gsrmr_sim.sim_stack import fleet_stack, nice_prefix, sim_stack
+
+    for spec in sim_stack(model_path="/m.ply", config=REPO / "config"):
+        kw = node_arguments(spec, namespace="/ns")
+        assert (kw["package"], kw["executable"], kw["name"], kw["namespace"]) == (
+            "gsrmr", spec.executable, spec.name, "/ns")
+        assert kw["parameters"] == ([*spec.param_files, spec.params] if spec.params else spec.param_files)
+        assert (kw["arguments"], kw["remappings"]) == (spec.arguments, spec.remappings)
+        assert kw["prefix"] == (" ".join(nice_prefix(spec)) or None)
+        node = launch_node(spec)
+        assert (node.node_package, node.node_executable) == ("gsrmr", spec.executable)
+    fleet = fleet_stack(robots=2, model_path="/m.ply", config=REPO / "config")
+    assert {node_arguments(s)["namespace"] for s in fleet} == {"/robot1", "/robot2"}
+    for name in ("sim.launch.py", "fleet.launch.py"):
+        text = (REPO / "launch" / name).read_text()
+        assert "launch_node(" in text and not re.search(r"(?<!launch_)Node\(", text), name

@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 
 from gsrmr_common.link_model import LinkBudget
-from gsrmr_server.horizon import OnlinePlanner, RoutePredictor
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.loss_predictor import LossPredictor
 from gsrmr_server.mr.blend import jpeg_mr_loss
+from gsrmr_server.planner import OnlinePlanner, PlannerConfig, RoutePredictor
 from gsrmr_server.slot_price import DEEP_FADE_FRACTION, gain_thresholds, rician_power_samples
+from gsrmr_sim.replay import recorded_slots, replay
 
 ROUTE = [(0.0, 0.0), (2.0, 0.0), (2.0, 2.0), (0.0, 2.0)]
 POSE = (0.5, 0.0, 0.0)
@@ -23,13 +24,12 @@ def _flat_map(value: float = 0.02) -> LossMap:
     return lm
 
 
-def _planner(**kw) -> OnlinePlanner:
-    args = dict(slot_s=0.1, image_bits=67_200.0, pose_bits=192.0, loss_threshold=0.03, horizon=30,
-                in_slot_decision=True, loss_model="burst", margin_quantile=0.0)
+def _planner(loss_map: LossMap | None = None, **kw) -> OnlinePlanner:
+    """A planner with the in-slot rule and the burst model, no learned margin; ``kw``: PlannerConfig fields."""
+    args = dict(slot_s=0.1, image_bits=67_200.0, pose_bits=192.0, loss_threshold=0.03, horizon_slots=30,
+                in_slot_decision=True, margin_quantile=0.0)
     args.update(kw)
-    lm = kw.pop("loss_map", None) or _flat_map()
-    args.pop("loss_map", None)
-    return OnlinePlanner(RoutePredictor(ROUTE, 0.3), lm, LinkBudget(), **args)
+    return OnlinePlanner(PlannerConfig(**args), RoutePredictor(ROUTE, 0.3), loss_map or _flat_map(), LinkBudget())
 
 
 # ---------------------------------------------------------------------------- predictor
@@ -94,7 +94,7 @@ def test_image_slots_leave_their_jpeg_loss_in_the_budget():
 
 def test_the_round_budget_ends_with_the_round():
     """Overspent in the round: its last slots are all images; the slots after it get a fresh budget."""
-    planner = _planner(loss_map=_flat_map(0.05), round_slots=40, horizon=30)
+    planner = _planner(loss_map=_flat_map(0.05), round_slots=40, horizon_slots=30)
     planner.plan(99, None)
     planner.record_pose(100, 0.0, 0.0, 0.0)  # standing
     planner.record_pose(101, 0.2, 0.0, 0.0)  # moving: the round starts here
@@ -102,27 +102,27 @@ def test_the_round_budget_ends_with_the_round():
         planner.record_pose(k, 0.2, 0.0, 0.0)
         planner.record_action(k, 0)
     plan = planner.plan(129, (0.2, 0.0, 0.0))  # 28 of 40 round slots booked at 0.05 > 40·0.03 budget
-    assert planner.round_remaining(130) == 11
-    n, spent = planner.round_booked()
+    assert planner.budget.round_remaining(130) == 11
+    n, spent = planner.budget.round_booked()
     assert n == 29 and spent > 0.03 * 40
     thr = plan.schedule.gain_threshold
     floor = np.quantile(rician_power_samples(1.0), DEEP_FADE_FRACTION)
-    poses = planner.predictor.predict((0.2, 0.0, 0.0), 30, 0.1)
+    poses = planner.route.predict((0.2, 0.0, 0.0), 30, 0.1)
     mean = np.array([planner.link.mean_gain(p[:2]) for p in poses])
     np.testing.assert_allclose(thr[:11], floor * mean[:11])  # nothing left: an image in all but the deepest fades
     assert np.all(thr[11:] > 0.0)  # the next round starts with its own budget
-    continuous = _planner(loss_map=_flat_map(0.05), horizon=30)
-    assert continuous.round_remaining(130) is None
+    continuous = _planner(loss_map=_flat_map(0.05), horizon_slots=30)
+    assert continuous.budget.round_remaining(130) is None
 
 
 def test_probe_gap_lowers_the_threshold_to_the_median_fade():
     fading = rician_power_samples(1.0)
-    planner = _planner(loss_map=_flat_map(0.02), probe_gap_slots=10, explore_image_fraction=0.0, horizon=30)
+    planner = _planner(loss_map=_flat_map(0.02), probe_gap_slots=10, explore_image_fraction=0.0, horizon_slots=30)
     for k in range(1, 4):  # calibrated: no start-up exploration
         planner.observe(k, 0.0, 0.0, 0.0, 0.02)
     planner.record_action(100, 1)
     plan = planner.plan(100, (0.0, 0.0, 0.0))
-    poses = planner.predictor.predict((0.0, 0.0, 0.0), 30, 0.1)
+    poses = planner.route.predict((0.0, 0.0, 0.0), 30, 0.1)
     mean = np.array([planner.link.mean_gain(p[:2]) for p in poses])
     thr = plan.schedule.gain_threshold
     median = np.quantile(fading, 0.5) * mean
@@ -174,12 +174,10 @@ def _rows(n: int = 120, burst: slice = slice(40, 70), seed: int = 0) -> list[dic
 
 
 def test_replay_plays_the_in_slot_rule_and_scores_like_the_demo():
-    from gsrmr_sim.replay import recorded_slots, replay
-
     slots = recorded_slots(_rows())
     assert len(slots) == 120 and slots[0].measured_gs_loss == 0.02  # no live sample: the truth (ratio 1)
     seen = []
-    planner = _planner(loss_map=_flat_map(0.02), horizon=40, probe_gap_slots=8)
+    planner = _planner(loss_map=_flat_map(0.02), horizon_slots=40, probe_gap_slots=8)
     result = replay(slots, planner, loss_threshold=0.03, replan_every=5,
                     on_plan=lambda i, plan: seen.append((i, plan.schedule)))
     assert result.replans >= 120 // 5 and seen[0][0] == 0
@@ -191,6 +189,6 @@ def test_replay_plays_the_in_slot_rule_and_scores_like_the_demo():
     assert result.mean_loss == pytest.approx(losses.mean())
     assert result.images == int(result.x[scored].sum()) and result.regret >= 1.0 - 1e-9
     assert result.x[45:70].sum() >= 3  # the burst is found (probing) and answered with images
-    again = replay(recorded_slots(_rows()), _planner(loss_map=_flat_map(0.02), horizon=40, probe_gap_slots=8),
+    again = replay(recorded_slots(_rows()), _planner(loss_map=_flat_map(0.02), horizon_slots=40, probe_gap_slots=8),
                    loss_threshold=0.03, replan_every=5)
     np.testing.assert_array_equal(again.x, result.x)  # deterministic

@@ -4,7 +4,7 @@ and read-only flags, the rules their nodes' on-set callbacks refuse a change wit
 
 from __future__ import annotations
 
-from dataclasses import FrozenInstanceError
+from dataclasses import FrozenInstanceError, fields
 import json
 import math
 import subprocess
@@ -14,11 +14,20 @@ import pytest
 
 from gsrmr_common.camera import CameraMount
 from gsrmr_common.link_model import LinkBudget
-from gsrmr_server.scheduler_params import PLANNING_PARAMETERS, SchedulerParameters, route_waypoints
+from gsrmr_robot.limo.base_params import MOTION_MODES, LimoBaseParameters
+from gsrmr_server.loss_map import LossMap
+from gsrmr_server.planner import LIVE_FIELDS
+from gsrmr_server.scheduler_params import (
+    PLANNING_PARAMETERS,
+    STARTUP_EXPLORE_SAMPLES,
+    SchedulerParameters,
+    route_waypoints,
+)
 from gsrmr_server.server_params import LIVE_PARAMETERS, ServerParameters
 
 # name: (default, (min, max) or None, read_only) — what the nodes declared before the parameters became a
-# dataclass (launch files, config/*.yaml and `ros2 param set` depend on them).
+# dataclass (launch files, config/*.yaml and `ros2 param set` depend on them); the server's simulation-only
+# evaluate_ground_truth, hindsight_jpeg_quality and ground_truth_dir went to the simulation's scorer (issue 26).
 SERVER_DECLARED = {
     "slot_s": (0.1, (0.01, 10.0), True),
     "process_delay_s": (0.03, (0.0, 5.0), False),
@@ -26,9 +35,6 @@ SERVER_DECLARED = {
     "mr_content": ("sandbox", None, True),
     "background_rgb": ([0.5, 0.55, 0.6], None, True),
     "measure_loss": (True, None, False),
-    "evaluate_ground_truth": (False, None, True),
-    "hindsight_jpeg_quality": (0, (0, 100), True),
-    "ground_truth_dir": ("", None, True),
     "record_dir": ("", None, True),
     "jpeg_quality": (85, (1, 100), False),
     "max_backlog_slots": (30, (1, 100_000), False),
@@ -53,9 +59,7 @@ SCHEDULER_DECLARED = {
     "state_dir": ("", None, True),
     "in_slot_decision": (True, None, True),
     "explore_image_fraction": (0.1, (0.0, 1.0), True),
-    "calibrate_loss_map": (True, None, True),
     "oracle_channel": (False, None, True),
-    "loss_model": ("burst", None, True),
     "image_slot_loss": (-1.0, (-1.0, 1.0), True),
     "margin_quantile": (0.6, (0.0, 1.0), True),
     "burst_time_constant_slots": (25.0, (0.1, 1e6), True),
@@ -130,7 +134,7 @@ def test_server_problem_accepts_valid_values(name, value):
 def test_change_problem_refuses_read_only_parameters_and_passes_live_ones_to_problem():
     assert "render_threads is read-only" in ServerParameters.change_problem("render_threads", 2)
     assert "slot_s is read-only" in ServerParameters.change_problem("slot_s", 0.1)
-    assert "read-only" in SchedulerParameters.change_problem("loss_model", "map")
+    assert "read-only" in SchedulerParameters.change_problem("oracle_channel", True)
     assert ServerParameters.change_problem("jpeg_quality", 70) is None
     assert "in [1, 100]" in ServerParameters.change_problem("jpeg_quality", 500)
     assert SchedulerParameters.change_problem("use_sim_time", True) is None  # not ours: rclpy's
@@ -144,7 +148,6 @@ def test_change_problem_refuses_read_only_parameters_and_passes_live_ones_to_pro
     ("horizon", 0, "horizon must be in [1, 100000]"),
     ("horizon", 10.0, "horizon must be an integer"),
     ("loss_margin", 0.995, "in [0.0, 0.99]"),
-    ("loss_model", "oracle", "loss_model must be one of ['map', 'burst']"),
     ("route_waypoints_m", [0.0, 0.0, 1.0, 0.0], "route_waypoints_m must be ≥ 3 finite (x, y) pairs"),
     ("route_waypoints_m", [0.0, 0.0, 1.0, 0.0, 1.0], "≥ 3 finite"),
     ("route_waypoints_m", [0.0, 0.0, 1.0, 0.0, 1.0, math.inf], "≥ 3 finite"),
@@ -157,7 +160,7 @@ def test_scheduler_problem_refuses_with_a_reason(name, value, reason):
 
 @pytest.mark.parametrize(("name", "value"), [
     ("method", "exact"), ("solver_options", '{"time_limit_s": 0.05}'), ("loss_threshold", 0.0),
-    ("horizon", 1), ("loss_model", "map"), ("route_waypoints_m", [0.0, 0.0, 1.0, 0.0, 1.0, 1.0]),
+    ("horizon", 1), ("oracle_channel", True), ("route_waypoints_m", [0.0, 0.0, 1.0, 0.0, 1.0, 1.0]),
     ("image_bits", 1e9), ("replan_period_s", 0.5),
 ])
 def test_scheduler_problem_accepts_valid_values(name, value):
@@ -193,6 +196,45 @@ def test_scheduler_with_values_and_derived_values():
         route_waypoints([0.0])
 
 
+def test_planner_config_is_the_one_mapping_of_the_scheduler_parameters():
+    """Each parameter lands in its PlannerConfig field; image_slot_loss −1 takes the seed map's measured image
+    loss; the oracle also plans on the loss map as it is; a value the planner refuses raises ValueError."""
+    seed = LossMap(image_loss=0.0067)
+    p = SchedulerParameters().with_values({
+        "slot_s": 0.2, "loss_threshold": 0.025, "horizon": 60, "method": "ranking",
+        "solver_options": '{"time_limit_s": 0.5}', "image_bits": 50_000.0, "pose_bits": 200.0, "drift_threshold": 0.03,
+        "drift_window": 4, "loss_margin": 0.1, "in_slot_decision": False, "explore_image_fraction": 0.2,
+        "margin_quantile": 0.5, "burst_time_constant_slots": 12.0, "probe_gap_slots": 8, "round_slots": 288})
+    c = p.planner_config(seed)
+    assert (c.slot_s, c.loss_threshold, c.horizon_slots, c.method, dict(c.solver_options), c.image_bits,
+            c.pose_bits, c.drift_threshold, c.drift_window_samples, c.loss_margin, c.in_slot_decision,
+            c.explore_image_fraction, c.margin_quantile, c.burst_time_constant_slots, c.probe_gap_slots,
+            c.round_slots) == (0.2, 0.025, 60, "ranking", {"time_limit_s": 0.5}, 50_000.0, 200.0, 0.03, 4, 0.1, False,
+                               0.2, 0.5, 12.0, 8, 288)
+    assert c.image_slot_loss == 0.0067 and p.planner_config(LossMap()).image_slot_loss == 0.0
+    assert p.with_values({"image_slot_loss": 0.01}).planner_config(seed).image_slot_loss == 0.01
+    assert not c.oracle_channel and not c.trust_loss_map and c.startup_explore_samples == STARTUP_EXPLORE_SAMPLES
+    oracle = p.with_values({"oracle_channel": True}).planner_config(seed)
+    assert oracle.oracle_channel and oracle.trust_loss_map
+    with pytest.raises(ValueError, match="image_bits must exceed pose_bits"):
+        p.with_values({"image_bits": 100.0}).planner_config(seed)
+
+
+def test_each_live_parameter_changes_only_live_planner_fields():
+    """What `ros2 param set` may change maps onto what a running planner may change (OnlinePlanner.reconfigure)."""
+    seed = LossMap(image_loss=0.0067)
+    base = SchedulerParameters().planner_config(seed)
+    changes = {"loss_threshold": 0.02, "horizon": 50, "method": "ranking", "solver_options": '{"time_limit_s": 1.0}',
+               "image_bits": 60_000.0, "pose_bits": 100.0, "drift_threshold": 0.05, "drift_window": 7,
+               "loss_margin": 0.2}
+    assert set(changes) == PLANNING_PARAMETERS
+    for name, value in changes.items():
+        new = SchedulerParameters().with_values({name: value}).planner_config(seed)
+        changed = {f.name for f in fields(base) if getattr(base, f.name) != getattr(new, f.name)}
+        assert len(changed) == 1 and changed <= LIVE_FIELDS, (name, changed)
+        assert base.live_change_problem(new) is None
+
+
 def test_parameter_modules_import_no_ros_and_the_scheduler_one_no_renderer():
     code = ("import json, sys; import gsrmr_server.server_params, gsrmr_server.scheduler_params; "
             "print(json.dumps(sorted(sys.modules)))")
@@ -205,8 +247,6 @@ def test_parameter_modules_import_no_ros_and_the_scheduler_one_no_renderer():
 
 
 def test_limo_base_parameters_defaults_rules_and_read_only():
-    from gsrmr_robot.limo.base_params import MOTION_MODES, LimoBaseParameters
-
     p = LimoBaseParameters()
     assert (p.port, p.baud, p.motion_mode, p.heading_source, p.command_rate_hz) == (
         "/dev/ttyTHS1", 460800, "auto", "imu", 50.0)

@@ -16,9 +16,17 @@ import time
 
 import numpy as np
 import pytest
+from rcl_interfaces.srv import SetParameters
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import Image
+from std_srvs.srv import Trigger
 
 sys.path.insert(0, str(Path(__file__).parent))
+from conftest import ros_env
 from stack_harness import HEIGHT, WIDTH, Stack, make_small_model, ros_client, slot_rows, spin_until
+
+from gsrmr_server.recording import read_slots_csv
+from gsrmr_sim.scores import read_scores
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -31,9 +39,6 @@ def small_model(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def stack(small_model, tmp_path_factory):
-    sys.path.insert(0, str(Path(__file__).parent))
-    from conftest import ros_env
-
     tmp = tmp_path_factory.mktemp("stack")
     s = Stack(tmp, small_model, ros_env())
     s.start_all()
@@ -59,8 +64,6 @@ def _rows(stack) -> list[dict]:
 
 
 def test_mr_images_flow_through_image_and_key_paths(stack, client):
-    from sensor_msgs.msg import Image
-
     node, ex = client
     frames: list[Image] = []
     node.create_subscription(Image, "mr/image", frames.append, 10)
@@ -86,11 +89,23 @@ def test_mr_images_flow_through_image_and_key_paths(stack, client):
     assert len(set(gains)) >= 0.8 * len(gains) > 5, gains
 
 
-def test_replan_service_reports_and_changes_schedule(stack, client):
-    from rcl_interfaces.srv import SetParameters
-    from rclpy.parameter import Parameter
-    from std_srvs.srv import Trigger
+def test_the_scorer_scores_the_composed_slots_against_the_truth(stack, client):
+    """gsrmr-sim-scorer, beside the server: one scores.csv row per composed slot it received (the server's
+    mr/image and mr/slot_info, the camera's true frame named by the robot's ledger row), hindsight included."""
+    _node, ex = client
 
+    def scored() -> list[dict]:
+        return [r for r in read_scores(stack.tmp / "rec").values() if r["loss"] is not None]
+
+    assert _spin_until(ex, lambda: len(scored()) >= 20, 120), stack.log("gsrmr_sim_scorer")[-2000:]
+    rows = scored()
+    assert {r["slot"] for r in rows} <= {r["slot"] for r in _rows(stack)}  # composed slots only
+    for r in rows:
+        assert 0 <= r["loss"] < 1 and r["psnr_db"] > 5 and 0 < r["ssim"] <= 1
+        assert r["gs_truth_loss"] is not None and r["image_truth_loss"] is not None
+
+
+def test_replan_service_reports_and_changes_schedule(stack, client):
     node, ex = client
     replan = node.create_client(Trigger, "gsrmr/replan")
     assert replan.wait_for_service(timeout_sec=30)
@@ -127,9 +142,6 @@ def test_replan_service_reports_and_changes_schedule(stack, client):
 
 
 def test_out_of_range_and_unknown_parameters_are_refused(stack, client):
-    from rcl_interfaces.srv import SetParameters
-    from rclpy.parameter import Parameter
-
     node, ex = client
     setp = node.create_client(SetParameters, "gsrmr_scheduler/set_parameters")
     assert setp.wait_for_service(timeout_sec=10)
@@ -148,8 +160,6 @@ def test_out_of_range_and_unknown_parameters_are_refused(stack, client):
 
 
 def test_server_killed_and_restarted_mid_run(stack, client):
-    from sensor_msgs.msg import Image
-
     node, ex = client
     frames: list[int] = []
     node.create_subscription(Image, "mr/image", lambda m: frames.append(m.header.stamp.sec), 10)
@@ -162,8 +172,6 @@ def test_server_killed_and_restarted_mid_run(stack, client):
     for name in ("gsrmr_robot", "gsrmr_scheduler", "gsrmr_mock_camera", "gsrmr_limo_base"):
         assert stack.procs[name].poll() is None, name
     # The recorder lost no slot it had written before the crash (flushed per row).
-    from gsrmr_server.recording import read_slots_csv
-
     assert len(read_slots_csv(stack.tmp / "rec" / "slots.csv")) >= rows_before
     # Restart into a fresh record dir; MR images resume.
     stack.specs["gsrmr_server"].params["record_dir"] = str(stack.tmp / "rec2")

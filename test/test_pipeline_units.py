@@ -6,15 +6,18 @@ import numpy as np
 import pytest
 
 from gsrmr_common.camera import CameraMount, Intrinsics
-from gsrmr_common.jpeg import encode_jpeg
+from gsrmr_common.jpeg import decode_jpeg, encode_jpeg
 from gsrmr_common.link_model import LinkBudget, required_power_w
-from gsrmr_common.wire import LEDGER_FIELDS, POSE_KEY_BITS, PoseKey
+from gsrmr_common.wire import LEDGER_FIELDS, POSE_KEY_BITS, LedgerRow, MRSlotInfo, PoseKey, RealSource, UplinkFault
 from gsrmr_robot.ledger import EnergyLedger
+from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, odom_to_map
 from gsrmr_server.compose import MRComposer
-from gsrmr_server.horizon import OnlinePlanner, RoutePredictor
 from gsrmr_server.loss_map import LossMap
+from gsrmr_server.planner import OnlinePlanner, PlannerConfig, RoutePredictor
+from gsrmr_server.slot_core import ServerCore
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.uplink import SlotUploads
+from gsrmr_sim.demo import first_moving_slot
 from gsrmr_sim.world.scene import load_scene
 from gsrmr_sim.world.virtual import virtual_view
 
@@ -66,72 +69,36 @@ def test_composer_sources_and_faults(composer):
     assert blind.source == "none" and blind.mr.shape == (k.height, k.width, 3)
 
 
-def test_server_core_turns_a_slot_into_its_images_row_and_loss_sample(composer):
+def test_server_core_turns_a_slot_into_its_images_row_loss_sample_and_slot_info(composer):
     """The server's slot core: one uint8 image and one JPEG per slot, the ledger's numbers in the row, a loss
-    sample only for an image slot with a key, and the truth's quality only once scored."""
-    from gsrmr_common.jpeg import decode_jpeg
-    from gsrmr_common.wire import LedgerRow, RealSource, UplinkFault
-    from gsrmr_server.slot_core import ServerCore, match_frame
-
+    sample only for an image slot with a key, the slot's MR slot info, and no score (that is the scorer's)."""
     k = composer.intrinsics
     core = ServerCore(composer, jpeg_quality=90)
     frame = np.full((k.height, k.width, 3), 200, np.uint8)
     key = PoseKey(7, -1.0, 0.0, 0.0)
     led = LedgerRow(7, 1, 0.02, 8 * 1000 + POSE_KEY_BITS, 1e-6, 0.03, 0.003, 8000, 0.0029, 12.5)
-    out = core.process(SlotUploads(7, key=key, jpeg=encode_jpeg(frame, 90)), None, time_s=0.0, stamp_s=0.7,
+    out = core.process(SlotUploads(7, key=key, jpeg=encode_jpeg(frame, 90)), None, time_s=0.4, stamp_s=0.7,
                        ledger=led)
     assert out.mr_u8.dtype == np.uint8 and out.mr_u8.shape == (k.height, k.width, 3)
     assert out.jpeg is out.jpeg and decode_jpeg(out.jpeg).shape == out.mr_u8.shape  # encoded once
     r = out.row
     assert (r.slot, r.stamp_s, r.x, r.power_w, r.bytes_sent, r.energy_j, r.energy_upload_all_j) == \
         (7, 0.7, 1, 0.03, (8000 + POSE_KEY_BITS) // 8, 0.003, 0.0029)
-    assert r.source == RealSource.IMAGE and r.pose_a_m == -1.0 and r.loss is None
+    assert r.source == RealSource.IMAGE and r.pose_a_m == -1.0 and r.loss is None and r.gs_truth_loss is None
     assert out.loss_sample is not None and out.loss_sample.slot == 7 and out.loss_sample.loss == r.gs_loss > 0
-    core.score(out, frame)
-    assert out.quality is not None and out.row.loss == out.quality["loss"] and out.row.psnr_db > 20
-    assert out.row.gs_truth_loss is None  # hindsight off by default
-    lost = core.process(SlotUploads(8, faults=[UplinkFault.MISSING_KEY]), key, time_s=0.1, stamp_s=0.8,
+    assert out.info == MRSlotInfo(7, RealSource.IMAGE, -1.0, 0.0, 0.0, 0.4)  # the pose and content time used
+    lost = core.process(SlotUploads(8, faults=[UplinkFault.MISSING_KEY]), key, time_s=0.5, stamp_s=0.8,
                         scheduled_x=0)
     assert lost.row.x == 0 and lost.row.bytes_sent is None and lost.row.source == RealSource.FALLBACK
     assert lost.loss_sample is None and lost.row.faults == (UplinkFault.MISSING_KEY,)
-    assert core.score(lost, np.zeros((2, 2, 3), np.uint8)).quality is None  # a frame of another size
-    frames = [(12_500_000_000, frame), (12_600_000_000, frame[::-1])]
-    assert match_frame(frames, led, 0) is frame  # the frame the robot's ledger names
-    assert match_frame(frames, None, 12_600_000_000) is frames[1][1]  # else the newest at the slot start
-    assert match_frame(frames, None, 0) is None
-
-
-def test_server_core_measures_both_choices_in_hindsight(composer):
-    """With hindsight on, every scored slot carries what an image and what a key would have cost and given:
-    energies at the ledger's gain (image = this frame's JPEG + key), losses against the truth."""
-    from gsrmr_common.wire import LedgerRow
-    from gsrmr_server.slot_core import ServerCore
-
-    k = composer.intrinsics
-    core = ServerCore(composer, jpeg_quality=90, hindsight_jpeg_quality=80)
-    frame = np.random.default_rng(1).integers(0, 255, (k.height, k.width, 3), np.uint8)
-    key = PoseKey(7, -1.0, 0.0, 0.0)
-    g = 2e-6
-    img_led = LedgerRow(7, 1, 0.0, 8 * 1000 + POSE_KEY_BITS, g, 0.0, 0.0, 8000, 0.0, 0.7)
-    img = core.score(core.process(SlotUploads(7, key=key, jpeg=encode_jpeg(frame, 80)), None, time_s=0.0,
-                                  stamp_s=0.7, ledger=img_led), frame)
-    r = img.row
-    assert r.energy_image_j == pytest.approx(0.1 * required_power_w(8000 + POSE_KEY_BITS, g, 0.1, 1e6, 1e-9))
-    assert r.energy_key_j == pytest.approx(0.1 * required_power_w(POSE_KEY_BITS, g, 0.1, 1e6, 1e-9))
-    assert r.energy_image_j > 10 * r.energy_key_j
-    assert r.image_truth_loss == r.loss and r.gs_truth_loss > r.image_truth_loss  # random pixels: GS is poor
-    key_led = LedgerRow(8, 0, 0.0, POSE_KEY_BITS, g, 0.0, 0.0, 8000, 0.0, 0.8)
-    ks = core.score(core.process(SlotUploads(8, key=key), None, time_s=0.1, stamp_s=0.8, ledger=key_led), frame)
-    assert ks.row.source == "render" and ks.row.gs_truth_loss == ks.row.loss
-    # the JPEG alternative of a key slot: the true frame at the robot's quality, as the image slot got it
-    assert ks.row.image_truth_loss == pytest.approx(r.image_truth_loss, rel=1e-6)
+    assert lost.info.source == RealSource.FALLBACK and lost.info.pose == PoseKey(8, -1.0, 0.0, 0.0)
+    blind = core.process(SlotUploads(9), None, time_s=0.6, stamp_s=0.9)
+    assert blind.info.source == RealSource.NONE and blind.info.pose is None
 
 
 def test_uplink_core_decides_each_slot_and_books_it():
     """The robot's slot core: image only when x = 1 and a frame is fresh, a key whenever there is a pose,
     the schedule's default when none covers the slot, every slot in the ledger."""
-    from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, odom_to_map
-
     core = UplinkCore(LinkBudget(), 0.1, jpeg_quality=80, default_upload_image=True)
     frame = np.random.default_rng(0).integers(0, 255, (24, 32, 3), np.uint8)
     pose = (1.0, 2.0, 0.5)
@@ -170,9 +137,9 @@ def test_route_predictor_follows_the_loop():
 def test_planner_meets_budget_carries_it_over_and_detects_drift():
     scene = load_scene("sandbox")
     lm = LossMap(prior=0.02)
-    planner = OnlinePlanner(RoutePredictor(scene.route.waypoints, scene.route.speed_mps), lm, LinkBudget(),
-                            slot_s=0.1, image_bits=67200, pose_bits=192, loss_threshold=0.03, horizon=40,
-                            drift_threshold=0.05, drift_window=2, loss_model="map")
+    config = PlannerConfig(loss_threshold=0.03, horizon_slots=40, slot_s=0.1, image_bits=67200, pose_bits=192,
+                           drift_threshold=0.05, drift_window_samples=2, trust_loss_map=True)
+    planner = OnlinePlanner(config, RoutePredictor(scene.route.waypoints, scene.route.speed_mps), lm, LinkBudget())
     first = planner.plan(1000, None)
     assert first.feasible and first.images == 0  # prior 0.02 < L_th: every slot can be a key
     assert first.mean_predicted_loss <= 0.03 + 1e-12
@@ -191,9 +158,9 @@ def test_planner_charges_key_slots_at_the_reported_pose_and_backs_off_by_the_mar
     scene = load_scene("sandbox")
     lm = LossMap(prior=0.02)
     lm.add(0.0, 0.0, 0.0, 0.09)  # one costly place the plan's predicted poses do not visit
-    planner = OnlinePlanner(RoutePredictor(scene.route.waypoints, scene.route.speed_mps), lm, LinkBudget(),
-                            slot_s=0.1, image_bits=67200, pose_bits=192, loss_threshold=0.03, horizon=40,
-                            loss_margin=0.2, loss_model="map")
+    config = PlannerConfig(loss_threshold=0.03, horizon_slots=40, slot_s=0.1, image_bits=67200, pose_bits=192,
+                           loss_margin=0.2, trust_loss_map=True)
+    planner = OnlinePlanner(config, RoutePredictor(scene.route.waypoints, scene.route.speed_mps), lm, LinkBudget())
     first = planner.plan(1000, None)
     assert first.budget == pytest.approx(0.024)  # L_th·(1 − margin)
     x = first.schedule.x
@@ -201,7 +168,7 @@ def test_planner_charges_key_slots_at_the_reported_pose_and_backs_off_by_the_mar
     for k in reported:  # the robot was elsewhere than planned in 10 key slots: charged at its real pose
         planner.record_pose(k, 0.0, 0.0, 0.0)
     keys = int((x == 0).sum())
-    planned = [planner._predicted[k] for k in range(1001, 1041) if x[k - 1001] == 0 and k not in reported]
+    planned = [planner.forecast.predicted(k) for k in range(1001, 1041) if x[k - 1001] == 0 and k not in reported]
     second = planner.plan(1040, None)
     spent = 10 * lm.predict(0.0, 0.0, 0.0) + sum(planned)
     assert keys == 40 and lm.predict(0.0, 0.0, 0.0) > 0.05
@@ -209,8 +176,6 @@ def test_planner_charges_key_slots_at_the_reported_pose_and_backs_off_by_the_mar
 
 
 def test_demo_round_starts_at_the_first_slot_whose_pose_key_moved():
-    from gsrmr_sim.demo import first_moving_slot
-
     def row(source, pose):
         a, b, t = pose if pose else (None, None, None)
         return {"source": source, "pose_a_m": a, "pose_b_m": b, "pose_theta_rad": t}

@@ -14,8 +14,9 @@ import pytest
 
 from gsrmr_common import link_model as link
 from gsrmr_common.channel import paper_route_distances
-from gsrmr_server.scheduling import METHODS, ChannelModel, Problem, ProblemError, cli, solve
+from gsrmr_server.scheduling import METHODS, ChannelModel, Problem, ProblemError, cli, rate_allocation, solve
 from gsrmr_server.scheduling.baselines import relaxed_solution
+from gsrmr_server.scheduling.solve import method_options
 
 FAST_METHODS = [m for m in METHODS if m != "apo"]
 
@@ -282,6 +283,26 @@ def test_maxrate_and_fairness_spend_the_budget_and_classify_delivery():
     level = mr.power_w[live] + p.noise_w / p.channel_gain[live]
     np.testing.assert_allclose(level, level[0], rtol=1e-9)
     assert np.all(p.noise_w / p.channel_gain[~live] >= level[0] * (1 - 1e-12))
+
+
+def test_rate_allocation_budget_comes_from_the_registry_not_an_import():
+    """maxrate / fairness get the energy of ``budget_from`` through ``solve`` (the registry); called directly
+    they need a budget, and a budget taken from another budget spender is refused instead of recursing."""
+    p = paper_problem(60, 2, 0.03)
+    ranking = solve(p, "ranking")
+    s = solve(p, "maxrate", budget_from="ranking")
+    assert s.energy_j == pytest.approx(ranking.energy_j, rel=1e-9)
+    assert s.notes[0].startswith("energy budget = ranking energy")
+    assert "budget_from" in method_options("fairness")
+    assert "budget_from" not in method_options("exact")
+    with pytest.raises(ValueError, match="spends an energy budget"):
+        rate_allocation.solve_fairness(p)
+    assert rate_allocation.solve_fairness(p, energy_budget_j=ranking.energy_j).energy_j == pytest.approx(
+        ranking.energy_j, rel=1e-9)
+    with pytest.raises(ValueError, match="budget_from must be a method that chooses its own energy"):
+        solve(p, "fairness", budget_from="maxrate")
+    with pytest.raises(ValueError, match="budget_from must be"):
+        solve(p, "maxrate", budget_from="magic")
 
 
 def test_solve_rejects_unknown_method_and_option():

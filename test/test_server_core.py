@@ -1,12 +1,29 @@
-"""Tests of the server's uplink bookkeeping, the loss map, the wire formats and the server node's slot clock."""
+"""Tests of the server's uplink bookkeeping, the loss map, the wire formats, the server node's pure policy objects
+(ledger book and expected image, render intrinsics from camera_info, the stats of /diagnostics and
+server_summary.json) and a thin test of the node that wires them."""
 
+from dataclasses import replace
+import json
 import math
+from types import SimpleNamespace
 
+from conftest import ros_env
 import numpy as np
 import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.parameter import Parameter
+from stack_harness import make_point_model
 
-from gsrmr_common.wire import PoseKey, ScheduleMsg
+from gsrmr_common.camera import Intrinsics
+from gsrmr_common.ros_wire import camera_info_from_intrinsics, ledger_to_msg, mr_slot_info_from_msg
+from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
+from gsrmr_common.wire import LedgerRow, MRSlotInfo, PoseKey, RealSource, ScheduleMsg, UplinkFault
+from gsrmr_server.ledger_book import LedgerBook, SlotPlan
 from gsrmr_server.loss_map import LossMap
+from gsrmr_server.render_intrinsics import WAITING, RenderIntrinsics, describe, intrinsics_mismatch
+from gsrmr_server.server_node import ServerNode
+from gsrmr_server.server_stats import ServerStats, diagnostic_report
 from gsrmr_server.uplink import UplinkAssembler
 
 
@@ -68,135 +85,136 @@ def test_loss_map_learns_neighbours_prior_and_forgets():
     assert back.predict_many(np.array([[0.1, 0.1, 0.0], [9, 9, 0]])) == pytest.approx([lm.predict(0.1, 0.1, 0), 0.07])
 
 
-@pytest.mark.ros
-def test_server_catches_up_a_short_stall_and_skips_ahead_only_past_the_backlog_bound(tmp_path):
-    """ServerNode's slot clock: a stall shorter than max_backlog_slots composes every missed slot in
-    order (late); a longer one skips ahead to the current slot and counts skipped_slots once."""
-    from types import SimpleNamespace
+def _ledger(slot: int, x: int) -> LedgerRow:
+    return LedgerRow(slot, x, 0.0, 192, 1e-6, 0.0, 0.0, 8000, 0.0)
 
-    from conftest import ros_env
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.parameter import Parameter
-    from stack_harness import make_point_model
 
-    from gsrmr_common.camera import Intrinsics
-    from gsrmr_common.ros_wire import camera_info_from_intrinsics
-    from gsrmr_server.server_node import ServerNode
+def test_ledger_book_expects_what_the_robot_said_else_the_schedule_and_forgets_old_rows():
+    book = LedgerBook(keep=3)
+    book.schedule = ScheduleMsg(100, 0.1, 1, np.array([1, 0], np.int8), np.array([0.1, 1e-6]))
+    assert book.image_sent(100) is None and book.take(100) == SlotPlan(None, 1)
+    assert book.take(100).image_expected is True and book.take(101).image_expected is False
+    assert book.take(102) == SlotPlan() and SlotPlan().image_expected is None  # no schedule covers it
+    book.add(_ledger(101, 1))  # the robot decided in the slot: an image, whatever the schedule said
+    assert book.image_sent(101) is True
+    plan = book.take(101)
+    assert plan.ledger == _ledger(101, 1) and plan.scheduled_x == 0 and plan.image_expected is True
+    assert book.image_sent(101) is None  # taken
+    for slot in (103, 104, 105, 106):
+        book.add(_ledger(slot, 0))
+    assert book.image_sent(103) is None and book.image_sent(106) is False  # the newest 3 kept
+    with pytest.raises(ValueError):
+        LedgerBook(keep=0)
 
-    env = ros_env()
+
+def test_render_intrinsics_adopt_a_usable_calibration_and_refuse_an_unusable_one_once():
+    small, large = Intrinsics.from_fov(32, 24, 1.2), Intrinsics.from_fov(48, 36, 1.0)
+    camera = RenderIntrinsics()
+    assert camera.intrinsics is None and camera.status == WAITING and camera.problems() == [WAITING]
+    refused = camera.offer(None, "distortion")
+    assert refused.level == "warning" and "no intrinsics yet" in refused.text
+    assert camera.status == "unusable: distortion"
+    assert camera.problems() == [WAITING, "camera_info refused"]
+    first = camera.offer(small)
+    assert first.level == "info" and first.text == f"render intrinsics from camera_info: {describe(small)}"
+    assert camera.intrinsics == small and camera.status.startswith("32×24 fx=") and camera.problems() == []
+    assert camera.offer(small) is None  # the same again: nothing to say
+    change = camera.offer(large)
+    assert camera.intrinsics == large and "(was 32×24" in change.text and "size 48×36 != 32×24" in change.text
+    assert camera.offer(None, "skew").text.endswith(f"(keeping {describe(large)}): skew")
+    assert camera.offer(None, "skew") is None and camera.intrinsics == large  # WARN once per problem
+    assert camera.problems() == ["camera_info refused"]
+    assert intrinsics_mismatch(small, small) is None
+    nudged = replace(small, fx=small.fx + 0.5)
+    assert intrinsics_mismatch(nudged, small) == f"fx {nudged.fx:.3f} != {small.fx:.3f}"
+
+
+def test_server_stats_are_computed_once_for_diagnostics_and_the_summary():
+    stats = ServerStats(slot_s=0.1, history=3)
+    for latency, source in ((50.0, "image"), (150.0, "fallback"), (20.0, "render"), (30.0, "render")):
+        stats.record(latency, source, {"render": latency / 2, "total": latency})
+    summary = stats.summary({UplinkFault.LATE: 2})
+    assert summary["slots"] == 4 and summary["slots_on_time"] == 3
+    assert summary["sources"] == {"image": 1, "fallback": 1, "render": 2} and summary["faults"] == {"late": 2}
+    assert summary["latency_ms_p50"] == 30.0 and summary["compose_ms_p50"] == {"render": 15.0, "total": 30.0}
+    assert summary["latency_ms_p99"] == pytest.approx(147.6)  # over the last 3 slots: 20, 30, 150
+    assert json.loads(json.dumps(summary)) == summary
+    camera = RenderIntrinsics()
+    values, problems = diagnostic_report(summary, camera)
+    assert values["latency_ms_p99"] == 147.6 and json.loads(values["sources"]) == summary["sources"]
+    assert values["camera_info"] == WAITING and problems == ["uplink faults counted", WAITING]
+    camera.offer(Intrinsics.from_fov(32, 24, 1.2))
+    assert diagnostic_report(stats.summary({}), camera)[1] == []
+    assert ServerStats(0.1).summary({})["latency_ms_p50"] == 0.0  # nothing composed yet
+
+
+@pytest.fixture
+def server_node(tmp_path):
+    """A ServerNode on a small point model, recording to ``tmp_path/rec``, in its own context and domain."""
     ctx = Context()
-    rclpy.init(context=ctx, domain_id=int(env["ROS_DOMAIN_ID"]))
+    rclpy.init(context=ctx, domain_id=int(ros_env()["ROS_DOMAIN_ID"]))
     try:
         node = ServerNode(context=ctx, parameter_overrides=[
             Parameter("model_path", value=str(make_point_model(tmp_path, n=50))),
-            Parameter("process_delay_s", value=0.0)])
-        slot_ns = node.clock.slot_len_ns
-        now = {"ns": 1_000_000 * slot_ns}
-        node.get_clock = lambda: SimpleNamespace(now=lambda: SimpleNamespace(nanoseconds=now["ns"]))
-        composed: list[int] = []
-        node.process_slot = composed.append
-        node._tick()
-        assert node.cursor.next is None and node.intrinsics is None  # no camera_info yet: the clock waits
-        node.use_camera_info(camera_info_from_intrinsics(Intrinsics.from_fov(32, 24, 1.2), 0, "camera_optical_frame"))
-        assert (node.intrinsics.width, node.intrinsics.height) == (32, 24) == (node.composer.intrinsics.width, 24)
-
-        def tick_until_idle() -> None:
-            for _ in range(1000):
-                before = len(composed)
-                node._tick()
-                if len(composed) == before:
-                    return
-
-        node._tick()  # the clock starts at the next slot
-        first = node.cursor.next
-        now["ns"] += 20 * slot_ns  # a 2 s stall: 20 slots due, within the default bound of 30
-        tick_until_idle()
-        assert composed == list(range(first, first + 20))
-        assert node.uplink.faults["skipped_slots"] == 0
-        now["ns"] += 45 * slot_ns  # 4.5 s: past the bound → one skip ahead to the current slot
-        tick_until_idle()
-        assert node.uplink.faults["skipped_slots"] == 1
-        assert composed[-1] == now["ns"] // slot_ns and composed[20] == composed[-1]
-        # The bound is a live parameter; out of range is refused.
-        assert node.set_parameters([Parameter("max_backlog_slots", value=100)])[0].successful
-        assert node.params.max_backlog_slots == 100
-        assert not node.set_parameters([Parameter("max_backlog_slots", value=0)])[0].successful
-        assert node.set_parameters([Parameter("process_delay_s", value=0.05)])[0].successful
-        assert node.params.process_delay_s == 0.05
-        assert not node.set_parameters([Parameter("jpeg_quality", value=90.0)])[0].successful  # wrong type
-        read_only = node.set_parameters([Parameter("render_threads", value=2)])[0]
-        assert not read_only.successful and "read-only" in read_only.reason
-        assert node.params.render_threads == 1 and node.params.jpeg_quality == 85
-        assert node.set_parameters([Parameter("jpeg_quality", value=70)])[0].successful
-        assert node.params.jpeg_quality == node.core.jpeg_quality == 70
-        # A slot is composed before its deadline once its uploads are complete (no schedule: key + image).
-        slot = node.cursor.next
-        now["ns"] = slot * slot_ns + 1_000_000  # 1 ms into the slot, 49 ms before its deadline
-        n = len(composed)
-        node._tick()
-        node.uplink.on_key(PoseKey(slot, 0.0, 0.0, 0.0), slot, now["ns"])
-        node._tick()
-        assert len(composed) == n  # the image may still come
-        node.uplink.on_image(slot, b"jpeg", slot, now["ns"])
-        node._tick()
-        assert composed[n:] == [slot]
-        node._tick()
-        assert composed[n:] == [slot]  # the next slot has not started
-        # A key-only slot is complete once the robot's ledger row says no image follows (whatever x the
-        # schedule had: the robot decides in the slot).
-        from gsrmr_common.wire import LedgerRow
-
-        slot = node.cursor.next
-        now["ns"] = slot * slot_ns + 1_000_000
-        node._tick()
-        node.uplink.on_key(PoseKey(slot, 0.0, 0.0, 0.0), slot, now["ns"])
-        node._tick()
-        assert composed[-1] != slot  # no image, no ledger: wait
-        node._ledger[slot] = LedgerRow(slot, 0, 0.0, 192, 1e-6, 0.0, 0.0, 8000, 0.0)
-        node._tick()
-        assert composed[-1] == slot
+            Parameter("record_dir", value=str(tmp_path / "rec"))])
+        yield node
         node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
 
 
 @pytest.mark.ros
-def test_server_renders_with_the_robots_camera_info_and_refuses_an_unusable_one(tmp_path):
-    """The render intrinsics are the robot's calibration: the first usable camera_info starts the slot clock,
-    a new one is adopted for the next slot (the MR image has its size), a distorted one is refused (WARN in
-    /diagnostics) and the last usable one kept."""
-    from conftest import ros_env
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.parameter import Parameter
-    from stack_harness import make_point_model
-
-    from gsrmr_common.camera import Intrinsics
-    from gsrmr_common.ros_wire import camera_info_from_intrinsics
-    from gsrmr_server.server_node import ServerNode
-
-    env = ros_env()
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=int(env["ROS_DOMAIN_ID"]))
-    try:
-        node = ServerNode(context=ctx, parameter_overrides=[
-            Parameter("model_path", value=str(make_point_model(tmp_path, n=50)))])
-        assert node.camera_info_status == "waiting for camera_info"
-        small, large = Intrinsics.from_fov(32, 24, 1.2), Intrinsics.from_fov(48, 36, 1.0)
-        node.use_camera_info(camera_info_from_intrinsics(small, 0, "camera_optical_frame"))
-        assert node.intrinsics == small and node.camera_info_status.startswith("32×24 fx=")
-        node.process_slot(10)
-        node.use_camera_info(camera_info_from_intrinsics(large, 0, "camera_optical_frame"))
-        assert node.intrinsics == large == node.composer.intrinsics
-        distorted = camera_info_from_intrinsics(small, 0, "camera_optical_frame")
-        distorted.d = [0.1, 0.0, 0.0, 0.0, 0.0]
-        node.use_camera_info(distorted)
-        assert node.intrinsics == large and node.camera_info_status.startswith("unusable:")
-        shapes: list[tuple[int, int]] = []
-        node._pub_mr.publish = lambda msg: shapes.append((msg.width, msg.height))
-        node.process_slot(11)
-        assert shapes == [(48, 36)]
-        node.destroy_node()
-    finally:
-        rclpy.shutdown(context=ctx)
+def test_server_node_wires_the_slot_core_and_its_policies(server_node, tmp_path):
+    """The thin node: no simulation parameter; the slot clock waits for camera_info; each slot's mr/image (in
+    the camera's optical frame) is followed by its mr/slot_info; a new calibration sizes the next image, an
+    unusable one is refused; live parameters; /diagnostics and server_summary.json from one set of stats."""
+    node = server_node
+    for gone in ("evaluate_ground_truth", "hindsight_jpeg_quality", "ground_truth_dir"):
+        assert not node.has_parameter(gone)
+    published: list[tuple[str, object]] = []
+    for pub, topic in ((node._pub_mr, "mr/image"), (node._pub_info, "mr/slot_info"), (node._pub_diag, "diag")):
+        pub.publish = lambda msg, topic=topic: published.append((topic, msg))
+    slot_ns = node.clock.slot_len_ns
+    now = {"ns": 1_000_000 * slot_ns}
+    node.get_clock = lambda: SimpleNamespace(now=lambda: SimpleNamespace(nanoseconds=now["ns"]))
+    node._tick()
+    assert node.cursor.next is None  # no camera_info yet: the slot clock waits
+    small, large = Intrinsics.from_fov(32, 24, 1.2), Intrinsics.from_fov(48, 36, 1.0)
+    node.use_camera_info(camera_info_from_intrinsics(small, 0, CAMERA_OPTICAL_FRAME))
+    assert node.camera.intrinsics == small == node.composer.intrinsics
+    node._tick()  # the clock starts at the next slot
+    first = node.cursor.next
+    node._on_ledger(ledger_to_msg(_ledger(first, 0)))
+    node.uplink.on_key(PoseKey(first, 0.5, 0.0, 0.1), first, now["ns"])
+    now["ns"] = node.clock.start_ns(first) + 1_000_000
+    node._tick()  # key + the robot's "no image": complete before its deadline
+    assert [t for t, _ in published] == ["mr/image", "mr/slot_info"]
+    image, info = published[0][1], mr_slot_info_from_msg(published[1][1])
+    assert (image.width, image.height, image.header.frame_id) == (32, 24, CAMERA_OPTICAL_FRAME)
+    assert info == MRSlotInfo(first, RealSource.RENDER, 0.5, 0.0, 0.1, 0.0)
+    distorted = camera_info_from_intrinsics(large, 0, CAMERA_OPTICAL_FRAME)
+    distorted.d = [0.1, 0.0, 0.0, 0.0, 0.0]
+    node.use_camera_info(camera_info_from_intrinsics(large, 0, CAMERA_OPTICAL_FRAME))
+    node.use_camera_info(distorted)
+    assert node.camera.intrinsics == large and node.camera.status.startswith("unusable:")
+    now["ns"] += 45 * slot_ns  # 4.5 s stall: past max_backlog_slots, one skip ahead
+    node._tick()
+    assert node.uplink.faults[UplinkFault.SKIPPED_SLOTS] == 1
+    assert published[-2][0] == "mr/image" and (published[-2][1].width, published[-2][1].height) == (48, 36)
+    assert mr_slot_info_from_msg(published[-1][1]).source == RealSource.FALLBACK  # the key's pose, extrapolated
+    # live parameters act, read-only and out-of-range ones are refused
+    assert node.set_parameters([Parameter("jpeg_quality", value=70)])[0].successful
+    assert node.params.jpeg_quality == node.core.jpeg_quality == 70
+    assert not node.set_parameters([Parameter("max_backlog_slots", value=0)])[0].successful
+    read_only = node.set_parameters([Parameter("render_threads", value=2)])[0]
+    assert not read_only.successful and "read-only" in read_only.reason
+    del node.get_clock  # the node's own clock again (diagnostics are stamped with it)
+    node._publish_diagnostics()
+    status = published[-1][1].status[0]
+    values = {kv.key: kv.value for kv in status.values}
+    assert values["slots"] == "2" and json.loads(values["faults"]) == {"skipped_slots": 1, "missing_key": 1}
+    assert "camera_info refused" in status.message and "uplink faults counted" in status.message
+    node.on_shutdown()
+    summary = json.loads((tmp_path / "rec" / "server_summary.json").read_text())
+    assert summary == json.loads(json.dumps(node.stats.summary(node.uplink.faults)))
+    assert summary["slots"] == 2 and summary["sources"] == {"render": 1, "fallback": 1}

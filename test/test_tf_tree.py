@@ -213,7 +213,7 @@ def _as_transform(msg) -> tuple[str, str, tf_tree.Transform]:
 def test_transform_to_msg_fields() -> None:
     from builtin_interfaces.msg import Time
 
-    from gsrmr_robot.robot_node import transform_to_msg
+    from gsrmr_common.tf_ros import transform_to_msg
 
     tf = tf_tree.base_from_camera_optical_transform(CameraMount(pitch_rad=0.1))
     msg = transform_to_msg("base_link", "cam", tf, Time(sec=3, nanosec=4))
@@ -265,7 +265,8 @@ def test_robot_node_sends_static_tf_and_resends_on_map_from_odom_change(fake_tf2
 
 @pytest.mark.skipif(importlib.util.find_spec("tf2_ros") is not None, reason="tf2_ros is installed here")
 def test_robot_node_without_tf2_ros_sends_nothing(ros_context) -> None:
-    from gsrmr_robot.robot_node import RobotNode, load_tf2_ros
+    from gsrmr_common.tf_ros import load_tf2_ros
+    from gsrmr_robot.robot_node import RobotNode
 
     module, why = load_tf2_ros()
     assert module is None and "tf2_ros" in why

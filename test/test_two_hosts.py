@@ -14,29 +14,21 @@ from collections import Counter
 import re
 import time
 
+from conftest import ros_env
 import pytest
+import stack_harness
 
+from gsrmr_server.recording import TOPIC_SLOT_LOG, read_mcap
 from gsrmr_sim.netns import TwoHosts, namespaces, unavailable_reason
+from gsrmr_sim.scores import read_scores
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow,
               pytest.mark.skipif(unavailable_reason() is not None, reason=f"two hosts: {unavailable_reason()}")]
 
 
-def _harness():
-    from pathlib import Path
-    import sys
-
-    sys.path.insert(0, str(Path(__file__).parent))
-    import stack_harness
-
-    return stack_harness
-
-
 @pytest.fixture(scope="module")
 def two_hosts(tmp_path_factory):
-    from conftest import ros_env
-
-    h = _harness()
+    h = stack_harness
     tmp = tmp_path_factory.mktemp("two_hosts")
     model = h.make_point_model(tmp)
     env = ros_env()
@@ -54,7 +46,7 @@ def two_hosts(tmp_path_factory):
 
 
 def _rows(stack) -> list[dict]:
-    return _harness().slot_rows(stack.tmp / "rec")
+    return stack_harness.slot_rows(stack.tmp / "rec")
 
 
 def _wait_rows(stack, predicate, timeout_s: float) -> list[dict]:
@@ -91,6 +83,16 @@ def test_images_cross_the_veth_not_shared_memory(two_hosts):
     recent = [r for r in _rows(stack) if r["stamp_s"] >= before["wall_s"] and r["stamp_s"] < after["wall_s"] - 0.5]
     sent = sum(r["bytes_sent"] or 0 for r in recent)
     assert sent > 0 and after["uplink"] - before["uplink"] >= sent  # the uploads went through the veth
+    # the scorer, on the server's side, scores against the true frames of the simulation backplane (no raw
+    # frame crosses the link)
+    def scored() -> list[dict]:
+        return [r for r in read_scores(stack.tmp / "rec").values() if r["loss"] is not None]
+
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and len(scored()) < 20:
+        time.sleep(0.5)
+    assert len(scored()) >= 20, stack.log("gsrmr_sim_scorer")[-2000:]
+    assert "truth from folder" in stack.log("gsrmr_sim_scorer")
     _alive(stack)
 
 
@@ -180,8 +182,6 @@ def test_uplink_cut_below_one_image_per_slot_robot_holds_back_scheduler_plans_fe
 
 
 def test_two_host_stack_stops_cleanly_recording_complete_nothing_left(two_hosts):
-    from gsrmr_server.recording import TOPIC_SLOT_LOG, read_mcap
-
     stack, hosts, state = two_hosts
     took = stack.stop()
     state["stopped"] = True

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 import math
 from pathlib import Path
 
@@ -12,7 +13,19 @@ from gsrmr_common.link_model import LinkBudget
 from gsrmr_robot.dds_profile import HEARTBEAT_PERIOD_NS, use_uplink_profile
 from gsrmr_robot.uplink_backlog import UplinkBacklog
 from gsrmr_robot.uplink_core import SlotInputs, UplinkCore
+from gsrmr_server.loss_map import LossMap
+from gsrmr_server.planner import OnlinePlanner, PlannerConfig, RoutePredictor
+from gsrmr_server.planner.link_cap import (
+    DELIVERY_GRACE_SLOTS,
+    DELIVERY_WINDOW_IMAGES,
+    LINK_WINDOW_SLOTS,
+    PROBE_IMAGE_FRACTION,
+    LinkCap,
+    cap_planned_images,
+)
 from gsrmr_server.slot_price import cap_expected_images, rician_power_samples
+
+BLIND = PlannerConfig(loss_threshold=0.0, horizon_slots=40, slot_s=0.1, image_bits=64_000, pose_bits=192)
 
 
 def test_backlog_queues_until_acked_and_measures_the_rate():
@@ -78,25 +91,21 @@ def test_cap_expected_images_keeps_the_most_valuable_images():
 
 
 def test_planner_caps_images_when_the_robot_held_them_back():
-    from gsrmr_server.horizon import LINK_WINDOW_SLOTS, OnlinePlanner, RoutePredictor
-    from gsrmr_server.loss_map import LossMap
-
     link = LinkBudget()
-    planner = OnlinePlanner(RoutePredictor([[0, 0], [4, 0], [4, 4], [0, 4]], 0.3), LossMap(prior=0.2),
-                            link, slot_s=0.1, image_bits=64_000, pose_bits=192, loss_threshold=0.0, horizon=40,
-                            in_slot_decision=True)
+    planner = OnlinePlanner(replace(BLIND, in_slot_decision=True),
+                            RoutePredictor([[0, 0], [4, 0], [4, 4], [0, 4]], 0.3), LossMap(prior=0.2), link)
     free = planner.plan(0, (0.0, 0.0, 0.0))
-    assert planner.link_image_cap() is None
+    assert planner.link_cap.image_cap() is None and planner.last_image_cap is None
     for k in range(1, LINK_WINDOW_SLOTS + 1):  # a fast link: 64 kbit images acknowledged at 2 Mbit/s: no cap
         planner.record_action(k, 1, 0, 2e6, 64_000)
-    assert planner.link_image_cap() is None
+    assert planner.link_cap.image_cap() is None
     for k in range(LINK_WINDOW_SLOTS + 1, 2 * LINK_WINDOW_SLOTS + 1):  # 0.2 Mbit/s: an image per 3.2 slots
         planner.record_action(k, int(k % 3 == 0), int(k % 3 != 0), 0.2e6, 64_000)
-    cap = planner.link_image_cap()
-    assert cap == pytest.approx(0.1 * 0.2e6 / 64_000) and planner.images_held_back() == 33
+    cap = planner.link_cap.image_cap()
+    assert cap == pytest.approx(0.1 * 0.2e6 / 64_000) and planner.link_cap.images_held_back() == 33
     capped = planner.plan(2 * LINK_WINDOW_SLOTS, (0.0, 0.0, 0.0))
     samples = rician_power_samples(1.0)
-    gains = planner.gains(2 * LINK_WINDOW_SLOTS + 1, planner.predictor.predict((0.0, 0.0, 0.0), 40, 0.1))
+    gains = planner.gains(2 * LINK_WINDOW_SLOTS + 1, planner.route.predict((0.0, 0.0, 0.0), 40, 0.1))
 
     def expected(s) -> float:
         t = np.asarray(s.schedule.gain_threshold)
@@ -118,41 +127,63 @@ def test_robot_uses_the_uplink_profile_unless_one_is_set(tmp_path):
     assert "FASTDDS_DEFAULT_PROFILES_FILE" not in own
 
 
-def test_planner_only_probes_when_images_arrive_after_their_slot():
-    from gsrmr_server.horizon import (
-        DELIVERY_GRACE_SLOTS,
-        DELIVERY_WINDOW_IMAGES,
-        LINK_WINDOW_SLOTS,
-        PROBE_IMAGE_FRACTION,
-        OnlinePlanner,
-        RoutePredictor,
-    )
-    from gsrmr_server.loss_map import LossMap
-
-    planner = OnlinePlanner(RoutePredictor([[0, 0], [4, 0], [4, 4], [0, 4]], 0.3), LossMap(prior=0.2), LinkBudget(),
-                            slot_s=0.1, image_bits=64_000, pose_bits=192, loss_threshold=0.0, horizon=40,
-                            in_slot_decision=True)
+def test_link_cap_only_probes_when_images_arrive_after_their_slot():
+    cap = LinkCap(0.1)
     fast, slow = (2e6, 64_000), (0.5e6, 64_000)  # 0.5 Mbit/s: 0.78 images per slot
     for k in range(1, 21):  # images composed in their slots (the server's loss samples came)
-        planner.record_action(k, 1, 0, *fast)
-        planner.observe(k, 0.0, 0.0, 0.0, 0.1)
-    assert planner.image_delivery_ratio() == 1.0 and planner.link_image_cap() is None
+        cap.record(k, 1, 0, *fast)
+        cap.record_sample(k)
+    assert cap.delivery_ratio() == 1.0 and cap.image_cap() is None
     k0 = 21 + DELIVERY_WINDOW_IMAGES + DELIVERY_GRACE_SLOTS
     for k in range(21, k0):  # then none composed (an outage), the link as fast as before: no cap
-        planner.record_action(k, 1, 0, *fast)
-    assert planner.image_delivery_ratio() < 0.5 and planner.link_image_cap() is None
+        cap.record(k, 1, 0, *fast)
+    assert cap.delivery_ratio() < 0.5 and cap.image_cap() is None
     for k in range(k0, k0 + LINK_WINDOW_SLOTS):  # a slow link whose images all arrive late: only probe
-        planner.record_action(k, 1, 0, *slow)
-    assert planner.image_delivery_ratio() < 0.5
-    assert planner.link_image_cap() == PROBE_IMAGE_FRACTION
+        cap.record(k, 1, 0, *slow)
+    assert cap.delivery_ratio() < 0.5
+    assert cap.image_cap() == PROBE_IMAGE_FRACTION
     k1 = k0 + LINK_WINDOW_SLOTS
     for k in range(k1, k1 + DELIVERY_WINDOW_IMAGES + DELIVERY_GRACE_SLOTS):  # the probes arrive again
-        planner.record_action(k, 1, 0, *slow)
-        planner.observe(k, 0.0, 0.0, 0.0, 0.1)
-    assert planner.image_delivery_ratio() >= 0.5
-    assert planner.link_image_cap() == pytest.approx(0.1 * 0.5e6 / 64_000)  # the throughput cap alone
-    silent = OnlinePlanner(RoutePredictor([[0, 0], [4, 0], [4, 4]], 0.3), LossMap(prior=0.2), LinkBudget(), slot_s=0.1,
-                           image_bits=64_000, pose_bits=192, loss_threshold=0.0, horizon=10)
+        cap.record(k, 1, 0, *slow)
+        cap.record_sample(k)
+    assert cap.delivery_ratio() >= 0.5
+    assert cap.image_cap() == pytest.approx(0.1 * 0.5e6 / 64_000)  # the throughput cap alone
+    silent = LinkCap(0.1)
     for k in range(1, 40):  # a server that never measures L_t: no verdict on delivery
-        silent.record_action(k, 1, 0, *fast)
-    assert silent.image_delivery_ratio() is None and silent.link_image_cap() is None
+        silent.record(k, 1, 0, *fast)
+    assert silent.delivery_ratio() is None and silent.image_cap() is None
+    unknown = LinkCap(0.1)  # rows without a rate or a size (an older robot): no cap
+    for k in range(1, 10):
+        unknown.record(k, 1)
+    assert unknown.image_cap() is None and unknown.images_held_back() == 0
+    with pytest.raises(ValueError):
+        LinkCap(0.0)
+
+
+def test_planner_feeds_the_link_cap_from_ledger_rows_and_loss_samples():
+    """The planner's inputs reach the link cap: ledger rows (record_action) and loss samples (observe)."""
+    planner = OnlinePlanner(BLIND, RoutePredictor([[0, 0], [4, 0], [4, 4], [0, 4]], 0.3), LossMap(prior=0.2),
+                            LinkBudget())
+    for k in range(1, 21):
+        planner.record_action(k, 1, int(k % 2), 2e6, 64_000)
+        planner.observe(k, 0.0, 0.0, 0.0, 0.1)
+    assert planner.link_cap.delivery_ratio() == 1.0 and planner.link_cap.images_held_back() == 10
+
+
+def test_cap_planned_images_keeps_the_most_loss_per_joule():
+    """Without the in-slot rule a capped plan keeps the images with the largest key cost × gain."""
+    x = np.array([1, 1, 0, 1, 1], np.int8)
+    key_cost = np.array([0.05, 0.01, 0.09, 0.02, 0.05])
+    gains = np.array([1.0, 1.0, 1.0, 1.0, 2.0])
+    np.testing.assert_array_equal(cap_planned_images(x, key_cost, gains, 2.5), [1, 0, 0, 0, 1])
+    assert cap_planned_images(x, key_cost, gains, 4.0) is None  # it fits already
+
+
+def test_planner_without_the_in_slot_rule_holds_its_images_to_the_link():
+    planner = OnlinePlanner(BLIND, RoutePredictor([[0, 0], [4, 0], [4, 4], [0, 4]], 0.3), LossMap(prior=0.2),
+                            LinkBudget())
+    assert planner.plan(0, (0.0, 0.0, 0.0)).images == 40  # L_th = 0: an image in every slot
+    for k in range(1, LINK_WINDOW_SLOTS + 1):  # 0.2 Mbit/s: an image per 3.2 slots
+        planner.record_action(k, int(k % 3 == 0), int(k % 3 != 0), 0.2e6, 64_000)
+    capped = planner.plan(LINK_WINDOW_SLOTS, (0.0, 0.0, 0.0))
+    assert capped.images == int(0.1 * 0.2e6 / 64_000 * 40) and any("images capped" in n for n in capped.notes)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 import math
+import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -31,7 +32,9 @@ from rclpy.node import Node
 from rclpy.time import Time
 from sensor_msgs.msg import Imu
 
+from gsrmr_common.interrupts import console_main
 from gsrmr_common.ros_node import declare_parameters, diagnostics_msg, run_node
+from gsrmr_common.tf_ros import load_tf2_ros, tf_message_type
 from gsrmr_robot.limo import protocol as proto
 from gsrmr_robot.limo.base_params import LimoBaseParameters
 from gsrmr_robot.limo.driver import DriverSnapshot, ImuSample, LimoDriver
@@ -81,15 +84,12 @@ class LimoBaseNode(Node):
 
     def _tf_sender(self) -> Callable[[TransformStamped], None] | None:
         """Where odom → base_link goes: tf2_ros's broadcaster, else a raw /tf publisher, else nowhere."""
-        from gsrmr_robot.robot_node import load_tf2_ros
-
         tf2_ros, why = load_tf2_ros()
         if tf2_ros is not None:
             return tf2_ros.TransformBroadcaster(self).sendTransform
-        try:
-            from tf2_msgs.msg import TFMessage
-        except ImportError:
-            self.get_logger().warning(f"publish_tf is true but {why} and tf2_msgs is not installed: no TF published")
+        TFMessage, why_msgs = tf_message_type()
+        if TFMessage is None:
+            self.get_logger().warning(f"publish_tf is true but {why} and {why_msgs}: no TF published")
             return None
         pub = self.create_publisher(TFMessage, "/tf", 100)  # what TransformBroadcaster does
         return lambda tf: pub.publish(TFMessage(transforms=[tf]))
@@ -177,7 +177,6 @@ class LimoBaseNode(Node):
     def _publish_imu(self, sample: ImuSample) -> None:
         if not self._alive:
             return
-        import time
         msg = Imu()
         msg.header.stamp = self._stamp(sample.t_s, time.monotonic())
         msg.header.frame_id = self.imu_frame
@@ -286,6 +285,7 @@ def diagnostic_values(snap: DriverSnapshot) -> list[tuple[str, str]]:
     return vals
 
 
+@console_main
 def main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-limo-base``."""
     return run_node(LimoBaseNode, args)

@@ -2,12 +2,16 @@
 
 ``d_t`` is 1 where the MR image shows the real image and 0 where it shows the virtual one: a pixel is
 virtual when a virtual agent is hit there *and* is nearer than the real surface (camera-space z in
-metres), so an agent behind a real box is hidden. Images are H×W×3 float32 in [0, 1]. Pure numpy.
+metres), so an agent behind a real box is hidden. Images are H×W×3 float32 in [0, 1]. No ROS: numpy, and
+OpenCV for the JPEG of :func:`jpeg_mr_loss`.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from gsrmr_common.jpeg import decode_jpeg, encode_jpeg
+from gsrmr_common.metrics import image_quality
 
 
 def compose_mask(virtual_depth_m: np.ndarray, real_depth_m: np.ndarray) -> np.ndarray:
@@ -29,9 +33,6 @@ def jpeg_mr_loss(frame_u8: np.ndarray, virtual: np.ndarray, mask: np.ndarray, jp
     """MR loss an *image* slot leaves: the composite from the camera frame's JPEG at ``jpeg_quality`` (what
     the robot uploads), rounded to 8 bit as published, against the composite from the frame itself.
     ``frame_u8``: H×W×3 uint8 RGB; ``virtual``, ``mask`` as in :func:`mr_image`."""
-    from gsrmr_common.jpeg import decode_jpeg, encode_jpeg
-    from gsrmr_common.metrics import image_quality
-
     truth = mr_image(frame_u8.astype(np.float32) / 255.0, virtual, mask)
     jpeg = decode_jpeg(encode_jpeg(np.ascontiguousarray(frame_u8), int(jpeg_quality)))
     composite = mr_image(jpeg.astype(np.float32) / 255.0, virtual, mask)

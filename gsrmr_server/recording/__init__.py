@@ -9,7 +9,8 @@ Output directory layout
     One row per slot with the columns :data:`CSV_COLUMNS` (units in the names; ``stamp_s`` is the slot
     start in seconds of ROS time, ``x`` 1 = image / 0 = pose key, ``source`` ∈ {image, render,
     fallback}, pose in ``map`` per REP-103, ``loss`` = MR loss of m̂_t against the true m_t (simulation
-    only), ``gs_loss`` = the GS loss L_t measured in an image slot, ``energy_upload_all_j`` = what the
+    only: empty in the server's file, filled in the demo's report from the scorer's ``scores.csv``),
+    ``gs_loss`` = the GS loss L_t measured in an image slot, ``energy_upload_all_j`` = what the
     upload-all reference (RoboMR) would have spent on this slot's frame, ``channel_gain`` = the gain
     g = |h|² the robot's ledger booked the slot at; empty cell = not available).
     The file is flushed after every row, so a killed process (``kill -9``) loses no row that

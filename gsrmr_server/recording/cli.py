@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import argparse
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -14,8 +15,6 @@ from gsrmr_server.recording.slots_csv import CSV_NAME, read_slots_csv
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m gsrmr_server.recording {recover,info} PATH``: salvage a crashed run / summarise one."""
-    import argparse
-
     parser = argparse.ArgumentParser(prog="python -m gsrmr_server.recording", description=main.__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("recover", help="merge run-NNNN.mcap(.part) segments of a crashed run into run.mcap") \

@@ -24,6 +24,7 @@ from std_msgs.msg import String
 
 from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.ros_wire import compressed_to_msg, ns_to_stamp
+from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
 from gsrmr_server.recording.mcap_log import (
     MCAP_NAME,
     TOPIC_CMD_VEL,
@@ -56,7 +57,7 @@ class RunRecorder:
     """
 
     def __init__(self, out_dir: str | os.PathLike[str], *, segment_slots: int = 50, jpeg_quality: int = 80,
-                 image_frame_id: str = "camera_optical_frame", cmd_frame_id: str = "base_link",
+                 image_frame_id: str = CAMERA_OPTICAL_FRAME, cmd_frame_id: str = "base_link",
                  fsync: bool = False, chunk_bytes: int = 256 * 1024) -> None:
         if segment_slots < 1:
             raise ValueError(f"segment_slots must be >= 1, got {segment_slots}")

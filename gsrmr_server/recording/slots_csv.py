@@ -52,17 +52,24 @@ def _parse_cell(column: str, text: str) -> Any:
     return float(text)
 
 
-def read_slots_csv(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
+def read_slots_csv(path: str | os.PathLike[str], columns: tuple[str, ...] = CSV_COLUMNS) -> list[dict[str, Any]]:
     """Rows of a ``slots.csv`` as dicts: ints for slot/x/bytes_sent, str for source/faults, float
-    otherwise, ``None`` for empty cells. A last line without its newline (torn write) is dropped."""
+    otherwise, ``None`` for empty cells. A last line without its newline (torn write) is dropped.
+    ``columns``: the header the file must have (a file of some of these columns, e.g. the simulation's
+    ``scores.csv``, is read with the same cell rules)."""
     with Path(path).open(newline="", encoding="utf-8") as f:
         text = f.read()
     if text and not text.endswith("\n"):
         text = text[: text.rfind("\n") + 1]
     reader = csv.DictReader(text.splitlines(keepends=True))
-    if tuple(reader.fieldnames or ()) != CSV_COLUMNS:
-        raise ValueError(f"{path}: header {reader.fieldnames} is not {list(CSV_COLUMNS)}")
-    return [{c: _parse_cell(c, row[c]) for c in CSV_COLUMNS} for row in reader]
+    if tuple(reader.fieldnames or ()) != columns:
+        raise ValueError(f"{path}: header {reader.fieldnames} is not {list(columns)}")
+    return [{c: _parse_cell(c, row[c]) for c in columns} for row in reader]
+
+
+def csv_line(row: dict[str, Any], columns: tuple[str, ...] = CSV_COLUMNS) -> str:
+    """One CSV line (with its newline) of ``row``'s ``columns`` (missing = empty cell)."""
+    return ",".join(_cell(c, row.get(c)) for c in columns) + "\n"
 
 
 def write_slots_csv(path: str | os.PathLike[str], rows: list[dict[str, Any]]) -> None:
@@ -70,7 +77,7 @@ def write_slots_csv(path: str | os.PathLike[str], rows: list[dict[str, Any]]) ->
     with Path(path).open("w", newline="", encoding="utf-8") as f:
         f.write(",".join(CSV_COLUMNS) + "\n")
         for row in rows:
-            f.write(",".join(_cell(c, row.get(c)) for c in CSV_COLUMNS) + "\n")
+            f.write(csv_line(row))
 
 
 def _json_value(value: Any) -> Any:

@@ -1,4 +1,9 @@
-"""One entry point for every method: ``solve(problem, method, **options)`` → :class:`Schedule`."""
+"""One entry point for every method: ``solve(problem, method, **options)`` → :class:`Schedule`.
+
+The registry of methods (:data:`METHODS`) lives here and nowhere else; a method that needs another one's
+result gets it through :func:`solve` (the rate-allocation baselines' reference budget, ``budget_from``), so no
+solver module imports the registry.
+"""
 
 from __future__ import annotations
 
@@ -10,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from gsrmr_server.scheduling import apo, baselines, exact
+from gsrmr_server.scheduling import apo, baselines, exact, rate_allocation
 from gsrmr_server.scheduling.problem import Problem, Schedule
 
 #: Method name → solver function ``f(problem, **options) -> Schedule``.
@@ -21,18 +26,23 @@ METHODS: dict[str, Callable[..., Schedule]] = {
     "rounding": baselines.solve_rounding,
     "search": baselines.solve_search,
     "exchange": baselines.solve_exchange,
-    "maxrate": baselines.solve_maxrate,
-    "fairness": baselines.solve_fairness,
+    "maxrate": rate_allocation.solve_maxrate,
+    "fairness": rate_allocation.solve_fairness,
     "robomr": baselines.solve_robomr,
     "robogs": baselines.solve_robogs,
 }
+#: Methods that spend an energy budget; without one (option or problem) they get the energy of the method their
+#: ``budget_from`` option names (default :data:`DEFAULT_BUDGET_FROM`; the paper uses ``"apo"``).
+BUDGET_SPENDERS = frozenset({"maxrate", "fairness"})
+DEFAULT_BUDGET_FROM = "exact"
 
 
 def method_options(method: str) -> list[str]:
     """Names of the keyword options a method accepts (``time_limit_s`` is accepted by all)."""
     sig = inspect.signature(METHODS[method])
-    return [n for n, p in sig.parameters.items() if p.kind == p.KEYWORD_ONLY or (n != "problem" and
-                                                                               p.default is not p.empty)]
+    names = [n for n, p in sig.parameters.items() if p.kind == p.KEYWORD_ONLY or (n != "problem" and
+                                                                                p.default is not p.empty)]
+    return [*names, "budget_from"] if method in BUDGET_SPENDERS else names
 
 
 def solve(problem: Problem, method: str, **options: Any) -> Schedule:
@@ -57,11 +67,31 @@ def solve(problem: Problem, method: str, **options: Any) -> Schedule:
         if key not in allowed:
             raise ValueError(f"method {method!r} has no option {key!r} (options: {', '.join(allowed) or 'none'})")
     t0 = time.perf_counter()
+    budget_note = None
+    if method in BUDGET_SPENDERS:
+        options, budget_note = _with_reference_budget(problem, options)
     sched = METHODS[method](problem, **options)
+    if budget_note:
+        sched.notes.insert(0, budget_note)
     elapsed = time.perf_counter() - t0
     sched.solve_time_s = max(sched.solve_time_s, elapsed) if sched.solve_time_s else elapsed
     _check(problem, sched)
     return sched
+
+
+def _with_reference_budget(problem: Problem, options: dict[str, Any]) -> tuple[dict[str, Any], str | None]:
+    """``options`` without ``budget_from``, and with ``energy_budget_j`` = the energy of the ``budget_from``
+    method when neither the options nor the problem give a budget (then also the note saying so)."""
+    options = dict(options)
+    budget_from = options.pop("budget_from", DEFAULT_BUDGET_FROM)
+    if options.get("energy_budget_j") is not None or problem.energy_budget_j is not None:
+        return options, None
+    if not isinstance(budget_from, str) or budget_from not in METHODS or budget_from in BUDGET_SPENDERS:
+        choices = ", ".join(m for m in METHODS if m not in BUDGET_SPENDERS)
+        raise ValueError(f"budget_from must be a method that chooses its own energy ({choices}), got {budget_from!r}")
+    ref = solve(problem, budget_from)
+    options["energy_budget_j"] = ref.energy_j
+    return options, f"energy budget = {budget_from} energy {ref.energy_j:.6g} J (no budget given)"
 
 
 def _check(problem: Problem, s: Schedule) -> None:

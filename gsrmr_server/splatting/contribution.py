@@ -14,7 +14,7 @@ import numpy as np
 from gsrmr_common.camera import Camera
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.splatting.project import NEAR_M, project_numpy
-from gsrmr_server.splatting.rasterize import TILE, depth_order
+from gsrmr_server.splatting.rasterize import TILE, bin_kernel, depth_order, pack
 
 
 @nb.njit(parallel=True, cache=True)
@@ -62,8 +62,6 @@ def _weight_kernel(packed, box, offsets, lst, width, height, tile, tiles_x, n_ch
 def blend_weights(model: GaussianModel, cameras: list[Camera], near_m: float = NEAR_M) -> tuple[np.ndarray, np.ndarray]:
     """For each Gaussian, (the sum of its blending weights T·α over every pixel of every camera, the
     largest one): its accumulated contribution to those views and whether it changes any pixel at all."""
-    from gsrmr_server.splatting.rasterize import bin_kernel, pack
-
     best = np.zeros(model.num_gaussians)
     acc = np.zeros(model.num_gaussians)
     n_chunks = max(1, nb.get_num_threads())

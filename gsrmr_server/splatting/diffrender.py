@@ -18,7 +18,15 @@ from gsrmr_common.camera import Camera
 from gsrmr_server.splatting.project import EPS2D_PX2, NEAR_M, fov_limits, project_numpy
 from gsrmr_server.splatting.rasterize import TILE, backward_kernel, depth_order, pack, rasterize_packed
 from gsrmr_server.splatting.render import _check_background
-from gsrmr_server.splatting.sh import C0, eval_sh_torch
+from gsrmr_server.splatting.sh import C0, num_coeffs, sh_basis
+
+
+def eval_sh_torch(sh: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.Tensor:
+    """Differentiable :func:`~gsrmr_server.splatting.sh.eval_sh_numpy` (gradient 0 where the clamp is active)."""
+    k = num_coeffs(degree)
+    basis = torch.stack(sh_basis(dirs[:, 0], dirs[:, 1], dirs[:, 2], degree, torch), dim=1)  # N×k
+    col = (basis[:, :, None] * sh[:, :k, :]).sum(dim=1)
+    return torch.clamp_min(col + 0.5, 0.0)
 
 
 def quat_to_rotmat_torch(quats: torch.Tensor) -> torch.Tensor:

@@ -8,13 +8,9 @@ with K = (degree + 1)² and ``sh[:, 0]`` the DC term (``f_dc`` in the .ply).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numba as nb
 import numpy as np
-
-if TYPE_CHECKING:
-    import torch
 
 C0 = 0.28209479177387814
 C1 = 0.4886025119029199
@@ -49,7 +45,9 @@ def sh0_to_rgb(sh0: np.ndarray) -> np.ndarray:
     return np.asarray(sh0) * C0 + 0.5
 
 
-def _basis(x, y, z, degree: int, lib) -> list:
+def sh_basis(x, y, z, degree: int, lib) -> list:
+    """The real SH basis functions Y_0 … Y_{(degree+1)²−1} at unit directions (x, y, z), computed with the
+    array library ``lib`` (numpy here, torch in :mod:`~gsrmr_server.splatting.diffrender`)."""
     out = [lib.full_like(x, C0)]
     if degree >= 1:
         out += [-C1 * y, C1 * z, -C1 * x]
@@ -68,20 +66,11 @@ def eval_sh_numpy(sh: np.ndarray, dirs: np.ndarray, degree: int) -> np.ndarray:
     k = num_coeffs(degree)
     if sh.shape[1] < k:
         raise ValueError(f"need {k} SH coefficients for degree {degree}, model has {sh.shape[1]}")
-    basis = _basis(dirs[:, 0], dirs[:, 1], dirs[:, 2], degree, np)
+    basis = sh_basis(dirs[:, 0], dirs[:, 1], dirs[:, 2], degree, np)
     col = np.zeros((sh.shape[0], 3), dtype=sh.dtype)
     for i, b in enumerate(basis):
         col += b[:, None] * sh[:, i, :]
     return np.maximum(col + 0.5, 0.0)
-
-
-def eval_sh_torch(sh: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.Tensor:
-    """Differentiable version of :func:`eval_sh_numpy` (gradient 0 where the clamp is active)."""
-    import torch
-    k = num_coeffs(degree)
-    basis = torch.stack(_basis(dirs[:, 0], dirs[:, 1], dirs[:, 2], degree, torch), dim=1)  # N×k
-    col = (basis[:, :, None] * sh[:, :k, :]).sum(dim=1)
-    return torch.clamp_min(col + 0.5, 0.0)
 
 
 @nb.njit(parallel=True, cache=True)

@@ -5,14 +5,12 @@ prune from the accumulated screen-space gradients, radii and visibility.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import torch
 
+from gsrmr_server.splatting.diffrender import quat_to_rotmat_torch
 from gsrmr_server.splatting.optim import PARAM_NAMES, TrainState, select_rows
-
-if TYPE_CHECKING:
-    from gsrmr_server.splatting.train import TrainConfig
+from gsrmr_server.splatting.train_config import TrainConfig
 
 
 def densify_and_prune(st: TrainState, cfg: TrainConfig, extent: float, n_views: int, it: int,
@@ -46,8 +44,6 @@ def densify_and_prune(st: TrainState, cfg: TrainConfig, extent: float, n_views: 
     if split.any():
         sidx = torch.nonzero(split).flatten()
         std = p["log_scales"][sidx].exp()
-        from gsrmr_server.splatting.diffrender import quat_to_rotmat_torch
-
         rot = quat_to_rotmat_torch(p["quats"][sidx])
         for _ in range(2):
             sample = torch.randn(std.shape, generator=generator, dtype=std.dtype) * std

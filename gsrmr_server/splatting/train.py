@@ -21,12 +21,12 @@ The pieces live beside this module, split as gsplat splits its strategy from its
 :mod:`~gsrmr_server.splatting.losses`, :mod:`~gsrmr_server.splatting.initialise`,
 :mod:`~gsrmr_server.splatting.optim` (state, Adam, row selection, opacity reset),
 :mod:`~gsrmr_server.splatting.strategy` (density control) and :mod:`~gsrmr_server.splatting.contribution`
-(the numba blending-weight kernel); this module holds the configuration and the loop.
+(the numba blending-weight kernel), :mod:`~gsrmr_server.splatting.train_config` (the settings); this module
+holds the loop.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
 import math
 from pathlib import Path
 import time
@@ -44,49 +44,12 @@ from gsrmr_server.splatting.initialise import init_points, knn_scales, resize_fr
 from gsrmr_server.splatting.losses import ssim_torch, train_loss
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.splatting.optim import PARAM_NAMES, TrainState, adam_step, reset_opacity, select_rows
-from gsrmr_server.splatting.project import NEAR_M
 from gsrmr_server.splatting.render import render
 from gsrmr_server.splatting.strategy import densify_and_prune
+from gsrmr_server.splatting.train_config import TrainConfig
 
 __all__ = ["PARAM_NAMES", "HistoryRow", "TrainConfig", "TrainState", "Trainer", "max_blend_weight", "ssim_torch",
            "train_loss"]
-
-
-@dataclass
-class TrainConfig:
-    """Trainer settings (3DGS defaults where they exist; iteration counts shortened for the CPU)."""
-
-    iterations: int = 6000
-    budget: int = 200_000
-    resolution: int | None = None  # train at this image width (keeps aspect); None = as stored
-    sh_degree: int = 1
-    sh_increase_interval: int = 1000
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    lr_means: float = 1.6e-4
-    lr_means_final: float = 1.6e-6
-    lr_sh_dc: float = 2.5e-3
-    lr_sh_rest: float = 2.5e-3 / 20
-    lr_opacity: float = 0.05
-    lr_scales: float = 5e-3
-    lr_quats: float = 1e-3
-    densify_from: int = 300
-    densify_until: int = 4000
-    densify_interval: int = 100
-    grad_threshold: float = 2e-4
-    percent_dense: float = 0.01
-    prune_opacity: float = 0.005
-    opacity_reset_interval: int = 3000
-    max_screen_px: float = 20.0
-    init_points: int = 30_000
-    seed: int = 0
-    checkpoint_every: int = 1000
-    near_m: float = NEAR_M
-    final_prune: bool = True
-    torch_threads: int | None = 1  # torch.set_num_threads for the process (None = leave as is)
-
-    def to_dict(self) -> dict:
-        """JSON-friendly dict."""
-        return asdict(self)
 
 
 def _plain(value):

@@ -14,6 +14,8 @@ import argparse
 from collections.abc import Sequence
 from dataclasses import asdict
 import datetime as dt
+import glob
+import json
 import math
 import os
 from pathlib import Path
@@ -30,6 +32,7 @@ from gsrmr_sim.experiments import paper, tradeoffs
 from gsrmr_sim.experiments.composite import Compositor
 from gsrmr_sim.experiments.data import DataSettings, SceneData, build_scene_data
 from gsrmr_sim.experiments.report import claims, write_summary
+from gsrmr_sim.world.scene import SceneError
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -116,9 +119,6 @@ def consistency_checks(scenes: dict[str, Any], sols: dict[str, dict], datas: dic
 
 def node_suite_runs(pattern: str) -> dict[str, Any]:
     """Headline numbers of the node suite's recorded runs (``gsrmr-demo`` report folders), if any."""
-    import glob
-    import json
-
     keys = ("slots", "images_sent", "energy_j", "energy_upload_all_j", "energy_ratio_vs_upload_all", "mean_loss",
             "psnr_db", "psnr_slot_mean_db", "ssim", "slots_on_time", "faults")
     runs = {}
@@ -217,8 +217,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     scenes = [s.strip() for s in a.scenes.split(",") if s.strip()]
     if not scenes:
         ap.error("--scenes is empty")
-    from gsrmr_sim.world.scene import SceneError
-
     try:
         run(Path(a.out), quick=a.quick, cache=Path(a.cache), scenes=scenes, channel_seed=a.channel_seed,
             seed=a.seed, train_seconds=a.train_seconds, skip_tradeoffs=a.skip_tradeoffs, argv=args_list,

@@ -1,5 +1,5 @@
-"""The MR images a schedule actually produces, composed and scored by the live slot core, and how far their
-loss is from the schedule's plan.
+"""The MR images a schedule actually produces, composed by the live slot core and scored by the deployment's
+scoring library (:mod:`gsrmr_server.scoring`), and how far their loss is from the schedule's plan.
 
 Per slot t with delivered content (``Schedule.delivered``), :class:`gsrmr_sim.offline_server.OfflineServer`
 runs the server's own path (uplink assembler → :class:`~gsrmr_server.slot_core.ServerCore`):
@@ -68,7 +68,7 @@ class CompositeResult:
 
 
 class Compositor:
-    """Scores any delivery pattern of one recorded round with the live slot core (renders cached)."""
+    """Scores any delivery pattern of one recorded round: the live slot core's images (renders cached)."""
 
     def __init__(self, server: OfflineServer, gs_loss: np.ndarray) -> None:
         """``gs_loss``: the plan's L_t (key slot at the true pose, as the solvers were given it)."""

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+import json
 from pathlib import Path
 import shutil
 import time
@@ -161,6 +162,4 @@ def build_scene_data(settings: DataSettings, cache: str | Path, log: Callable[[s
 
 
 def _json(path: Path) -> dict:
-    import json
-
     return json.loads(path.read_text())

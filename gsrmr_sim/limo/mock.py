@@ -22,9 +22,9 @@ the same on demand with :meth:`MockLimo.silence` and :meth:`MockLimo.reopen`.
 
 In-process API for tests: :class:`MockLimo` (``.true_pose()`` → ``(x_m, y_m, yaw_rad)``,
 ``.sent_frames`` when ``record=True``: one ``(t_s, original_bytes, corrupted)`` per frame sent).
-With ``--ros`` (default when rclpy is importable) the CLI also publishes the true pose as
-``nav_msgs/Odometry`` on ``/sim/ground_truth/odom`` (frame ``map`` → ``base_link``, REP-103) at the
-stream rate, for the simulated camera.
+This module has no rclpy: the console script is :func:`gsrmr_sim.limo.mock_ros.main`, which also publishes
+the true pose as ``nav_msgs/Odometry`` on :data:`GROUND_TRUTH_TOPIC` (frame ``map`` → ``base_link``,
+REP-103) at the stream rate, for the simulated camera (``--no-ros``: the pty base only).
 """
 
 from __future__ import annotations
@@ -37,7 +37,6 @@ import math
 import os
 import random
 import select
-import signal
 import sys
 import threading
 import time
@@ -45,6 +44,11 @@ import tty
 
 from gsrmr_robot.limo import kinematics as kin
 from gsrmr_robot.limo import protocol as proto
+
+# The mock's true pose (nav_msgs/Odometry, gsrmr_sim.limo.mock_ros), read by the simulated camera, radio and
+# route follower. Relative, so that each robot of a fleet has its own (/robot2/sim/ground_truth/odom); a node in
+# the root namespace resolves it to /sim/ground_truth/odom.
+GROUND_TRUTH_TOPIC = "sim/ground_truth/odom"
 
 
 @dataclass(frozen=True)
@@ -341,7 +345,8 @@ class MockLimo:
 # ---------------------------------------------------------------------------------------------- CLI
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
+    """The arguments of ``gsrmr-mock-limo`` (the console script of :mod:`gsrmr_sim.limo.mock_ros`)."""
     p = argparse.ArgumentParser(prog="gsrmr-mock-limo", description=__doc__.split("\n\n")[0])
     p.add_argument("--link", required=True, help="path of the symlink to the pty slave (the 'serial port')")
     p.add_argument("--mode", choices=("diff", "ackermann", "mecanum"), default="diff", help="motion mode")
@@ -359,14 +364,15 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--reopen-every-s", type=float, default=0.0, help="close and reopen the port every … s")
     p.add_argument("--reopen-gap-s", type=float, default=1.0, help="time the port stays closed")
     p.add_argument("--seed", type=int, default=None, help="fault-injection RNG seed")
-    p.add_argument("--start-pose", default="0,0,0", type=_pose_arg,
+    p.add_argument("--start-pose", default="0,0,0", type=pose_arg,
                    help="true start pose 'x_m,y_m,yaw_rad' in the map frame")
     p.add_argument("--ros", action=argparse.BooleanOptionalAction, default=True,
-                   help="publish the true pose on /sim/ground_truth/odom (needs rclpy)")
+                   help=f"publish the true pose on {GROUND_TRUTH_TOPIC} (relative to the node's namespace)")
     return p
 
 
-def _pose_arg(text: str) -> tuple[float, float, float]:
+def pose_arg(text: str) -> tuple[float, float, float]:
+    """argparse type of ``--start-pose x_m,y_m,yaw_rad``."""
     try:
         values = tuple(float(v) for v in text.split(","))
     except ValueError as err:
@@ -376,7 +382,8 @@ def _pose_arg(text: str) -> tuple[float, float, float]:
     return values  # type: ignore[return-value]
 
 
-def _mock_from_args(ns: argparse.Namespace) -> MockLimo:
+def mock_from_args(ns: argparse.Namespace) -> MockLimo:
+    """The :class:`MockLimo` parsed :func:`build_parser` arguments describe (not started)."""
     mode = kin.parse_motion_mode(ns.mode)
     faults = FaultConfig(garbage_rate=ns.garbage_rate, bit_flip_rate=ns.bit_flip_rate, drop_rate=ns.drop_rate,
                          byte_error_rate=ns.byte_error_rate, silence_every_s=ns.silence_every_s,
@@ -384,32 +391,3 @@ def _mock_from_args(ns: argparse.Namespace) -> MockLimo:
                          seed=ns.seed)
     return MockLimo(ns.link, motion_mode=mode, cmd_timeout_s=ns.cmd_timeout_s, rate_hz=ns.rate_hz,
                     battery_voltage_v=ns.battery_v, faults=faults, start_pose=ns.start_pose)
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Console script ``gsrmr-mock-limo``."""
-    argv = list(sys.argv if argv is None else argv)
-    ns, rest = _parser().parse_known_args(argv[1:])
-    mock = _mock_from_args(ns).start()
-    print(f"mock LIMO ready: {mock.link_path} -> {mock.slave_name}", flush=True)
-    try:
-        if ns.ros:
-            try:
-                from gsrmr_sim.limo.mock_ros import run_ground_truth_node
-            except ImportError as exc:  # rclpy missing: run as a plain process
-                print(f"--ros requested but rclpy is unavailable ({exc}); running without ROS", flush=True)
-            else:
-                return run_ground_truth_node(mock, [argv[0], *rest])
-        stop = threading.Event()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda *_: stop.set())
-        while not stop.wait(0.2):
-            pass
-        return 0
-    finally:
-        mock.close()
-        print("mock LIMO stopped", flush=True)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,29 +1,32 @@
-"""ROS side of the mock LIMO: publishes its true pose for the simulated camera.
+"""``gsrmr-mock-limo``: the mock LIMO base (:mod:`gsrmr_sim.limo.mock`) as a process, publishing its true pose.
 
-``sim/ground_truth/odom`` ``nav_msgs/Odometry`` (relative: ``/sim/ground_truth/odom`` in the root namespace,
-``/robot2/sim/ground_truth/odom`` for robot 2 of a fleet): header.frame_id ``map``, child_frame_id
-``base_link`` (REP-103: x forward, y left, yaw CCW; metres, radians), twist in ``base_link``,
-published at the mock's stream rate (50 Hz), reliable QoS, depth 10.
+:data:`~gsrmr_sim.limo.mock.GROUND_TRUTH_TOPIC` (``sim/ground_truth/odom``) ``nav_msgs/Odometry`` (relative:
+``/sim/ground_truth/odom`` in the root namespace, ``/robot2/sim/ground_truth/odom`` for robot 2 of a fleet):
+header.frame_id ``map``, child_frame_id ``base_link`` (REP-103: x forward, y left, yaw CCW; metres, radians),
+twist in ``base_link``, published at the mock's stream rate (50 Hz), reliable QoS, depth 10. With ``--no-ros``
+the process runs the pty base alone until SIGINT/SIGTERM.
 """
 
 from __future__ import annotations
 
 import math
+import signal
+import sys
+import threading
 
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
+from gsrmr_common.interrupts import console_main
 from gsrmr_common.ros_node import run_node
-from gsrmr_sim.limo.mock import MockLimo
-
-GROUND_TRUTH_TOPIC = "sim/ground_truth/odom"  # = gsrmr_sim.sim_stack.GROUND_TRUTH_TOPIC
+from gsrmr_sim.limo.mock import GROUND_TRUTH_TOPIC, MockLimo, build_parser, mock_from_args
 
 
 class GroundTruthPublisher(Node):
     """Publishes ``MockLimo.true_pose()`` as nav_msgs/Odometry."""
 
-    def __init__(self, mock: MockLimo) -> None:
-        super().__init__("gsrmr_mock_limo")
+    def __init__(self, mock: MockLimo, **node_kwargs) -> None:
+        super().__init__("gsrmr_mock_limo", **node_kwargs)
         self.mock = mock
         self._pub = self.create_publisher(Odometry, GROUND_TRUTH_TOPIC, 10)
         self.create_timer(1.0 / mock.rate_hz, self._tick)
@@ -46,6 +49,28 @@ class GroundTruthPublisher(Node):
         self._pub.publish(msg)
 
 
-def run_ground_truth_node(mock: MockLimo, args: list[str]) -> int:
-    """Spin a :class:`GroundTruthPublisher` until SIGINT (the caller closes the mock)."""
-    return run_node(lambda: GroundTruthPublisher(mock), args)
+def _wait_for_a_signal() -> None:
+    """Block until SIGINT or SIGTERM (the ``--no-ros`` run: nothing spins)."""
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    while not stop.wait(0.2):
+        pass
+
+
+@console_main
+def main(argv: list[str] | None = None) -> int:
+    """Console script ``gsrmr-mock-limo`` (arguments: :func:`gsrmr_sim.limo.mock.build_parser`; the rest are
+    ROS arguments)."""
+    argv = list(sys.argv if argv is None else argv)
+    ns, rest = build_parser().parse_known_args(argv[1:])
+    mock = mock_from_args(ns).start()
+    print(f"mock LIMO ready: {mock.link_path} -> {mock.slave_name}", flush=True)
+    try:
+        if ns.ros:
+            return run_node(lambda: GroundTruthPublisher(mock), [argv[0], *rest])
+        _wait_for_a_signal()
+        return 0
+    finally:
+        mock.close()
+        print("mock LIMO stopped", flush=True)

@@ -9,8 +9,8 @@ Publishes at ``rate_hz`` (default: the scene's camera rate, 10 Hz), all with the
 * ``camera/depth/image_raw`` (32FC1, metres = camera-space z, +inf where nothing is hit; parameter
   ``publish_depth``): the LIMO's RGB-D depth, registered to the colour image
 
-With ``truth_dir`` set, every colour frame is also written there (:mod:`gsrmr_common.truth_frames`): the
-simulation backplane the server's ground-truth evaluation reads across two simulated hosts, so the raw frames
+With ``truth_dir`` set, every colour frame is also written there (:mod:`gsrmr_sim.truth_frames`): the
+simulation backplane the scorer's ground-truth evaluation reads across two simulated hosts, so the raw frames
 never cross the robot's uplink.
 
 The pose is the true pose from ``odom_topic`` (default ``sim/ground_truth/odom``, relative to the node's
@@ -36,15 +36,16 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Int32
 
 from gsrmr_common.camera import camera_from_pose
+from gsrmr_common.interrupts import console_main
 from gsrmr_common.ros_node import declare, run_node
 from gsrmr_common.route import LoopPath
-from gsrmr_common.truth_frames import TruthFrameWriter
+from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
+from gsrmr_sim.limo.mock import GROUND_TRUTH_TOPIC
+from gsrmr_sim.truth_frames import TruthFrameWriter
 from gsrmr_sim.world.kinematics import has_moved
 from gsrmr_sim.world.points import make_world
 from gsrmr_sim.world.recorder import with_resolution
 from gsrmr_sim.world.scene import load_scene
-
-FRAME_ID = "camera_optical_frame"
 
 
 def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
@@ -52,7 +53,7 @@ def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
-def image_msg(img_u8: np.ndarray, encoding: str, stamp: object, frame_id: str = FRAME_ID) -> Image:
+def image_msg(img_u8: np.ndarray, encoding: str, stamp: object, frame_id: str = CAMERA_OPTICAL_FRAME) -> Image:
     """sensor_msgs/Image from an H×W×3 (rgb8) or H×W (mono8) uint8 array."""
     msg = Image()
     msg.header.stamp = stamp
@@ -66,7 +67,7 @@ def image_msg(img_u8: np.ndarray, encoding: str, stamp: object, frame_id: str = 
     return msg
 
 
-def depth_msg(depth_m: np.ndarray, stamp: object, frame_id: str = FRAME_ID) -> Image:
+def depth_msg(depth_m: np.ndarray, stamp: object, frame_id: str = CAMERA_OPTICAL_FRAME) -> Image:
     """sensor_msgs/Image 32FC1 (metres along the optical axis, +inf = nothing in range; REP 118)."""
     msg = Image()
     msg.header.stamp = stamp
@@ -95,7 +96,7 @@ class MockCamera(Node):
                         max_value=4096)
         height = declare(self, "height", 0, "image height in pixels (0 = the scene's)", min_value=0,
                          max_value=4096)
-        odom_topic = declare(self, "odom_topic", "sim/ground_truth/odom", "true pose (nav_msgs/Odometry)")
+        odom_topic = declare(self, "odom_topic", GROUND_TRUTH_TOPIC, "true pose (nav_msgs/Odometry)")
         self.odom_timeout_s = declare(self, "odom_timeout_s", 1.0, "use the scripted pose when odom is older",
                                       min_value=0.0)
         self.clock_from_motion = declare(self, "clock_from_motion", False,
@@ -105,7 +106,7 @@ class MockCamera(Node):
         self.publish_depth = declare(self, "publish_depth", True,
                                      "publish camera/depth/image_raw (32FC1, metres, REP 118)")
         truth_dir = declare(self, "truth_dir", "", "simulation backplane: also write every colour frame to this "
-                            "folder for the server's ground-truth evaluation ('' = off)")
+                            "folder for the scorer's ground-truth evaluation ('' = off)")
         self.truth = TruthFrameWriter(truth_dir) if truth_dir else None
         self.scene = with_resolution(load_scene(scene_name), width or None, height or None)
         self.world = make_world(self.scene, self.round_index)
@@ -158,7 +159,7 @@ class MockCamera(Node):
         """CameraInfo with the ROS-convention K of the current intrinsics."""
         info = CameraInfo()
         info.header.stamp = stamp
-        info.header.frame_id = FRAME_ID
+        info.header.frame_id = CAMERA_OPTICAL_FRAME
         info.width, info.height = self.k.width, self.k.height
         info.distortion_model = "plumb_bob"
         info.d = [0.0] * 5
@@ -189,8 +190,9 @@ class MockCamera(Node):
             self.get_logger().info(f"first frame published (pose source: {'odom' if fresh else 'scripted'})")
 
 
+@console_main
 def main(args: list[str] | None = None) -> int:
-    """Entry point of ``gsrmr-mock-camera``."""
+    """Console script ``gsrmr-mock-camera``."""
     return run_node(MockCamera, args)
 
 

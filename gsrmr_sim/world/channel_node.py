@@ -17,10 +17,12 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from std_msgs.msg import Float64MultiArray
 
+from gsrmr_common.interrupts import console_main
 from gsrmr_common.ros_node import aligned_timer, declare, declare_link_budget, run_node
 from gsrmr_common.ros_wire import channel_sample_to_msg
 from gsrmr_common.slot_clock import SlotClock
 from gsrmr_common.wire import CHANNEL_TOPIC
+from gsrmr_sim.limo.mock import GROUND_TRUTH_TOPIC
 from gsrmr_sim.world.true_channel import TrueChannel
 
 
@@ -34,7 +36,7 @@ class ChannelNode(Node):
                          read_only=True)
         self.lead_ns = int(1e9 * declare(self, "lead_s", 0.04, "Publish slot t's gain this long before t "
                                          "starts [s]", min_value=0.0, max_value=0.05, read_only=True))
-        odom_topic = declare(self, "odom_topic", "sim/ground_truth/odom", "true pose (nav_msgs/Odometry, map)",
+        odom_topic = declare(self, "odom_topic", GROUND_TRUTH_TOPIC, "true pose (nav_msgs/Odometry, map)",
                              read_only=True)
         self.clock = SlotClock(slot_s)
         self.truth = TrueChannel(self.link)
@@ -69,6 +71,7 @@ class ChannelNode(Node):
             self.next_slot += 1
 
 
+@console_main
 def main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-sim-channel``."""
     return run_node(ChannelNode, args)

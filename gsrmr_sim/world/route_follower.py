@@ -17,6 +17,7 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from std_msgs.msg import Int32
 
+from gsrmr_common.interrupts import console_main
 from gsrmr_common.ros_node import declare, run_node
 from gsrmr_common.route import LoopPath, PurePursuit, laps_completed
 from gsrmr_sim.world.camera_node import yaw_from_quaternion
@@ -80,8 +81,9 @@ class RouteFollower(Node):
             self.pub.publish(Twist())
 
 
+@console_main
 def main(args: list[str] | None = None) -> int:
-    """Entry point of ``gsrmr-route-follower``."""
+    """Console script ``gsrmr-route-follower``."""
     return run_node(RouteFollower, args)
 
 

@@ -1,17 +1,18 @@
-"""True camera frames kept in a folder: the simulation backplane for ground-truth evaluation (pure, no ROS).
+"""The simulator's true camera frames for scoring (pure, no ROS): the truth-frames backplane and the frame matcher.
 
-In simulation the server can score every MR image it composes against the truth m = d·r + (1 − d)·v, which
-needs the true camera frame r of the slot. On one network stack the server subscribes to the mock camera's
-``camera/image_raw``; across two hosts that would send raw 320×240 RGB frames (≈ 18 Mbit/s at 10 Hz) over the
+The simulation's scorer (``gsrmr-sim-scorer``, :mod:`gsrmr_sim.world.scorer_node`) scores every MR image the
+server publishes against the truth m = d·r + (1 − d)·v, which needs the true camera frame r the slot used. On
+one network stack the scorer subscribes to the mock camera's ``camera/image_raw`` and picks the frame with
+:func:`match_frame`; across two hosts that would send raw 320×240 RGB frames (≈ 18 Mbit/s at 10 Hz) over the
 robot's rate-limited uplink, which a real robot never does (it has no truth to send). So with two simulated
 hosts the truth takes the simulator's own path instead: the mock camera (``truth_dir``) writes each frame it
-publishes here, and the server (``ground_truth_dir``) reads the frame a slot used — named by the capture stamp
-in the robot's ledger row — when it scores the slot. Both hosts of the simulation share one filesystem, and no
+publishes here, and the scorer (``truth_dir``) reads the frame a slot used — named by the capture stamp in the
+robot's ledger row — with :class:`TruthFrameReader`. Both hosts of the simulation share one filesystem, and no
 byte of it crosses the simulated link.
 
 Layout: one ``<stamp_us>.npy`` per frame (H×W×3 uint8 RGB, capture stamp in integer microseconds since the
 clock's epoch), written to a temporary name and renamed, so a reader never sees half a frame; the writer
-keeps the newest ``keep`` frames.
+keeps the newest ``keep`` frames (default :data:`TRUTH_FRAMES_KEPT`: the scorer may lag the server by a round).
 """
 
 from __future__ import annotations
@@ -24,6 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
+from gsrmr_common.wire import LedgerRow
+
+#: Frames the writer keeps by default: two sandbox rounds (288 slots) at one frame per slot.
+TRUTH_FRAMES_KEPT = 600
+
 
 def _name(stamp_us: int) -> str:
     return f"{stamp_us:020d}.npy"
@@ -32,7 +38,7 @@ def _name(stamp_us: int) -> str:
 class TruthFrameWriter:
     """Writes true frames into ``folder`` and prunes all but the newest ``keep``."""
 
-    def __init__(self, folder: str | os.PathLike[str], keep: int = 200) -> None:
+    def __init__(self, folder: str | os.PathLike[str], keep: int = TRUTH_FRAMES_KEPT) -> None:
         if keep < 1:
             raise ValueError("keep must be ≥ 1")
         self.folder = Path(folder)
@@ -70,7 +76,7 @@ class TruthFrameReader:
     def frame(self, capture_stamp_s: float | None, slot_start_ns: int) -> np.ndarray | None:
         """The frame captured at ``capture_stamp_s`` (float seconds, as the robot's ledger row carries it:
         matched to the microsecond, ± 1 µs for the float's rounding); without a stamp, the newest frame
-        captured by 5 ms after ``slot_start_ns`` (as :func:`gsrmr_server.slot_core.match_frame` picks)."""
+        captured by 5 ms after ``slot_start_ns`` (as :func:`match_frame` picks)."""
         if capture_stamp_s is not None and math.isfinite(capture_stamp_s):
             us = round(capture_stamp_s * 1e6)
             for candidate in (us, us - 1, us + 1):
@@ -85,3 +91,15 @@ class TruthFrameReader:
             return None
         older = [n for n in names if int(n[:-4]) <= limit_us]
         return self._load(self.folder / older[-1]) if older else None
+
+
+def match_frame(frames: list[tuple[int, np.ndarray]], ledger: LedgerRow | None,
+                slot_start_ns: int) -> np.ndarray | None:
+    """The true camera frame of a slot among ``(stamp_ns, frame)``: the one whose stamp the robot's ledger row
+    names (within 1 ms: the row carries it in float seconds), else the newest one at the slot start."""
+    used = ledger.frame_stamp_s if ledger else None
+    if used is not None and math.isfinite(used):
+        match = [f for s, f in frames if abs(s / 1e9 - used) < 1e-3]
+    else:
+        match = [f for s, f in frames if s <= slot_start_ns + 5_000_000][-1:]
+    return match[0] if match else None

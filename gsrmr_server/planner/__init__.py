@@ -1,0 +1,25 @@
+"""Online planning over a receding horizon (pure): predict poses, losses and gains, then solve P_GS.
+
+:class:`OnlinePlanner` (``online.py``) composes one plan from small objects, each owning one concept:
+
+* :class:`PlannerConfig` (``config.py``) — every knob, frozen and validated; the scheduler's parameters map
+  onto it in :meth:`gsrmr_server.scheduler_params.SchedulerParameters.planner_config`;
+* :class:`RoutePredictor` (``route.py``) — future poses along the route;
+* :class:`LossForecast` (``forecast.py``) — L_t predicted, estimated for booked slots, learned from samples;
+* :class:`LossBudget` (``budget.py``) — booked slots, rounds, the Σ loss each block of a plan may leave;
+* :class:`LinkCap` (``link_cap.py``) — the image fraction the uplink carries;
+* :class:`InSlotPricing` (``pricing.py``) — the in-slot rule's gain thresholds, exploration and probing;
+* :class:`DriftMonitor` (``drift.py``) — when measured losses call for a replan.
+"""
+
+from gsrmr_server.planner.budget import LossBudget
+from gsrmr_server.planner.config import LIVE_FIELDS, PlannerConfig
+from gsrmr_server.planner.drift import DriftMonitor
+from gsrmr_server.planner.forecast import LossForecast, SlotLossModel
+from gsrmr_server.planner.link_cap import LinkCap
+from gsrmr_server.planner.online import OnlinePlanner, PlanResult
+from gsrmr_server.planner.pricing import InSlotPricing
+from gsrmr_server.planner.route import RoutePredictor
+
+__all__ = ["LIVE_FIELDS", "DriftMonitor", "InSlotPricing", "LinkCap", "LossBudget", "LossForecast", "OnlinePlanner",
+           "PlanResult", "PlannerConfig", "RoutePredictor", "SlotLossModel"]

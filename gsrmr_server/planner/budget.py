@@ -1,0 +1,140 @@
+"""The loss budget of the next plan (pure): booked slots, their estimated losses, rounds.
+
+Every slot a schedule covered is **booked** once it has passed: with what the robot did there (its ledger,
+else the plan's x) and the pose it reported (else none). A booked slot counts with its *estimated* MR loss:
+``image_slot_loss`` J for an image (its JPEG), for a key what ``key_loss(slot, pose)`` says — the L_t model's
+estimate from the measurements around it, re-estimated as they arrive, frozen once ``refine_slots`` newer slots
+are booked.
+
+The budget a plan of H slots from slot ``first`` must meet (:meth:`LossBudget.caps`, Σ loss allowed per block):
+
+* **round mode** (``round_slots`` T > 0): a round starts at the first reported pose more than ``round_start_m``
+  from where the robot stood; cap = target·(n + r) − Σ booked in the round (n slots booked, r left in it),
+  split at the round's end — what follows gets a fresh budget, target·(H − r). Before a round started, and
+  after it ended until the robot moves again, the running mean below applies (to the slots booked so far);
+* **running mean** otherwise: cap = target·(n_done + H) − Σ booked over every booked slot.
+
+``target`` is the mean loss aimed at (L_th·(1 − loss_margin)).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+import math
+
+from gsrmr_common.wire import ScheduleMsg
+
+Pose = tuple[float, float, float]  # (a_m, b_m, theta_rad) in map
+KeyLoss = Callable[[int, Pose | None], float]  # (slot, reported pose or None) → estimated loss of a key there
+HISTORY_SLOTS = 1000  # ledger rows and reported poses kept this long before the slot is booked
+
+
+class LossBudget:
+    """Booked slots and the loss budget of the next plan (see the module docstring)."""
+
+    def __init__(self, key_loss: KeyLoss, *, image_slot_loss: float = 0.0, round_slots: int = 0,
+                 round_start_m: float = 0.05, refine_slots: int = 300) -> None:
+        if not (image_slot_loss >= 0 and math.isfinite(image_slot_loss)):
+            raise ValueError("loss budget: image_slot_loss must be a finite loss >= 0")
+        if round_slots < 0 or refine_slots < 0 or not round_start_m >= 0:
+            raise ValueError("loss budget: round_slots, round_start_m and refine_slots must be >= 0")
+        self.key_loss = key_loss
+        self.image_slot_loss = float(image_slot_loss)
+        self.round_slots, self.round_start_m = int(round_slots), float(round_start_m)
+        self.refine_slots = int(refine_slots)
+        self.slots_done = 0  # slots booked so far
+        self._actual_x: dict[int, int] = {}  # slot → what the robot did (its ledger)
+        self._reported: dict[int, Pose] = {}  # slot → the pose it reported
+        self._done: deque[tuple[int, int, Pose | None]] = deque()  # (slot, x, pose) still re-estimated
+        self._frozen_spent = 0.0  # Σ estimated loss of the slots no longer re-estimated
+        self._accounted_up_to: int | None = None  # last slot booked (or planned from)
+        self._round_start: int | None = None  # first slot the reported pose left its start (round mode)
+        self._home: tuple[float, float] | None = None
+        self._round_frozen, self._round_frozen_n = 0.0, 0
+
+    # ------------------------------------------------------------------ what happened
+    def record_action(self, slot: int, x: int) -> None:
+        """What the robot did in ``slot`` (1 = image), from its ledger."""
+        self._actual_x[slot] = int(x)
+        for old in [k for k in self._actual_x if k < slot - HISTORY_SLOTS]:
+            del self._actual_x[old]
+
+    def record_pose(self, slot: int, pose: Pose) -> None:
+        """The pose the robot reported for ``slot`` (its pose key): a key there is charged at it; in round mode
+        the first move of more than ``round_start_m`` starts a round."""
+        self._reported[slot] = pose
+        if self.round_slots <= 0:
+            return
+        if self._round_start is not None and slot >= self._round_start + self.round_slots:
+            self._round_start, self._home = None, None  # the round is over: the next one starts on motion
+        if self._round_start is None:
+            if self._home is None:
+                self._home = (pose[0], pose[1])
+            elif math.hypot(pose[0] - self._home[0], pose[1] - self._home[1]) > self.round_start_m:
+                self._round_start, self._round_frozen, self._round_frozen_n = slot, 0.0, 0
+
+    def account_until(self, slot: int, schedule: ScheduleMsg | None) -> None:
+        """Book the slots of ``schedule`` (the active one) that ended before ``slot``: what the robot did (its
+        ledger, else the plan) and the pose it reported (else none)."""
+        if schedule is None:
+            return
+        start = schedule.first_slot if self._accounted_up_to is None else self._accounted_up_to + 1
+        for k in range(start, slot):
+            entry = schedule.lookup(k)
+            if entry is None:
+                continue
+            self.slots_done += 1
+            self._done.append((k, self._actual_x.pop(k, entry[0]), self._reported.pop(k, None)))
+            self._accounted_up_to = k
+        while len(self._done) > self.refine_slots:  # old slots: their estimate will not change any more
+            done = self._done.popleft()
+            loss = self.slot_loss(*done)
+            self._frozen_spent += loss
+            if self._round_start is not None and done[0] >= self._round_start:
+                self._round_frozen += loss
+                self._round_frozen_n += 1
+        for old in [k for k in self._reported if k < slot - HISTORY_SLOTS]:
+            del self._reported[old]
+
+    def planned_from(self, now_slot: int) -> None:
+        """A new schedule covers the slots after ``now_slot``: booking continues from there."""
+        self._accounted_up_to = now_slot
+
+    # ------------------------------------------------------------------ what it cost
+    def slot_loss(self, slot: int, x: int, pose: Pose | None) -> float:
+        """Estimated MR loss a booked slot left: ``image_slot_loss`` for an image, ``key_loss`` for a key."""
+        return self.image_slot_loss if x else self.key_loss(slot, pose)
+
+    @property
+    def loss_spent(self) -> float:
+        """Σ estimated MR loss of the booked slots (recent ones re-estimated as measurements arrive)."""
+        return self._frozen_spent + math.fsum(self.slot_loss(*d) for d in self._done)
+
+    def round_remaining(self, first: int) -> int | None:
+        """Slots of the current round from ``first`` on (None outside a round or without ``round_slots``)."""
+        if self.round_slots <= 0 or self._round_start is None:
+            return None
+        left = self._round_start + self.round_slots - first
+        return left if left > 0 else None
+
+    def round_booked(self) -> tuple[int, float]:
+        """(slots booked since the round started, their estimated Σ loss)."""
+        start = self._round_start if self._round_start is not None else 0
+        inside = [d for d in self._done if d[0] >= start]
+        return (self._round_frozen_n + len(inside),
+                self._round_frozen + math.fsum(self.slot_loss(*d) for d in inside))
+
+    def caps(self, first: int, horizon_slots: int, target: float) -> list[tuple[slice, float]]:
+        """The plan's blocks from slot ``first``: (slice of the horizon, Σ loss allowed over it) — one block, or
+        two when the round ends inside the horizon (see the module docstring)."""
+        remaining = self.round_remaining(first)
+        if remaining is None:
+            return [(slice(0, horizon_slots), target * (self.slots_done + horizon_slots) - self.loss_spent)]
+        n_round, spent_round = self.round_booked()
+        if remaining > horizon_slots:
+            return [(slice(0, horizon_slots), target * (n_round + horizon_slots) - spent_round)]
+        blocks = [(slice(0, remaining), target * (n_round + remaining) - spent_round)]
+        if remaining < horizon_slots:  # what follows the round: a fresh budget
+            blocks.append((slice(remaining, horizon_slots), target * (horizon_slots - remaining)))
+        return blocks

@@ -1,0 +1,112 @@
+"""The scheduler node and the planner's other users talk to the planner through its public API only; a live
+parameter change (`ros2 param set`) builds a new planner configuration and requests a replan."""
+
+from __future__ import annotations
+
+import ast
+from dataclasses import replace
+from pathlib import Path
+import time
+
+from conftest import ros_env
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+
+from gsrmr_server.scheduler_node import SchedulerNode
+
+REPO = Path(__file__).resolve().parents[1]
+# every module that drives an OnlinePlanner from outside the planner package
+PLANNER_USERS = ["gsrmr_server/scheduler_node.py", "bench/planner_replay.py", "gsrmr_sim/replay.py",
+                 "bench/scheduler.py", "bench/scheduler_start.py"]
+ROUTE = [-1.0, -1.1, 1.0, -1.1, 1.2, 0.9, -1.2, 0.9]
+
+
+def private_uses(source: str) -> list[str]:
+    """``line: what`` for every private attribute of another object (``x._name``, anything but ``self._name``),
+    every ``setattr`` and every assignment to an attribute of a planner (``….planner.x = …``) in ``source``: a
+    module that does none of these cannot reach into the planner's state."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__"):
+            if not (isinstance(node.value, ast.Name) and node.value.id in ("self", "cls")):
+                found.append(f"{node.lineno}: {ast.unparse(node)}")
+        elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+            chain = node.value
+            while isinstance(chain, ast.Attribute) and chain.attr != "planner":
+                chain = chain.value
+            if (isinstance(chain, ast.Attribute) and chain.attr == "planner") or (
+                    isinstance(chain, ast.Name) and chain.id == "planner"):
+                found.append(f"{node.lineno}: {ast.unparse(node)} =")
+        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "setattr":
+            found.append(f"{node.lineno}: {ast.unparse(node)}")
+    return sorted(found, key=lambda line: int(line.split(":")[0]))
+
+
+def test_the_scan_finds_what_it_looks_for():
+    sample = ("def f(self, planner):\n    self.planner._active = 1\n    p = self.planner\n    p.seq = p._seq\n"
+              "    setattr(planner, 'horizon', 5)\n    self._lock = None\n    planner.options = {}\n"
+              "    self.planner.budget.slots_done = 0\n    self.params.x = 1\n    return planner.__class__\n")
+    assert private_uses(sample) == ["2: self.planner._active", "4: p._seq", "5: setattr(planner, 'horizon', 5)",
+                                    "7: planner.options =", "8: self.planner.budget.slots_done ="]
+
+
+@pytest.mark.parametrize("path", PLANNER_USERS)
+def test_planner_users_touch_no_private_attribute_and_set_nothing_by_name(path):
+    assert private_uses((REPO / path).read_text()) == []
+
+
+# ---------------------------------------------------------------------------- a live parameter change
+@pytest.fixture
+def scheduler(monkeypatch):
+    """A SchedulerNode in this process, in its own ROS domain, spun by a single-threaded executor."""
+    env = ros_env()
+    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
+        monkeypatch.setenv(key, env[key])
+    monkeypatch.delenv("ROS_LOCALHOST_ONLY", raising=False)
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=int(env["ROS_DOMAIN_ID"]))
+    node = None
+    try:
+        node = SchedulerNode(context=ctx, parameter_overrides=[Parameter("route_waypoints_m", value=ROUTE)])
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+
+        def spin_until(done, timeout_s: float = 20.0) -> bool:
+            end = time.monotonic() + timeout_s
+            while time.monotonic() < end and not done():
+                executor.spin_once(timeout_sec=0.02)
+            return done()
+
+        yield node, spin_until
+        executor.shutdown()
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.shutdown(context=ctx)
+
+
+def test_a_live_parameter_change_builds_a_new_config_and_requests_a_replan(scheduler):
+    node, spin_until = scheduler
+    assert spin_until(lambda: node.last is not None)  # the start-up plan
+    before, seq = node.planner.config, node.planner.seq
+    assert before == node.params.planner_config(node.planner.loss_map) and before.loss_threshold == 0.03
+    result, = node.set_parameters([Parameter("loss_threshold", value=0.02)])
+    assert result.successful, result.reason
+    after = node.planner.config
+    assert after is not before and after == replace(before, loss_threshold=0.02)
+    assert before.loss_threshold == 0.03  # the old configuration is a value: unchanged
+    assert spin_until(lambda: node.replans.get("parameters", 0) == 1)  # the change requested a replan …
+    assert node.planner.seq > seq and node.last.schedule.seq == node.planner.seq  # … and it was published
+
+
+def test_a_change_the_planner_refuses_is_refused_on_set(scheduler):
+    node, _ = scheduler
+    before = node.planner.config
+    result, = node.set_parameters([Parameter("image_bits", value=100.0)])  # not larger than a pose key
+    assert not result.successful and "image_bits must exceed pose_bits" in result.reason
+    result, = node.set_parameters([Parameter("oracle_channel", value=True)])
+    assert not result.successful and "read-only" in result.reason
+    assert node.planner.config is before and node.params.image_bits == before.image_bits
