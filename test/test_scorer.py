@@ -65,6 +65,26 @@ def test_backlog_pairs_image_and_record_and_waits_briefly_for_the_ledger_row():
     assert backlog.take(1.0) is None and backlog.take(1.0, flush=True).info.slot == 7
 
 
+def test_backlog_holds_slots_back_while_the_server_streams():
+    """With idle_s nothing is scored while MR images keep coming (scoring would compete with the system under
+    test); once the stream pauses for idle_s — or three quarters of the depth wait — the slots come out in order."""
+    backlog = ScoreBacklog(CLOCK, depth_slots=8, ledger_grace_s=0.0, idle_s=0.5)
+    img = np.zeros((2, 2, 3), np.uint8)
+    for i, slot in enumerate(range(10, 15)):  # one slot every 0.1 s
+        backlog.add_image(CLOCK.start_ns(slot), img, now_s=0.1 * i)
+        backlog.add_info(_info(slot), now_s=0.1 * i)
+        assert backlog.streaming(0.1 * i) and backlog.take(0.1 * i) is None
+    assert backlog.take(0.8) is None  # 0.4 s after the last image: still streaming
+    assert not backlog.streaming(0.9)
+    assert [backlog.take(0.9).info.slot for _ in range(5)] == [10, 11, 12, 13, 14]
+    for slot in range(20, 26):  # 6 ready ≥ 0.75 × 8: the backlog is handed out although images keep coming
+        backlog.add_image(CLOCK.start_ns(slot), img, now_s=2.0)
+        backlog.add_info(_info(slot), now_s=2.0)
+    assert not backlog.streaming(2.0) and backlog.take(2.0).info.slot == 20
+    assert backlog.streaming(2.0) and backlog.take(2.0) is None  # 5 left: below the mark again
+    assert backlog.take(2.0, flush=True).info.slot == 21  # flush: at once
+
+
 def test_backlog_holds_a_round_drops_past_its_depth_and_keeps_the_frames_still_needed():
     backlog = ScoreBacklog(CLOCK, depth_slots=3, frame_margin_s=0.15)
     for slot in range(100, 105):  # 5 slots paired, depth 3: the 2 oldest dropped

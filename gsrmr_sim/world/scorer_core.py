@@ -7,6 +7,11 @@ robot's ledger rows (``gsrmr/ledger``: the capture stamp of the frame each slot 
 wait at once (the scorer may lag the server by a whole round, then catch up); past that the oldest are dropped
 and counted. A paired slot is handed out once its ledger row is there, or ``ledger_grace_s`` after it was paired
 (a row that never comes: the newest frame at the slot start is the truth, :func:`gsrmr_sim.truth_frames.match_frame`).
+
+With ``idle_s`` > 0 nothing is handed out while the server streams: only once no MR image (or slot record) has
+arrived for ``idle_s`` — the round is over or paused — or once three quarters of ``depth_slots`` are ready. Scoring
+re-renders each slot (the GS view and the virtual view), as much work as the server's own composition: done during
+the round, on two cores, it slowed the system under test (fewer slots on time) even at the lowest priority.
 """
 
 from __future__ import annotations
@@ -52,9 +57,13 @@ class ScorerParameters(NodeParameters):
         "of subscribing to camera/image_raw; '' = subscribe", read_only=True)
     record_dir: str = ros_parameter("", "Append one row per slot to scores.csv here ('' = no file, the log only)",
                                     read_only=True)
-    queue_slots: int = ros_parameter(400, "Slots that may wait to be scored (at least a round: the scorer runs at "
-                                     "the world's low priority and catches up later)", min_value=1,
+    queue_slots: int = ros_parameter(400, "Slots that may wait to be scored (at least a round: the scorer waits for "
+                                     "the round to end, see idle_before_scoring_s, and catches up then)", min_value=1,
                                      max_value=100_000, read_only=True)
+    idle_before_scoring_s: float = ros_parameter(
+        0.5, "Score only once no MR image has arrived for this long (the round is over or paused) or 3/4 of "
+        "queue_slots wait, so that scoring does not compete with the system under test for the CPU; 0 = score as the "
+        "images come", min_value=0.0, max_value=600.0, read_only=True)
     render_threads: int = ros_parameter(1, "CPU threads of the GS render (0 = every core)", min_value=0,
                                         max_value=256, read_only=True)
     camera_mount: CameraMount = field(default_factory=CameraMount)  # gsrmr_common.ros_node.declare_camera_mount
@@ -81,9 +90,11 @@ class ScoreBacklog:
     """What waits to be scored (see the module docstring); every method is thread-safe."""
 
     def __init__(self, clock: SlotClock, depth_slots: int, *, frame_margin_s: float = 2.0,
-                 ledger_grace_s: float = 0.5) -> None:
+                 ledger_grace_s: float = 0.5, idle_s: float = 0.0) -> None:
         self.clock = clock
         self.depth_slots = int(depth_slots)
+        self.idle_s = float(idle_s)
+        self._last_arrival_s = float("-inf")  # monotonic time of the last MR image or slot record
         self.frame_margin_ns = round(frame_margin_s * 1e9)
         self.ledger_grace_s = float(ledger_grace_s)
         self.dropped = 0  # slots dropped unscored (over depth_slots)
@@ -99,12 +110,14 @@ class ScoreBacklog:
         """An ``mr/image`` (stamped with its slot's start) arrived at monotonic time ``now_s``."""
         with self._lock:
             slot = self.clock.slot_named(stamp_ns)
+            self._last_arrival_s = max(self._last_arrival_s, now_s)
             self._images[slot] = (int(stamp_ns), mr_u8)
             self._pair(slot, now_s)
 
     def add_info(self, info: MRSlotInfo, now_s: float) -> None:
         """An ``mr/slot_info`` arrived at monotonic time ``now_s``."""
         with self._lock:
+            self._last_arrival_s = max(self._last_arrival_s, now_s)
             self._infos[info.slot] = info
             self._pair(info.slot, now_s)
 
@@ -145,11 +158,20 @@ class ScoreBacklog:
         while self._frames and (self._frames[0][0] < keep_from or len(self._frames) > 2 * self.depth_slots):
             self._frames.popleft()
 
-    def take(self, now_s: float, *, flush: bool = False) -> ScoreJob | None:
-        """The oldest paired slot once its ledger row is there or it waited ``ledger_grace_s`` (``flush``: at
-        once), with its ledger row and its true frame; None when none is ready."""
+    def streaming(self, now_s: float) -> bool:
+        """Whether the server still streams: an MR image or slot record came less than ``idle_s`` ago and fewer than
+        three quarters of ``depth_slots`` are ready (then :meth:`take` holds the slots back)."""
         with self._lock:
-            if not self._ready:
+            return self._streaming(now_s)
+
+    def _streaming(self, now_s: float) -> bool:
+        return now_s - self._last_arrival_s < self.idle_s and len(self._ready) < 0.75 * self.depth_slots
+
+    def take(self, now_s: float, *, flush: bool = False) -> ScoreJob | None:
+        """The oldest paired slot once its ledger row is there or it waited ``ledger_grace_s`` and the server no
+        longer streams (``flush``: at once), with its ledger row and its true frame; None when none is ready."""
+        with self._lock:
+            if not self._ready or (not flush and self._streaming(now_s)):
                 return None
             slot = min(self._ready)
             paired_s, job = self._ready[slot]

@@ -9,11 +9,13 @@ scores the image with the deployment library (:class:`gsrmr_server.scoring.SlotS
 with ``hindsight_jpeg_quality``, the hindsight losses. One row per slot goes to ``<record_dir>/scores.csv``
 (:mod:`gsrmr_sim.scores`), which the demo's report joins with the server's ``slots.csv`` by slot.
 
-The work runs on a thread of its own, off the executor that receives the messages, and the node runs at the
-lowest priority (``gsrmr_sim.sim_stack.SCORER_NICE``): it never slows the server, it lags instead, holding up
-to ``queue_slots`` slots (:class:`~gsrmr_sim.world.scorer_core.ScoreBacklog`), and catches up once the round is
-over. ``model_path`` is writable: set it when the server's model changes (slots scored afterwards use the new
-model). Parameters: :class:`~gsrmr_sim.world.scorer_core.ScorerParameters`.
+The work runs on a thread of its own, off the executor that receives the messages, at the lowest priority
+(``gsrmr_sim.sim_stack.SCORER_NICE``), and only once the server has stopped streaming for
+``idle_before_scoring_s`` (or the backlog is three quarters full): scoring re-renders each slot, and during the
+round it would compete with the system under test for the two cores. It holds up to ``queue_slots`` slots
+(:class:`~gsrmr_sim.world.scorer_core.ScoreBacklog`) and catches up once the round is over. ``model_path`` is
+writable: set it when the server's model changes (slots scored afterwards use the new model). Parameters:
+:class:`~gsrmr_sim.world.scorer_core.ScorerParameters`.
 """
 
 from __future__ import annotations
@@ -74,7 +76,7 @@ class ScorerNode(Node):
                                   mount=p.camera_mount, background_rgb=p.background_rgb,
                                   render_threads=p.render_threads or None)
         self.scorer = SlotScorer(composer, p.hindsight_jpeg_quality or None)
-        self.backlog = ScoreBacklog(SlotClock(p.slot_s), p.queue_slots)
+        self.backlog = ScoreBacklog(SlotClock(p.slot_s), p.queue_slots, idle_s=p.idle_before_scoring_s)
         self.truth_files = TruthFrameReader(p.truth_dir) if p.truth_dir else None
         self.writer = ScoresWriter(p.record_dir) if p.record_dir else None
         self.scored = self.no_truth = self.unusable = 0
