@@ -106,6 +106,8 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
 
     ``channel_seed`` overrides ``config/link.yaml``'s for the simulated radio (and the scheduler, which
     only uses it with ``oracle_channel``: planning with the simulator's future fading, an upper bound).
+    ``overrides``: parameters per node name (``{"gsrmr_server": {...}}``), applied last; ValueError for a
+    name that is no node of the stack.
     """
     cfg = config or config_dir()
     link, base, robot, server, scheduler = (
@@ -147,6 +149,10 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
                      "loss_map_file": loss_map_file, "state_dir": state_dir, "oracle_channel": oracle_channel,
                      "round_slots": int(sc.slots), **seed}),
     ]
+    unknown = sorted(set(over) - {spec.name for spec in specs})
+    if unknown:
+        raise ValueError(f"overrides for no node of the stack: {unknown} (keys are node names: "
+                         f"{[spec.name for spec in specs]})")
     for spec in specs:
         spec.params.update(over.get(spec.name, {}))
     return specs

@@ -19,7 +19,9 @@ def _nodes(context):
     arg = lambda name: LaunchConfiguration(name).perform(context)  # noqa: E731
     specs = sim_stack(scene=arg("scene"), model_path=arg("model_path"), record_dir=arg("record_dir"),
                       loss_threshold=float(arg("loss_threshold")), laps=int(arg("laps")), method=arg("method"),
-                      link_path=arg("serial_link"))
+                      link_path=arg("serial_link"),
+                      # all processes start at once here: the robot sets off once the server composes
+                      overrides={"gsrmr_route_follower": {"wait_for_server": True}})
     return [launch_node(s, namespace=arg("namespace")) for s in specs]
 
 

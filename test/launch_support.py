@@ -155,6 +155,22 @@ class LaunchRun:
             time.sleep(0.1)
         return False
 
+    def started_pids(self) -> dict[str, int]:
+        """Per process launch has started so far (its launch name, e.g. ``gsrmr-robot-2``): its pid."""
+        return {name: int(pid) for name, pid in _STARTED.findall(self.output())}
+
+    def wait_until_loading(self, count: int, library: str, timeout_s: float) -> bool:
+        """True once ``count`` processes have started and every one has mapped ``library`` (a substring of a
+        shared object's path in ``/proc/<pid>/maps``): each has left the interpreter's own start-up and is
+        loading its program's modules. False on timeout, on exit, or when a process ended first."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and self.proc.poll() is None:
+            pids = self.started_pids()
+            if len(pids) >= count and all(_maps_has(pid, library) for pid in pids.values()):
+                return True
+            time.sleep(0.005)
+        return False
+
     def ctrl_c(self, timeout_s: float = 40.0) -> int:
         """SIGINT to the whole process group (a terminal's Ctrl-C); wait for the command to end."""
         os.killpg(self.proc.pid, signal.SIGINT)
@@ -175,6 +191,14 @@ class LaunchRun:
         logs = sorted(self.log_dir.rglob("launch.log"))
         assert logs, f"no launch.log under {self.log_dir}"
         return "\n".join(p.read_text(errors="replace") for p in logs)
+
+
+def _maps_has(pid: int, library: str) -> bool:
+    """Whether process ``pid`` has a shared object whose path contains ``library`` mapped (False once gone)."""
+    try:
+        return library in Path(f"/proc/{pid}/maps").read_text(errors="replace")
+    except OSError:
+        return False
 
 
 def start_ros2_launch(tmp_path: Path, *args: str, env: dict[str, str] | None = None) -> LaunchRun:

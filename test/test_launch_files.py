@@ -162,3 +162,31 @@ def test_launch_nodes_come_from_the_process_specs_through_one_function():
     for name in ("sim.launch.py", "fleet.launch.py"):
         text = (REPO / "launch" / name).read_text()
         assert "launch_node(" in text and not re.search(r"(?<!launch_)Node\(", text), name
+
+
+def test_sim_stack_refuses_overrides_for_no_node():
+    from gsrmr_sim.sim_stack import sim_stack
+
+    with pytest.raises(ValueError, match="gsrmr-route-follower"):  # an executable's name is no node name
+        sim_stack(model_path="/m.ply", config=REPO / "config", overrides={"gsrmr-route-follower": {"laps": 0}})
+    specs = sim_stack(model_path="/m.ply", config=REPO / "config", overrides={"gsrmr_route_follower": {"laps": 0}})
+    assert next(s for s in specs if s.name == "gsrmr_route_follower").params["laps"] == 0
+
+
+def test_sim_launch_sets_the_robot_off_once_the_server_composes():
+    """sim.launch.py starts every process at once: its route follower waits for the server's first slot."""
+    pytest.importorskip("launch_ros")
+    import importlib.util
+
+    import launch
+
+    loader = importlib.util.spec_from_file_location("sim_launch_under_test", REPO / "launch" / "sim.launch.py")
+    module = importlib.util.module_from_spec(loader)
+    loader.loader.exec_module(module)
+    module.launch_node = lambda spec, namespace=None: spec  # the specs the launch file maps to Nodes
+    context = launch.LaunchContext()
+    context.launch_configurations.update({"scene": "sandbox", "model_path": "/m.ply", "record_dir": "",
+                                          "loss_threshold": "0.03", "laps": "1", "method": "exact",
+                                          "serial_link": "/tmp/limo", "namespace": ""})
+    specs = {spec.name: spec for spec in module._nodes(context)}
+    assert specs["gsrmr_route_follower"].params.get("wait_for_server") is True

@@ -15,10 +15,12 @@ import rclpy
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
-from std_msgs.msg import Int32
+from std_msgs.msg import Float64MultiArray, Int32
 
 from gsrmr_common.camera import camera_from_pose
+from gsrmr_common.ros_wire import UPLINK_QOS
 from gsrmr_common.route import LoopPath
+from gsrmr_common.wire import MR_SLOT_INFO_TOPIC, MRSlotInfo
 from gsrmr_sim.world.raycast import RayCastWorld
 from gsrmr_sim.world.recorder import with_resolution
 from gsrmr_sim.world.scene import load_scene
@@ -159,5 +161,27 @@ def test_route_follower_drives_counts_a_lap_and_stops(ros_processes, test_node):
     cmds.clear()
     assert spin_until(test_node, lambda: len(cmds) >= 3, 10.0, tick=lambda: odom_pub.publish(at_progress()))
     assert all(c.linear.x == 0.0 and c.angular.z == 0.0 for c in cmds[-3:])
+    assert ros_processes.interrupt(proc) < 10.0
+    assert proc.returncode == 0
+
+
+def test_route_follower_waiting_for_the_server_holds_still_until_a_slot_is_composed(ros_processes, test_node):
+    """``wait_for_server`` (as sim.launch.py sets it): zero Twists, however long, until mr/slot_info has a message;
+    then it drives."""
+    proc = ros_processes.start("gsrmr-route-follower", "--ros-args", "-p", "wait_for_server:=true")
+    cmds: list[Twist] = []
+    test_node.create_subscription(Twist, "cmd_vel", cmds.append, 10)
+    odom_pub = test_node.create_publisher(Odometry, "odom", 10)
+    info_pub = test_node.create_publisher(Float64MultiArray, MR_SLOT_INFO_TOPIC, UPLINK_QOS)
+    path = LoopPath(load_scene("sandbox").route.waypoints)
+    at_start = odom_msg(*path.point_at(0.0), path.heading_at(0.0))
+    assert spin_until(test_node, lambda: len(cmds) >= 20, 30.0, tick=lambda: odom_pub.publish(at_start)), \
+        ros_processes.output(proc)
+    assert all(c.linear.x == 0.0 and c.angular.z == 0.0 for c in cmds)
+    info = Float64MultiArray(data=MRSlotInfo.of(1, "render", None, 0.0).to_data())
+    assert spin_until(test_node, lambda: cmds[-1].linear.x > 0.0, 30.0,
+                      tick=lambda: (odom_pub.publish(at_start), info_pub.publish(info))), ros_processes.output(proc)
+    assert cmds[-1].linear.x == pytest.approx(0.3)
+    assert "the server composes: setting off" in "".join(ros_processes.output(proc))
     assert ros_processes.interrupt(proc) < 10.0
     assert proc.returncode == 0

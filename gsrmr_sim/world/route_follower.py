@@ -5,6 +5,10 @@ true pose), publishes ``cmd_vel`` (geometry_msgs/Twist: linear.x in m/s, angular
 frame) at ``rate_hz``, and ``sim/route/lap`` (std_msgs/Int32, laps completed, on every change).
 After ``laps`` laps (0 = never stop) it publishes a zero Twist and stays stopped. Before the first
 odometry message it publishes nothing. Progress starts at the path point closest to the first pose.
+
+With ``wait_for_server`` it holds the robot still (zero Twist) until the server has composed its first
+MR slot (a message on ``mr/slot_info``), so that a round launched all at once (``sim.launch.py``) sets off
+with the server up and composing, as ``gsrmr-demo`` does by starting the follower last.
 """
 
 from __future__ import annotations
@@ -15,11 +19,13 @@ from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
-from std_msgs.msg import Int32
+from std_msgs.msg import Float64MultiArray, Int32
 
 from gsrmr_common.interrupts import console_main
 from gsrmr_common.ros_node import declare, run_node
+from gsrmr_common.ros_wire import UPLINK_QOS
 from gsrmr_common.route import LoopPath, PurePursuit, laps_completed
+from gsrmr_common.wire import MR_SLOT_INFO_TOPIC
 from gsrmr_sim.world.camera_node import yaw_from_quaternion
 from gsrmr_sim.world.scene import load_scene
 
@@ -35,11 +41,19 @@ class RouteFollower(Node):
         rate = declare(self, "rate_hz", 20.0, "control rate in Hz", min_value=1.0, max_value=200.0)
         speed = declare(self, "speed_mps", scene.route.speed_mps, "nominal speed (m/s)", min_value=0.0,
                         max_value=2.0)
+        wait_for_server = declare(self, "wait_for_server", False,
+                                  f"hold still until the server composes its first slot ({MR_SLOT_INFO_TOPIC})",
+                                  read_only=True)
         self.path = LoopPath(scene.route.waypoints)
         self.ctrl = PurePursuit(speed, scene.route.lookahead_m, scene.route.max_omega_rps)
         self.pub = self.create_publisher(Twist, "cmd_vel", 10)
         self.pub_lap = self.create_publisher(Int32, "sim/route/lap", 10)
         self.create_subscription(Odometry, odom_topic, self._on_odom, qos_profile_sensor_data)
+        self.server_composing = not wait_for_server
+        self._server_sub = None
+        if wait_for_server:
+            self._server_sub = self.create_subscription(Float64MultiArray, MR_SLOT_INFO_TOPIC, self._on_slot_info,
+                                                        UPLINK_QOS)
         self.pose: tuple[float, float, float] | None = None
         self.s0: float | None = None
         self.s = 0.0
@@ -47,7 +61,16 @@ class RouteFollower(Node):
         self.done = False
         self.create_timer(1.0 / rate, self._tick)
         self.get_logger().info(f"route follower: {self.path.length_m:.2f} m loop of scene {scene.name}, "
-                               f"{self.max_laps or 'unlimited'} laps, odom from {odom_topic}")
+                               f"{self.max_laps or 'unlimited'} laps, odom from {odom_topic}"
+                               + (f"; sets off once {MR_SLOT_INFO_TOPIC} has a slot" if wait_for_server else ""))
+
+    def _on_slot_info(self, _msg: Float64MultiArray) -> None:
+        if not self.server_composing:
+            self.server_composing = True
+            self.get_logger().info("the server composes: setting off")
+        if self._server_sub is not None:
+            self.destroy_subscription(self._server_sub)
+            self._server_sub = None
 
     def _on_odom(self, msg: Odometry) -> None:
         q = msg.pose.pose.orientation
@@ -61,6 +84,9 @@ class RouteFollower(Node):
         if self.pose is None or self.s0 is None:
             return
         cmd = Twist()
+        if not self.server_composing:
+            self.pub.publish(cmd)  # held still (a zero Twist keeps the base's command watchdog fed)
+            return
         if not self.done:
             v, w, self.s = self.ctrl.command(self.path, self.pose, self.s)
             laps = laps_completed(self.s - self.s0, self.path.length_m)
