@@ -59,7 +59,10 @@ class Stack:
         self.link = str(tmp / "limo_pty")
         size = {"width": WIDTH, "height": HEIGHT}
         over: dict[str, dict] = {"gsrmr_mock_camera": dict(size),  # the server renders at its camera_info
-                                 "gsrmr_scheduler": {"horizon": 60, "replan_period_s": 1.0}}
+                                 "gsrmr_scheduler": {"horizon": 60, "replan_period_s": 1.0},
+                                 # the route never ends here (laps 0), so the server never pauses: a short queue
+                                 # makes the scorer score from 30 waiting slots on (400 by default: 30 s)
+                                 "gsrmr_sim_scorer": {"queue_slots": 40}}
         for name, params in (overrides or {}).items():
             over.setdefault(name, {}).update(params)
         self.specs = {s.name: s for s in sim_stack(

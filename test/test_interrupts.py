@@ -72,6 +72,31 @@ if __name__ == "__main__":
     sys.exit(importlib_load_entry_point("stand_in.node", "{entry}")())
 '''
 TEMPLATES = {"setuptools": SETUPTOOLS_SCRIPT, "colcon": COLCON_SCRIPT}
+# A terminal's Ctrl-C reaches a program whose SIGINT has its default disposition. A test run started in the background
+# by a non-interactive shell (`make test &`, a CI script's `cmd &`) ignores SIGINT, and an ignored signal stays ignored
+# across exec, so every child here starts through this reset (then execs its command, as a terminal would start it).
+FROM_A_TERMINAL = [sys.executable, "-c", "import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
+                   "os.execvp(sys.argv[1], sys.argv[1:])"]
+_children: list[subprocess.Popen] = []
+
+
+@pytest.fixture(autouse=True)
+def _no_child_left():
+    """A child a failed test left running (a stand-in in its spin loop) is killed when the test ends."""
+    yield
+    while _children:
+        proc = _children.pop()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def popen_from_a_terminal(command: list[str], **kwargs) -> subprocess.Popen:
+    """``subprocess.Popen(command, **kwargs)`` with SIGINT at its default disposition (:data:`FROM_A_TERMINAL`);
+    the child is killed at the end of the test if it still runs."""
+    proc = subprocess.Popen([*FROM_A_TERMINAL, *command], **kwargs)
+    _children.append(proc)
+    return proc
 
 
 def start(tmp_path: Path, import_s: float = 0.0, *, template: str = "setuptools", entry: str = "main",
@@ -83,8 +108,8 @@ def start(tmp_path: Path, import_s: float = 0.0, *, template: str = "setuptools"
     (package / "node.py").write_text(STAND_IN)
     (tmp_path / script).write_text(TEMPLATES[template].format(entry=entry))
     env = dict(os.environ, IMPORT_S=str(import_s), **flags, PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]))
-    return subprocess.Popen([sys.executable, str(tmp_path / script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=env)
+    return popen_from_a_terminal([sys.executable, str(tmp_path / script)], stdout=subprocess.PIPE,
+                                 stderr=subprocess.PIPE, text=True, env=env)
 
 
 def wait_line(proc: subprocess.Popen, text: str, timeout_s: float = 20.0) -> list[str]:
@@ -151,7 +176,8 @@ def test_the_guard_is_only_armed_in_a_gsrmr_console_script(tmp_path):
     code = ("import signal, sys; import stand_in.node; print(signal.getsignal(signal.SIGINT) is "
             "signal.default_int_handler, sys.excepthook is sys.__excepthook__)")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]))
-    shown = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60)
+    shown = subprocess.run([*FROM_A_TERMINAL, sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                           timeout=60)
     assert shown.stdout.split()[-2:] == ["True", "True"], shown.stderr  # importing our packages changed nothing
 
 
@@ -187,8 +213,8 @@ def test_ctrl_c_while_gsrmr_robot_loads_exits_zero(tmp_path):
     from gsrmr_sim.sim_stack import executable_path
 
     env = dict(ros_env(), PYTHONPROFILEIMPORTTIME="1")
-    proc = subprocess.Popen([str(executable_path("gsrmr-robot"))], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    proc = popen_from_a_terminal([str(executable_path("gsrmr-robot"))], env=env, stdout=subprocess.PIPE,
+                                 stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     watchdog = threading.Timer(120.0, proc.kill)  # the lines below never come: fail instead of hanging
     watchdog.start()
     try:
