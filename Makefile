@@ -1,7 +1,8 @@
 # gsrmr: two commands on a fresh machine (Python 3.11, pip, gcc):
 #   make demo   set up .venv, then run the main job
 #   make test   set up .venv, then lint (ruff), colcon build and run every test once (colcon test, or
-#               plain pytest where no ROS 2 launch tooling is available: tools/run_tests.sh)
+#               plain pytest where no ROS 2 launch tooling is available: tools/run_tests.sh), but the
+#               `long` ones (soak and overload runs), which `make test-long` runs
 # .venv is created or refreshed by tools/bootstrap.sh; a second run reuses it in about a second.
 
 VENV ?= .venv
@@ -12,7 +13,7 @@ export ROS_DOMAIN_ID
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 PYTEST_ARGS ?=
 
-.PHONY: venv test lint pytest demo bench clean
+.PHONY: venv test test-long lint pytest demo bench clean
 
 venv:
 	@VENV=$(VENV) bash tools/bootstrap.sh
@@ -29,6 +30,9 @@ test: venv
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/lint-imports
 	@VENV=$(VENV) PYTEST_ARGS="$(PYTEST_ARGS)" bash tools/run_tests.sh
+
+test-long: venv
+	@VENV=$(VENV) PYTEST_ARGS="-m long $(PYTEST_ARGS)" bash tools/run_tests.sh
 
 demo: venv
 	$(VENV)/bin/gsrmr-demo $(DEMO_ARGS)

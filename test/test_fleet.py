@@ -308,6 +308,7 @@ class _Probe:
 
 @pytest.mark.ros
 @pytest.mark.slow
+@pytest.mark.long  # 18 processes on the two cores: on a slow day it overloads the machine (`make test-long`)
 def test_live_fleet_of_two_robots(tmp_path, monkeypatch):
     domain = next_domain_id()
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")

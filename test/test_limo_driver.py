@@ -133,6 +133,7 @@ def test_one_percent_bit_flips_no_corrupt_frame_and_odometry_within_2cm_over_2m(
 
 
 @pytest.mark.slow
+@pytest.mark.long  # a 60 s soak in real time (`make test-long`); the 6 s run above stays in `make test`
 def test_60_s_run_with_one_percent_bit_flips(link):
     r = bit_flip_run(link, run_s=60.0, line_speed_mps=0.25, seed=7)
     assert r["elapsed_s"] >= 60.0

@@ -46,7 +46,9 @@ def test_ros2_launch_sim_ctrl_c_every_process_exits_zero(tmp_path):
     run = start_ros2_launch(tmp_path, "gsrmr", "sim.launch.py", f"model_path:={model}", "laps:=0",
                             f"serial_link:={tmp_path / 'limo'}")
     try:
-        assert run.wait_for("robot moving: round clock started", 90.0), run.output()[-4000:]
+        # every process up and in its loop: the robot set off, and the scorer (at nice 19, the last) is ready
+        for line in ("robot moving: round clock started", "scorer: model"):
+            assert run.wait_for(line, 120.0), run.output()[-4000:]
         time.sleep(3.0)  # a few slots of the running loop
         rc = run.ctrl_c()
     finally:
