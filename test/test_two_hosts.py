@@ -136,6 +136,17 @@ def test_robot_participant_killed_and_restarted_images_resume(two_hosts):
     _alive(stack)
 
 
+CAP_WITHIN_S = 12.0  # the longest the scheduler may take to cap the images after the cut
+STEADY_S = 8.0  # the steady state measured after the cap
+_CAP_LINE = re.compile(r"\[(\d+\.\d+)\] \[gsrmr_scheduler\]: uplink image cap: image_cap=(?!none)")
+
+
+def _first_cap_s(log: str, after_s: float) -> float | None:
+    """Stamp (s) of the scheduler's first log line capping the images (a number, not none) after ``after_s``."""
+    stamps = [float(m.group(1)) for m in _CAP_LINE.finditer(log)]
+    return next((t for t in stamps if t >= after_s), None)
+
+
 def test_uplink_cut_below_one_image_per_slot_robot_holds_back_scheduler_plans_fewer(two_hosts):
     stack, hosts, _ = two_hosts
     # what the link carries besides images (keys and ledger rows to server and scheduler, cmd_vel, DDS
@@ -153,13 +164,20 @@ def test_uplink_cut_below_one_image_per_slot_robot_holds_back_scheduler_plans_fe
     cut_mbit = (other_bps + 0.6 * image_bps) / 1e6
     hosts.set_rate(cut_mbit)
     t_cut = time.time()
-    steady_from = t_cut + 4.0
+    # the steady state starts 1 s after the scheduler capped the images (how soon it does depends on how soon the
+    # robot's ledger rows cross the cut link and on the machine's load: bounded here, then measured after it)
+    deadline = time.monotonic() + CAP_WITHIN_S
+    while time.monotonic() < deadline and _first_cap_s(stack.log("gsrmr_scheduler"), t_cut) is None:
+        time.sleep(0.2)
+    t_capped = _first_cap_s(stack.log("gsrmr_scheduler"), t_cut)
+    assert t_capped is not None, f"no cap within {CAP_WITHIN_S} s of the cut: {stack.log('gsrmr_scheduler')[-3000:]}"
+    steady_from = t_capped + 1.0
     time.sleep(max(0.0, steady_from - time.time()))
     drops_before = hosts.queue_stats()["dropped"]
-    rows = _wait_rows(stack, lambda rs: bool(rs) and rs[-1]["stamp_s"] > t_cut + 12.0, 40)
+    rows = _wait_rows(stack, lambda rs: bool(rs) and rs[-1]["stamp_s"] > steady_from + STEADY_S, 40)
     drops = hosts.queue_stats()["dropped"] - drops_before
     assert _consecutive(rows)
-    after = [r for r in rows if steady_from <= r["stamp_s"] <= t_cut + 12.0]
+    after = [r for r in rows if steady_from <= r["stamp_s"] <= steady_from + STEADY_S]
     assert len(after) >= 60
     log = stack.log("gsrmr_scheduler")
     # the robot notices: its image acknowledgements slow down (its throughput estimate falls) and an image
