@@ -10,8 +10,8 @@ Frames
 * Robot pose ``(a, b, θ)``: position of ``base_link`` in the world x/y plane (metres) and yaw θ
   (radians, counter-clockwise about +z, 0 = facing world +x). ``base_link`` sits on the floor (z = 0).
 * Camera mount (:class:`CameraMount`): the optical centre at ``(forward_m, left_m, height_m)`` in
-  ``base_link``; the optical axis points along the robot heading, tilted down by ``pitch_rad``
-  (positive = looking down).
+  ``base_link``; the optical axis points along the robot heading, turned by roll/pitch/yaw (ROS RPY;
+  ``pitch_rad`` positive = looking down).
 * Camera (optical frame, OpenCV / 3DGS / gsplat): x right, y down, z forward. ``world_to_camera`` is
   the 4×4 [R|t] mapping homogeneous world points into that frame; depth is camera-space z.
 
@@ -26,7 +26,7 @@ and :meth:`Intrinsics.ros_k` to convert.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 import math
 
 import numpy as np
@@ -99,19 +99,66 @@ class Intrinsics:
 
 @dataclass(frozen=True)
 class CameraMount:
-    """Where the camera sits on the robot (metres, radians), expressed in ``base_link``."""
+    """Where the camera sits on the robot: the pose of the camera body frame (``camera_link``: x forward, y left,
+    z up) in ``base_link`` — metres and radians, REP-103.
+
+    Translation ``(forward_m, left_m, height_m)``; rotation by the ROS roll-pitch-yaw convention
+    R = Rz(yaw)·Ry(pitch)·Rx(roll) about base_link's fixed axes: ``pitch_rad`` > 0 tips the optical axis down,
+    ``yaw_rad`` > 0 turns it left, ``roll_rad`` > 0 tips the camera's right side down. The optical
+    frame (x right, y down, z forward) sits at the same point, turned by the fixed ``camera_link`` →
+    optical rotation. A real mount is measured (or read from the robot's static TF: :meth:`from_optical_pose`).
+    """
 
     height_m: float = 0.15
     pitch_rad: float = 0.0
     forward_m: float = 0.1
     left_m: float = 0.0
+    roll_rad: float = 0.0
+    yaw_rad: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("height_m", "pitch_rad", "forward_m", "left_m"):
+        for name in ("height_m", "pitch_rad", "forward_m", "left_m", "roll_rad", "yaw_rad"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"camera mount: {name} must be finite")
         if abs(self.pitch_rad) >= 0.5 * math.pi:
             raise ValueError(f"camera mount: |pitch_rad| must be < π/2, got {self.pitch_rad}")
+        for name in ("roll_rad", "yaw_rad"):
+            if abs(getattr(self, name)) > math.pi:
+                raise ValueError(f"camera mount: |{name}| must be ≤ π, got {getattr(self, name)}")
+
+    def as_parameters(self, prefix: str = "camera_mount.") -> dict[str, float]:
+        """The mount as the ``camera_mount.*`` node parameters (``config/camera_mount.yaml``) name it."""
+        return {f"{prefix}{f.name}": float(getattr(self, f.name)) for f in fields(self)}
+
+    def body_rotation(self) -> np.ndarray:
+        """3×3 rotation of ``camera_link`` in ``base_link``: Rz(yaw)·Ry(pitch)·Rx(roll)."""
+        return rpy_matrix(self.roll_rad, self.pitch_rad, self.yaw_rad)
+
+    @classmethod
+    def from_optical_pose(cls, base_from_optical: np.ndarray) -> CameraMount:
+        """The mount of a camera whose optical frame has the 4×4 pose ``base_from_optical`` in ``base_link``
+        (e.g. composed from a robot's static TF). Raises ``ValueError`` for a camera looking straight up or
+        down (|pitch| ≥ π/2: roll and yaw are not separable there)."""
+        m = np.asarray(base_from_optical, dtype=np.float64).reshape(4, 4)
+        body = m[:3, :3] @ _OPTICAL_TO_BASE.T
+        pitch = math.asin(max(-1.0, min(1.0, -body[2, 0])))
+        if abs(abs(pitch) - 0.5 * math.pi) < 1e-6:
+            raise ValueError("camera mount: the camera looks straight up or down (pitch ±π/2)")
+        roll = math.atan2(body[2, 1], body[2, 2])
+        yaw = math.atan2(body[1, 0], body[0, 0])
+        x, y, z = (float(v) for v in m[:3, 3])
+        return cls(height_m=z, pitch_rad=pitch, forward_m=x, left_m=y, roll_rad=roll, yaw_rad=yaw)
+
+
+def rpy_matrix(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:
+    """3×3 rotation Rz(yaw)·Ry(pitch)·Rx(roll) (ROS/URDF roll-pitch-yaw about fixed axes; radians)."""
+    cr, sr = math.cos(roll_rad), math.sin(roll_rad)
+    cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
+    cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
+    rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    return rz @ ry @ rx
 
 
 @dataclass(frozen=True)
@@ -187,10 +234,7 @@ class Camera:
 
 def base_to_camera_rotation(mount: CameraMount) -> np.ndarray:
     """3×3 rotation taking optical-frame vectors into ``base_link`` for this mount (pitch down > 0)."""
-    c, s = math.cos(mount.pitch_rad), math.sin(mount.pitch_rad)
-    # Pitch down = rotation about base_link +y by +pitch (x forward tips toward -z).
-    pitch = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-    return pitch @ _OPTICAL_TO_BASE
+    return mount.body_rotation() @ _OPTICAL_TO_BASE
 
 
 def camera_to_world_from_pose(a_m: float, b_m: float, theta_rad: float, mount: CameraMount) -> np.ndarray:

@@ -6,6 +6,7 @@ Imports rclpy; keep pure logic elsewhere.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+import math
 import sys
 import time
 from typing import Any, TypeVar
@@ -134,7 +135,11 @@ def declare_camera_mount(node: Node) -> CameraMount:
         forward_m=declare(node, "camera_mount.forward_m", d.forward_m, "Optical centre ahead of base_link [m]",
                           min_value=-10.0, max_value=10.0, read_only=True),
         left_m=declare(node, "camera_mount.left_m", d.left_m, "Optical centre left of base_link [m]",
-                       min_value=-10.0, max_value=10.0, read_only=True))
+                       min_value=-10.0, max_value=10.0, read_only=True),
+        roll_rad=declare(node, "camera_mount.roll_rad", d.roll_rad, "Camera roll about its optical axis (ROS RPY, "
+                         "about base_link x) [rad]", min_value=-math.pi, max_value=math.pi, read_only=True),
+        yaw_rad=declare(node, "camera_mount.yaw_rad", d.yaw_rad, "Camera yaw, positive = looking left (ROS RPY) [rad]",
+                        min_value=-math.pi, max_value=math.pi, read_only=True))
 
 
 def declare_link_budget(node: Node) -> LinkBudget:

@@ -5,6 +5,7 @@ Tree (parent → child), each edge the pose of the child frame expressed in the 
     map ──(robot parameter map_from_odom, static)──▶ odom
     odom ──(base driver's odometry, ~50 Hz)──▶ base_link
     base_link ──(camera mount, static)──▶ camera_optical_frame
+    (on a robot whose description names the camera body: base_link ──▶ camera_link ──(fixed)──▶ optical)
 
 Frames (REP-103): ``map``, ``odom`` and ``base_link`` are x forward, y left, z up, in metres;
 ``base_link`` sits on the floor (z = 0) at the robot's centre. ``camera_optical_frame`` has the
@@ -31,6 +32,7 @@ from gsrmr_common.wire import MAP_FRAME as _WIRE_MAP_FRAME
 MAP_FRAME = _WIRE_MAP_FRAME  # "map": the fixed world frame of pose keys and the GS model
 ODOM_FRAME = "odom"
 BASE_FRAME = "base_link"
+CAMERA_FRAME = "camera_link"
 CAMERA_OPTICAL_FRAME = "camera_optical_frame"
 
 # Optical frame in an (untilted) body frame x forward, y left, z up: optical z → body +x, optical x →
@@ -136,19 +138,30 @@ def odom_from_base_transform(x_m: float, y_m: float, yaw_rad: float) -> Transfor
     return planar_transform(x_m, y_m, yaw_rad)
 
 
+def base_from_camera_link_transform(mount: CameraMount) -> Transform:
+    """``base_link → camera_link`` for a camera mount (static): the camera body frame (x forward, y left, z up)
+    at ``(forward_m, left_m, height_m)`` [m], turned by the mount's roll, pitch and yaw (ROS RPY)."""
+    _finite(height_m=mount.height_m, pitch_rad=mount.pitch_rad, forward_m=mount.forward_m, left_m=mount.left_m,
+            roll_rad=mount.roll_rad, yaw_rad=mount.yaw_rad)
+    return Transform((float(mount.forward_m), float(mount.left_m), float(mount.height_m)),
+                     quaternion_from_matrix(mount.body_rotation()))
+
+
+#: ``camera_link → camera_optical_frame``: the fixed optical rotation (REP-103 ``_optical`` suffix), no offset.
+CAMERA_LINK_FROM_OPTICAL = Transform((0.0, 0.0, 0.0), _OPTICAL_IN_BODY)
+
+
 def base_from_camera_optical_transform(mount: CameraMount) -> Transform:
-    """``base_link → camera_optical_frame`` for a camera mount (static).
+    """``base_link → camera_optical_frame`` for a camera mount (static): ``base_link → camera_link`` composed
+    with the fixed optical rotation.
 
     Translation: the optical centre ``(forward_m, left_m, height_m)`` in ``base_link`` [m]. Rotation:
     the optical axes (x right, y down, z forward) turned into the body axes (x forward, y left, z up),
-    then pitched down by ``mount.pitch_rad`` (a rotation by +pitch about ``base_link`` +y, which tips
-    the optical axis toward −z). With pitch 0 the optical z axis is ``base_link`` +x.
+    then by the mount's roll, pitch and yaw (pitch: a rotation by +pitch about ``base_link`` +y, which tips
+    the optical axis toward −z). With a zero rotation the optical z axis is ``base_link`` +x.
     """
-    _finite(height_m=mount.height_m, pitch_rad=mount.pitch_rad, forward_m=mount.forward_m, left_m=mount.left_m)
-    half = 0.5 * mount.pitch_rad
-    pitch = (0.0, math.sin(half), 0.0, math.cos(half))
-    return Transform((float(mount.forward_m), float(mount.left_m), float(mount.height_m)),
-                     quaternion_multiply(pitch, _OPTICAL_IN_BODY))
+    body = base_from_camera_link_transform(mount)
+    return Transform(body.translation, quaternion_multiply(body.rotation, _OPTICAL_IN_BODY))
 
 
 def map_from_camera_optical_matrix(map_from_odom: tuple[float, float, float], odom_pose: tuple[float, float, float],
@@ -164,7 +177,8 @@ def map_from_camera_optical_matrix(map_from_odom: tuple[float, float, float], od
             @ transform_matrix(base_from_camera_optical_transform(mount)))
 
 
-__all__ = ["BASE_FRAME", "CAMERA_OPTICAL_FRAME", "MAP_FRAME", "ODOM_FRAME", "Transform",
-           "base_from_camera_optical_transform", "map_from_camera_optical_matrix", "map_from_odom_transform",
-           "odom_from_base_transform", "planar_transform", "quaternion_from_matrix", "quaternion_multiply",
-           "rotation_matrix", "transform_matrix", "yaw_quaternion"]
+__all__ = ["BASE_FRAME", "CAMERA_FRAME", "CAMERA_LINK_FROM_OPTICAL", "CAMERA_OPTICAL_FRAME", "MAP_FRAME",
+           "ODOM_FRAME", "Transform", "base_from_camera_link_transform", "base_from_camera_optical_transform",
+           "map_from_camera_optical_matrix", "map_from_odom_transform", "odom_from_base_transform",
+           "planar_transform", "quaternion_from_matrix", "quaternion_multiply", "rotation_matrix",
+           "transform_matrix", "yaw_quaternion"]

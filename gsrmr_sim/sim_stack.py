@@ -115,8 +115,7 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
     sc = load_scene(scene)
     a0, b0, t0 = start_pose(sc.route)
     m = sc.camera.mount  # the simulated camera's mount: the robot's /tf_static and the server's render pose
-    mount = {"camera_mount.height_m": m.height_m, "camera_mount.pitch_rad": m.pitch_rad,
-             "camera_mount.forward_m": m.forward_m, "camera_mount.left_m": m.left_m}
+    mount = m.as_parameters()
     over = overrides or {}
     seed = {} if channel_seed is None else {"channel_seed": int(channel_seed)}
     # what the server composes with: the scorer rebuilds its slots with the same (and the server's overrides of it)

@@ -186,8 +186,7 @@ def test_the_scorer_runs_beside_the_server_with_what_the_server_composes_with():
                                                                        "jpeg_quality": 70}})}
     server, scorer = specs["gsrmr_server"], specs["gsrmr_sim_scorer"]
     assert (scorer.executable, scorer.host, scorer.nice) == ("gsrmr-sim-scorer", "server", SCORER_NICE) != WORLD_NICE
-    shared = ("model_path", "mr_content", "background_rgb", "camera_mount.height_m", "camera_mount.pitch_rad",
-              "camera_mount.forward_m", "camera_mount.left_m")
+    shared = ("model_path", "mr_content", "background_rgb", *CameraMount().as_parameters())
     assert {k: scorer.params[k] for k in shared} == {k: server.params[k] for k in shared}
     assert scorer.params["mr_content"] == "/other.yaml" and "jpeg_quality" not in scorer.params
     assert (scorer.params["record_dir"], scorer.params["truth_dir"]) == ("/rec", "/truth")
@@ -210,8 +209,7 @@ def _scorer_node(ctx: Context, scene, mount: CameraMount, model, tmp_path, **par
     values = {"model_path": str(model), "mr_content": scene.mr_content,
               "background_rgb": [float(c) for c in scene.background], "hindsight_jpeg_quality": 80,
               "record_dir": str(tmp_path), **params}
-    values.update({"camera_mount.height_m": mount.height_m, "camera_mount.pitch_rad": mount.pitch_rad,
-                   "camera_mount.forward_m": mount.forward_m, "camera_mount.left_m": mount.left_m})
+    values.update(mount.as_parameters())
     return ScorerNode(worker=False, context=ctx,
                       parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
 

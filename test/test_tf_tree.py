@@ -31,7 +31,8 @@ from conftest import next_domain_id
 MOUNTS = [CameraMount(), CameraMount(height_m=0.15, pitch_rad=math.radians(5.0), forward_m=0.1),
           CameraMount(height_m=0.35, pitch_rad=math.radians(8.0), forward_m=0.1, left_m=0.0),
           CameraMount(height_m=0.4, pitch_rad=-0.3, forward_m=-0.05, left_m=0.07),
-          CameraMount(height_m=1.2, pitch_rad=1.4, forward_m=0.2, left_m=-0.1)]
+          CameraMount(height_m=1.2, pitch_rad=1.4, forward_m=0.2, left_m=-0.1),
+          CameraMount(height_m=0.3, pitch_rad=0.2, forward_m=0.05, left_m=0.04, roll_rad=0.1, yaw_rad=-0.6)]
 MAP_FROM_ODOM = [(0.0, 0.0, 0.0), (-3.5, -2.1, 1.0), (2.0, 0.5, math.pi), (0.3, -4.0, -2.6)]
 ODOM_POSES = [(0.0, 0.0, 0.0), (1.25, -0.4, 0.7), (-2.0, 3.0, -3.1), (0.01, 0.02, math.pi / 2)]
 
@@ -69,6 +70,31 @@ def test_chain_projects_like_the_renderer_camera() -> None:
         uv, z = camera_from_pose(*compose_planar((0.5, -1.0, 0.3), pose), mount, k).project(ahead[None, :3])
         np.testing.assert_allclose(uv[0], (k.cx, k.cy), atol=1e-9)
         assert z[0] == pytest.approx(2.0)
+
+
+@pytest.mark.parametrize("mount", MOUNTS)
+def test_camera_link_then_optical_is_the_mount_and_a_mount_comes_back_from_its_pose(mount) -> None:
+    """base_link → camera_link (ROS RPY) → optical (fixed) is the one optical edge; a measured optical pose (a robot's
+    static TF) gives the mount back."""
+    two = tf_tree.transform_matrix(tf_tree.base_from_camera_link_transform(mount)) @ tf_tree.transform_matrix(
+        tf_tree.CAMERA_LINK_FROM_OPTICAL)
+    one = tf_tree.transform_matrix(tf_tree.base_from_camera_optical_transform(mount))
+    np.testing.assert_allclose(two, one, atol=1e-12)
+    back = CameraMount.from_optical_pose(one)
+    np.testing.assert_allclose([getattr(back, k) for k in mount.as_parameters(prefix="")],
+                               list(mount.as_parameters(prefix="").values()), atol=1e-9)
+
+
+def test_mount_roll_pitch_yaw_turn_the_optical_axis_as_ros_rpy() -> None:
+    z_axis = lambda m: tf_tree.rotation_matrix(tf_tree.base_from_camera_optical_transform(m).rotation)[:, 2]  # noqa: E731
+    x_axis = lambda m: tf_tree.rotation_matrix(tf_tree.base_from_camera_optical_transform(m).rotation)[:, 0]  # noqa: E731
+    np.testing.assert_allclose(z_axis(CameraMount(yaw_rad=math.pi / 2)), [0, 1, 0], atol=1e-12)  # looks left
+    np.testing.assert_allclose(z_axis(CameraMount(pitch_rad=math.pi / 4)), [math.sqrt(.5), 0, -math.sqrt(.5)],
+                               atol=1e-12)  # looks down
+    # roll +90° about the forward axis: the image's x (right) axis points down
+    np.testing.assert_allclose(x_axis(CameraMount(roll_rad=math.pi / 2)), [0, 0, -1], atol=1e-12)
+    with pytest.raises(ValueError, match="yaw_rad"):
+        CameraMount(yaw_rad=4.0)
 
 
 def test_quaternions_are_unit_with_nonnegative_w() -> None:

@@ -81,7 +81,7 @@ def record_round1(scene: Scene, out_dir: str | Path, frames: int | None = None, 
 
 
 def _mount_dict(m: CameraMount) -> dict:
-    return {"height_m": m.height_m, "pitch_rad": m.pitch_rad, "forward_m": m.forward_m, "left_m": m.left_m}
+    return m.as_parameters(prefix="")
 
 
 def record_round2(scene: Scene, out_dir: str | Path, slots: int | None = None, seed: int = 0,

@@ -146,12 +146,15 @@ def _camera(value: Any, path: str) -> CameraSpec:
     height = int(_num(m.get("height", 240), f"{path}.height", lo=8, hi=4096, integer=True))
     hfov = _num(m.get("hfov_deg", 70.0), f"{path}.hfov_deg", lo=10.0, hi=170.0)
     rate = _num(m.get("rate_hz", 10.0), f"{path}.rate_hz", positive=True, hi=1000.0)
-    mm = _mapping(m.get("mount") or {}, f"{path}.mount", {"height_m", "pitch_deg", "forward_m", "left_m"})
+    mm = _mapping(m.get("mount") or {}, f"{path}.mount",
+                  {"height_m", "pitch_deg", "forward_m", "left_m", "roll_deg", "yaw_deg"})
     mount = CameraMount(
         height_m=_num(mm.get("height_m", 0.15), f"{path}.mount.height_m"),
         pitch_rad=math.radians(_num(mm.get("pitch_deg", 5.0), f"{path}.mount.pitch_deg", lo=-80, hi=80)),
         forward_m=_num(mm.get("forward_m", 0.1), f"{path}.mount.forward_m"),
         left_m=_num(mm.get("left_m", 0.0), f"{path}.mount.left_m"),
+        roll_rad=math.radians(_num(mm.get("roll_deg", 0.0), f"{path}.mount.roll_deg", lo=-180, hi=180)),
+        yaw_rad=math.radians(_num(mm.get("yaw_deg", 0.0), f"{path}.mount.yaw_deg", lo=-180, hi=180)),
     )
     return CameraSpec(Intrinsics.from_fov(width, height, math.radians(hfov)), mount, rate)
 
