@@ -28,11 +28,25 @@ and ``launch`` reports "process has died". That happens in four places, each han
   does the exception hook once it has decided the exit code.
 
 SIGTERM is treated as SIGINT. Pure Python, no rclpy, no gsrmr import: every package imports it first.
+
+* **DDS teardown**: destroying the last node deletes the Fast DDS participant, and Fast DDS 3.2 (the PyPI
+  wheel) can livelock there: ``DomainParticipant::set_listener(nullptr)`` busy-waits, holding the GIL, for a
+  discovery callback that starves on the mutex it keeps re-taking (seen in ~1 of 300 stops of a stack on a
+  loaded 2-core machine, when every process stops at once). No Python code runs any more, so
+  :func:`arm_exit_deadline` arms a libc timer whose own thread calls ``_exit(0)``: ``run_node`` arms it once
+  the node's own clean-up is done, before the DDS teardown.
+
+A process that does not end: ``kill -USR1 <pid>`` makes every gsrmr console script print the Python stack
+of each of its threads to stderr (:mod:`faulthandler`, installed by :func:`guard_console_start_up`); the
+process supervisor does it before it SIGKILLs a process that outlived its stop timeout.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+import contextlib
+import ctypes
+import faulthandler
 import functools
 import os
 import signal
@@ -49,6 +63,8 @@ CONSOLE_SCRIPT_PREFIX = "gsrmr-"
 #: The attribute :func:`console_main` sets on the function it returns (what the import-rule tests look for).
 CONSOLE_MAIN_MARK = "__gsrmr_console_main__"
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
+#: The signal on which a console script prints every thread's Python stack to stderr (and goes on).
+STACK_DUMP_SIGNAL = signal.SIGUSR1
 # Signals received during clean-up before a KeyboardInterrupt is raised anyway (a user who insists).
 CLEANUP_PATIENCE = 2
 
@@ -119,6 +135,72 @@ def ignore_signals() -> None:
             signal.signal(sig, signal.SIG_IGN)
 
 
+class _SigevThread(ctypes.Structure):
+    _fields_ = [("function", ctypes.c_void_p), ("attribute", ctypes.c_void_p)]
+
+
+class _SigevUnion(ctypes.Union):
+    _fields_ = [("pad", ctypes.c_int * 12), ("tid", ctypes.c_int), ("thread", _SigevThread)]
+
+
+class _Sigevent(ctypes.Structure):
+    """glibc's ``struct sigevent`` (64 bytes on 64-bit Linux)."""
+
+    _fields_ = [("value", ctypes.c_void_p), ("signo", ctypes.c_int), ("notify", ctypes.c_int),
+                ("union", _SigevUnion)]
+
+
+class _Timespec(ctypes.Structure):
+    _fields_ = [("sec", ctypes.c_long), ("nsec", ctypes.c_long)]
+
+
+class _Itimerspec(ctypes.Structure):
+    _fields_ = [("interval", _Timespec), ("value", _Timespec)]
+
+
+_SIGEV_THREAD = 2
+_CLOCK_MONOTONIC = 1
+_exit_timer = ctypes.c_void_p()  # the armed timer (kept: timer_delete would disarm it)
+
+
+def arm_exit_deadline(seconds: float) -> bool:
+    """End this process with exit code 0 at the latest ``seconds`` from now, whatever its threads do then.
+
+    For the teardown of a process whose own clean-up is done (files closed, devices released), when a C
+    library may hang holding the GIL — no Python-level timer could run then. A POSIX timer
+    (``timer_create`` with ``SIGEV_THREAD``) calls libc's ``_exit`` with the timer's value 0 from a thread
+    libc starts: no Python, no GIL, no signal to the program. Python's buffers are flushed first; a traceback
+    of every thread is written to stderr 0.5 s before the deadline (:mod:`faulthandler`), so a teardown that
+    needed the deadline shows where it hung. Arming again moves the deadline. Returns False where the C
+    library has no such timer (not glibc/Linux): nothing is armed then.
+    """
+    if not seconds > 0.5:
+        raise ValueError(f"exit deadline must be > 0.5 s, got {seconds}")
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        timer_create, timer_settime, exit_now = libc.timer_create, libc.timer_settime, libc._exit
+    except (OSError, AttributeError):
+        return False
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(AttributeError, OSError, ValueError):
+            stream.flush()
+    if not _exit_timer.value:
+        event = _Sigevent()
+        event.value = None  # the sigval passed to _exit: status 0
+        event.notify = _SIGEV_THREAD
+        event.union.thread.function = ctypes.cast(exit_now, ctypes.c_void_p).value
+        if timer_create(_CLOCK_MONOTONIC, ctypes.byref(event), ctypes.byref(_exit_timer)) != 0:
+            _exit_timer.value = None
+            return False
+    whole = int(seconds)
+    when = _Itimerspec(_Timespec(0, 0), _Timespec(whole, int((seconds - whole) * 1e9)))
+    if timer_settime(_exit_timer, 0, ctypes.byref(when), None) != 0:
+        return False
+    with contextlib.suppress(RuntimeError, ValueError):  # no usable stderr: no traceback
+        faulthandler.dump_traceback_later(seconds - 0.5, repeat=False)
+    return True
+
+
 def _program() -> str:
     return os.path.basename(sys.argv[0]) if getattr(sys, "argv", None) else "python"
 
@@ -185,6 +267,7 @@ def guard_console_start_up() -> None:
     if _guarded or threading.current_thread() is not threading.main_thread() or not is_console_script():
         return
     _guarded = True
+    faulthandler.register(STACK_DUMP_SIGNAL, all_threads=True, chain=False)
     POLICY.install()
     POLICY.enter(START)
     previous = sys.excepthook

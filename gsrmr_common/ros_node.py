@@ -18,13 +18,19 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, Si
 from rclpy.node import Node
 
 from gsrmr_common.camera import CameraMount
-from gsrmr_common.interrupts import CLEANUP, POLICY, RUNNING, START
+from gsrmr_common.interrupts import CLEANUP, POLICY, RUNNING, START, arm_exit_deadline
 from gsrmr_common.link_model import LinkBudget
 from gsrmr_common.link_params import LinkParameters
 from gsrmr_common.node_params import NodeParameters
 from gsrmr_common.slot_clock import SlotClock
 
 P = TypeVar("P", bound=NodeParameters)
+
+
+#: Seconds the DDS teardown (destroying the node, shutting rclpy down, interpreter exit) may take before the
+#: process ends anyway with code 0 (:func:`gsrmr_common.interrupts.arm_exit_deadline`). It takes milliseconds
+#: idle; 4 s is inside ``launch``'s 5 s before SIGTERM.
+DDS_TEARDOWN_DEADLINE_S = 4.0
 
 
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, *, threads: int = 1) -> int:
@@ -65,6 +71,9 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, *, 
             on_shutdown = getattr(node, "on_shutdown", None)
             if callable(on_shutdown):
                 on_shutdown()
+        # the node's own clean-up is done; the DDS teardown can livelock inside Fast DDS (interrupts module)
+        arm_exit_deadline(DDS_TEARDOWN_DEADLINE_S)
+        if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
     return 0

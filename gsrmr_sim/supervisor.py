@@ -12,11 +12,13 @@ from __future__ import annotations
 from collections.abc import Sequence
 import os
 from pathlib import Path
+import shutil
 import signal
 import subprocess
 import time
 from types import TracebackType
 
+from gsrmr_common.interrupts import STACK_DUMP_SIGNAL
 from gsrmr_sim.sim_stack import ProcessSpec, command_line
 
 
@@ -89,10 +91,39 @@ class ProcessStack:
             try:
                 proc.wait(timeout=self.stop_timeout_s)
             except subprocess.TimeoutExpired:
+                self._dump_stacks(name, proc)
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
             took[name] = time.monotonic() - t0
         return took
+
+    def _dump_stacks(self, name: str, proc: subprocess.Popen) -> None:
+        """Before a hung process is killed: its threads' Python stacks into its log (a gsrmr console
+        script prints them on SIGUSR1, see :mod:`gsrmr_common.interrupts`; the kernel's view of each
+        thread's state and wait channel is added from /proc)."""
+        with (self.log_dir / f"{name}.log").open("a") as log:
+            log.write(f"\n[supervisor] {name} (pid {proc.pid}) still running {self.stop_timeout_s} s after "
+                      f"SIGINT; its threads:\n")
+            for task in sorted(Path(f"/proc/{proc.pid}/task").glob("*")):
+                try:
+                    comm = (task / "comm").read_text().strip()
+                    state = (task / "stat").read_text().rsplit(")", 1)[1].split()[0]
+                    wchan = (task / "wchan").read_text().strip()
+                except OSError:
+                    continue
+                log.write(f"[supervisor]   tid {task.name} {comm!r} state {state} wchan {wchan}\n")
+        try:
+            proc.send_signal(STACK_DUMP_SIGNAL)
+            time.sleep(1.0)
+        except ProcessLookupError:
+            return
+        gdb = shutil.which("gdb")
+        if gdb is not None:  # the native stacks too (where the Python stack ends in a C extension)
+            with (self.log_dir / f"{name}.log").open("a") as log:
+                log.write("[supervisor] native stacks (gdb):\n")
+                log.flush()
+                subprocess.run([gdb, "-p", str(proc.pid), "-batch", "-nx", "-ex", "thread apply all bt 30"],
+                               stdout=log, stderr=subprocess.STDOUT, timeout=60, check=False)
 
     def __enter__(self) -> ProcessStack:
         return self

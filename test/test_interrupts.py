@@ -275,3 +275,38 @@ def test_start_up_signal_inside_a_finalizer_is_deferred_not_raised():
     assert seen == {"raised": False} and policy.stop_requested and policy.received == 1
     with pytest.raises(KeyboardInterrupt):  # anywhere else during start-up it still raises
         policy._handle(signal.SIGINT, sys._getframe())
+
+
+# ------------------------------------------------------------------------------------ exit deadline
+
+DEADLINE_SCRIPT = """
+import re, sys, time
+from gsrmr_common.interrupts import arm_exit_deadline
+assert arm_exit_deadline(float(sys.argv[2]))
+print("armed", flush=True)
+if sys.argv[1] == "gil":
+    re.match(r"(a+)+$", "a" * 40 + "b")  # a C loop that holds the GIL for minutes: no Python timer can run
+else:
+    time.sleep(0.1)
+    sys.exit(3)
+"""
+
+
+def test_exit_deadline_ends_a_process_stuck_in_c_holding_the_gil_with_code_zero(tmp_path):
+    """What a Fast DDS livelock in the participant's teardown looks like to Python (interrupts module)."""
+    script = tmp_path / "deadline.py"
+    script.write_text(DEADLINE_SCRIPT)
+    t0 = time.monotonic()
+    done = subprocess.run([sys.executable, str(script), "gil", "1.5"], capture_output=True, text=True, timeout=60)
+    took = time.monotonic() - t0
+    assert done.returncode == 0, done.stderr
+    assert "armed" in done.stdout  # flushed before the deadline
+    assert "Timeout" in done.stderr and "in match" in done.stderr  # where it hung, dumped 0.5 s before the end
+    assert 1.5 <= took < 30.0  # never before the deadline
+
+
+def test_exit_deadline_leaves_a_process_that_ends_in_time_alone(tmp_path):
+    script = tmp_path / "deadline.py"
+    script.write_text(DEADLINE_SCRIPT)
+    done = subprocess.run([sys.executable, str(script), "finish", "5"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 3 and "Timeout" not in done.stderr
