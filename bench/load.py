@@ -59,9 +59,10 @@ def _feeder_class():
     from nav_msgs.msg import Odometry
     from rclpy.node import Node
     from rclpy.qos import qos_profile_sensor_data
-    from sensor_msgs.msg import Image
+    from sensor_msgs.msg import CameraInfo, Image
 
-    from gsrmr_common.ros_wire import image_to_msg
+    from gsrmr_common.camera import Intrinsics
+    from gsrmr_common.ros_wire import camera_info_from_intrinsics, image_to_msg
 
     class Feeder(Node):
         """Synthetic camera frames and odometry (odom frame: circle of 1 m radius at 0.2 rad/s)."""
@@ -74,12 +75,16 @@ def _feeder_class():
             self.frame = np.clip(base + rng.integers(0, 40, (height, width, 3)), 0, 255).astype(np.uint8)
             self.t0 = time.monotonic()
             self.img_pub = self.create_publisher(Image, "camera/image_raw", qos_profile_sensor_data)
+            # the robot uploads images only once it knows the camera (a pinhole at the frame's size: passed through)
+            self.info_pub = self.create_publisher(CameraInfo, "camera/camera_info", qos_profile_sensor_data)
+            self.intrinsics = Intrinsics.from_fov(width, height, math.radians(70.0))
             self.odom_pub = self.create_publisher(Odometry, "odom", 20)
             self.create_timer(slot_s, self._tick)
 
         def _tick(self) -> None:
             now = self.get_clock().now()
             self.img_pub.publish(image_to_msg(self.frame, now.nanoseconds, CAMERA_OPTICAL_FRAME))
+            self.info_pub.publish(camera_info_from_intrinsics(self.intrinsics, now.nanoseconds, CAMERA_OPTICAL_FRAME))
             t = time.monotonic() - self.t0
             msg = Odometry()
             msg.header.stamp = now.to_msg()

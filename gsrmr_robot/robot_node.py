@@ -7,7 +7,8 @@ publishes:
 * ``uplink/pose_key`` (``geometry_msgs/Vector3Stamped``, reliable, depth 50): (a, b, θ) in ``map``
   — every slot (in image slots too, so the server can measure the GS loss at this pose);
 * ``uplink/image_raw/compressed`` (``sensor_msgs/CompressedImage``, JPEG, ``format`` =
-  ``"rgb8; jpeg compressed bgr8"``, reliable, depth 10): only when x_t = 1 — and, with
+  ``"rgb8; jpeg compressed bgr8"``, reliable, depth 10; the frame rectified and sized to ``uplink_width_px``,
+  the camera of ``uplink/camera_info``, below): only when x_t = 1 — and, with
   ``hold_images_while_queued``, only when the previous image has been acknowledged by the server's reader
   (else the slot sends the key only and its ledger row says ``held_back``; :mod:`gsrmr_robot.uplink_backlog`:
   on a link slower than one image per slot images leave as fast as it delivers them, not into a queue).
@@ -18,9 +19,24 @@ odom → base_link; composed with the ``map_from_odom`` parameter to get the pos
 local). Without a schedule for the slot the node uploads the image (``default_upload_image``).
 
 Camera calibration: ``camera/camera_info`` (``sensor_msgs/CameraInfo``, sensor-data QoS; remap it to
-the driver's topic) is republished on ``uplink/camera_info`` (reliable, transient local, depth 1:
-latched, a server started later still gets it) whenever it changes (K, D, width, height, distortion
-model or frame_id; the stamp alone is no change), so the server knows the intrinsics of the images.
+the driver's topic; plumb_bob, rational_polynomial or equidistant) decides what the robot uploads: every
+frame is rectified to a pinhole camera and scaled down to ``uplink_width_px`` (aspect kept, never enlarged)
+before it is JPEG-encoded (:class:`gsrmr_robot.camera_rectify.UplinkCamera` over
+:mod:`gsrmr_common.calibration`: the maps are computed once per calibration, then one ``cv2.remap`` and one
+``cv2.resize`` per frame a slot takes, in that slot — frames no slot takes cost nothing —; an undistorted camera
+at or below that width passes through untouched). That
+pinhole camera is published on ``uplink/camera_info`` (reliable, transient local, depth 1: latched, a
+server started later still gets it): ``plumb_bob`` with zero D, R = I, P = [K | 0], K with pixel centres at
+integers (ROS), the uplink image size, ``frame_id`` = ``camera_frame_id`` (the uploaded images' frame) —
+re-published only when it changes (a new calibration, ``uplink_width_px`` or ``camera_frame_id``; the stamp
+alone is no change). A calibration that describes no camera (an all-zero K, an unknown distortion model …)
+is refused with one WARN per distinct problem and the last usable one kept.
+
+Before the first usable ``camera_info`` the robot uploads no image (the server cannot compose one without
+intrinsics, and a distorted frame of unknown geometry is no use to it): its slots send the pose key and the
+ledger row only, as slots without a frame do, and ``/diagnostics`` counts them in ``frames_uncalibrated`` and
+says ``waiting for camera_info``. A frame whose size is not the calibration's is withheld and counted the same
+way (WARN, throttled).
 
 TF (REP-105, frames of :mod:`gsrmr_common.tf_tree`): where ``tf2_ros`` imports (a ROS install,
 :func:`gsrmr_common.tf_ros.load_tf2_ros`) the node publishes on ``/tf_static`` ``map → odom`` from
@@ -32,8 +48,12 @@ What to send in a slot and its energy are decided by the pure slot core
 (:class:`gsrmr_robot.uplink_core.UplinkCore`: the energy ledger under the link model of
 :mod:`gsrmr_common.link_model`); the node publishes each slot's ledger row on ``gsrmr/ledger``
 (``std_msgs/Float64MultiArray``, fields :data:`gsrmr_common.wire.LEDGER_FIELDS`) and totals on
-``/diagnostics`` once a second. Its parameters (:class:`gsrmr_robot.robot_params.RobotParameters`) are
-checked in the on-set callback and applied in the post-set callback.
+``/diagnostics`` once a second. Its parameters (:class:`gsrmr_robot.robot_params.RobotParameters`: ``slot_s``,
+``jpeg_quality``, ``uplink_width_px``, ``default_upload_image``, ``max_frame_age_s``, ``map_from_odom``,
+``camera_frame_id``, ``hold_images_while_queued``, ``uplink_ack_stale_s``, ``odom_frame_id``,
+``base_frame_id``; ``camera_mount.*`` and the link budget of ``config/link.yaml``) are checked in the on-set
+callback and applied in the post-set callback (a new ``uplink_width_px`` rebuilds the maps and re-publishes
+``uplink/camera_info``).
 """
 
 from __future__ import annotations
@@ -53,6 +73,8 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray
 
+from gsrmr_common.calibration import CalibrationError, CameraCalibration
+from gsrmr_common.camera import Intrinsics
 from gsrmr_common.interrupts import console_main
 from gsrmr_common.ros_node import (
     aligned_timer,
@@ -67,6 +89,7 @@ from gsrmr_common.ros_wire import (
     IMAGE_UPLOAD_QOS,
     SCHEDULE_QOS,
     UPLINK_QOS,
+    camera_info_from_intrinsics,
     channel_sample_from_msg,
     compressed_to_msg,
     image_from_msg,
@@ -79,16 +102,11 @@ from gsrmr_common.slot_clock import SlotClock, SlotTicker
 from gsrmr_common.tf_ros import load_tf2_ros, transform_to_msg
 from gsrmr_common.tf_tree import MAP_FRAME, base_from_camera_optical_transform, map_from_odom_transform
 from gsrmr_common.wire import CHANNEL_TOPIC, ScheduleMsg
+from gsrmr_robot.camera_rectify import UplinkCamera
 from gsrmr_robot.dds_profile import use_uplink_profile
 from gsrmr_robot.robot_params import RobotParameters
 from gsrmr_robot.uplink_backlog import UplinkBacklog
 from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, odom_to_map
-
-
-def camera_info_key(msg: CameraInfo) -> tuple:
-    """What makes two CameraInfo messages the same calibration: K, D, size, distortion model, frame_id."""
-    return (tuple(float(v) for v in msg.k), tuple(float(v) for v in msg.d), int(msg.width), int(msg.height),
-            msg.distortion_model, msg.header.frame_id)
 
 
 def yaw_of(q) -> float:
@@ -127,8 +145,12 @@ class RobotNode(Node):
         self._pub_ledger = self.create_publisher(Float64MultiArray, "gsrmr/ledger", UPLINK_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._pub_info = self.create_publisher(CameraInfo, "uplink/camera_info", CAMERA_INFO_QOS)
-        self._info_key: tuple | None = None
-        self.camera_info_changes = 0
+        # the camera as uploaded: calibration → rectifier at uplink_width_px (guarded by _lock)
+        self.camera = UplinkCamera(self.params.uplink_width_px)
+        self._info_sent: tuple[Intrinsics, str] | None = None  # (intrinsics, frame_id) last on uplink/camera_info
+        self._calibration_problem: str | None = None  # why the last camera_info was refused (None: it was usable)
+        self.camera_info_changes = 0  # uplink/camera_info publications
+        self.frames_uncalibrated = 0  # slots whose fresh frame was withheld: no calibration, or another size
         self.create_subscription(Image, "camera/image_raw", self._on_image, qos_profile_sensor_data)
         self.create_subscription(CameraInfo, "camera/camera_info", self._on_camera_info, qos_profile_sensor_data)
         self.create_subscription(Odometry, "odom", self._on_odom, 20)
@@ -178,27 +200,48 @@ class RobotNode(Node):
         return SetParametersResult(successful=True)
 
     def _after_set(self, params) -> None:
-        """Post-set: apply the accepted values; re-send the static TF when a frame or map_from_odom changed."""
+        """Post-set: apply the accepted values; re-send the static TF when a frame or map_from_odom changed, rebuild
+        the rectifier for a new ``uplink_width_px`` and re-publish ``uplink/camera_info`` when it changed."""
         with self._lock:
             self.params = self.params.with_values({p.name: p.value for p in params})
             self.core.jpeg_quality = self.params.jpeg_quality
             self.core.default_upload_image = self.params.default_upload_image
             self.backlog.stale_after_s = self.params.uplink_ack_stale_s
+            self.camera.set_uplink_width(self.params.uplink_width_px)
         if any(p.name in ("map_from_odom", "camera_frame_id") for p in params):
             self._send_static_tf()
+        self._publish_camera_info()  # a new uplink width or camera_frame_id is a new uplink camera
 
     # ---------------------------------------------------------------- inputs
     def _on_camera_info(self, msg: CameraInfo) -> None:
-        """Relay the calibration to ``uplink/camera_info`` (latched) when it differs from the last one sent."""
-        key = camera_info_key(msg)
-        if key == self._info_key:
+        """Adopt the camera's calibration (maps rebuilt only when it changed) and publish the uplink camera when
+        that changed; refuse an unusable one (one WARN per distinct problem), keeping the last usable one."""
+        try:
+            calib = CameraCalibration.from_camera_info(msg)
+        except CalibrationError as err:
+            problem = str(err)
+            if problem != self._calibration_problem:
+                with self._lock:
+                    kept = self.camera.describe()
+                self.get_logger().warning(f"camera_info refused ({kept}): {problem}")
+            self._calibration_problem = problem
             return
-        self._info_key = key
-        self.camera_info_changes += 1
-        self._pub_info.publish(msg)
-        self.get_logger().info(f"camera_info → uplink/camera_info: {msg.width}×{msg.height}, frame "
-                               f"{msg.header.frame_id!r}, K={[round(float(v), 3) for v in msg.k]}, "
-                               f"{msg.distortion_model} D={[float(v) for v in msg.d]}")
+        self._calibration_problem = None
+        with self._lock:
+            self.camera.offer(calib)
+        self._publish_camera_info()
+
+    def _publish_camera_info(self) -> None:
+        """Publish the uplink camera on ``uplink/camera_info`` (latched) when it differs from the last one sent."""
+        with self._lock:
+            intrinsics, frame_id = self.camera.intrinsics, self.params.camera_frame_id
+            if intrinsics is None or (intrinsics, frame_id) == self._info_sent:
+                return
+            self._info_sent = (intrinsics, frame_id)
+            self.camera_info_changes += 1
+            described = self.camera.describe()
+        self._pub_info.publish(camera_info_from_intrinsics(intrinsics, self.get_clock().now().nanoseconds, frame_id))
+        self.get_logger().info(f"camera_info → uplink/camera_info: {described}, frame {frame_id!r}")
 
     def _on_image(self, msg: Image) -> None:
         try:
@@ -261,7 +304,8 @@ class RobotNode(Node):
         """Gather the slot's inputs, let the core decide, publish (public for tests)."""
         with self._lock:
             fresh = now_ns - self._frame_ns <= self.params.max_frame_age_s * 1e9
-            frame = self._frame if fresh else None
+            raw = self._frame if fresh else None
+            frame = self._uplink_frame(raw) if raw is not None else None
             frame_stamp_ns = self._frame_stamp_ns if frame is not None else None
             pose = self._poses.at(frame_stamp_ns)
             sched = self._schedule
@@ -275,7 +319,8 @@ class RobotNode(Node):
                                                      round_slot, queued, self.backlog.rate_bps))
         self.channel_unmeasured += int(gain is None)
         self.schedule_misses += int(not decision.scheduled)
-        self.no_frame += int(frame is None)
+        self.no_frame += int(raw is None)
+        self.frames_uncalibrated += int(raw is not None and frame is None)
         self.no_pose += int(decision.key is None)
         stamp_ns = self.clock.start_ns(slot)
         if decision.publish_row:  # first: the server waits for it to know whether an image follows
@@ -287,6 +332,20 @@ class RobotNode(Node):
                 self._ack_timer.reset()
         if decision.key is not None:
             self._pub_key.publish(pose_key_to_msg(decision.key, self.clock))
+
+    def _uplink_frame(self, raw: np.ndarray) -> np.ndarray | None:
+        """The raw frame rectified and sized for the uplink (the very array when it passes through); None when it
+        cannot be: no calibration yet (INFO) or a frame of another size (WARN), both throttled."""
+        try:
+            return self.camera.frame(raw)
+        except CalibrationError as err:
+            log = self.get_logger()
+            if self.camera.is_calibrated:
+                log.warning(f"frame not uploaded: {err}", throttle_duration_sec=5.0)
+            else:
+                log.info("frames are not uploaded (pose keys only) until camera/camera_info arrives",
+                         throttle_duration_sec=10.0)
+            return None
 
     def _poll_acks(self) -> None:
         """Every image published so far acknowledged by every matched reader: book the delay, stop polling."""
@@ -302,14 +361,24 @@ class RobotNode(Node):
         extra = {"schedule_misses": self.schedule_misses, "no_frame": self.no_frame, "no_pose": self.no_pose,
                  "schedule_seq": self._schedule.seq if self._schedule else -1,
                  "channel_unmeasured": self.channel_unmeasured,
-                 "camera_info_changes": self.camera_info_changes, "tf_published": self._tf_static is not None,
+                 "camera_info_changes": self.camera_info_changes, "frames_uncalibrated": self.frames_uncalibrated,
+                 "uplink_camera": self.camera.describe(), "tf_published": self._tf_static is not None,
                  "uplink_rate_bps_estimate": round(self.backlog.rate_bps, 1),
                  "image_ack_delay_ms": round(1e3 * self.backlog.last_ack_delay_s, 2),
                  "image_queued_for_ms": round(1e3 * self.backlog.queued_for_s(
                      self.get_clock().now().nanoseconds / 1e9), 1)}
         self._pub_diag.publish(diagnostics_msg(
             self, name=f"{self.get_name()}: uplink energy ledger", hardware_id="gsrmr_robot",
-            values={**totals, **extra}, problems=["missing frames or pose"] if self.no_frame or self.no_pose else []))
+            values={**totals, **extra}, problems=self._problems()))
+
+    def _problems(self) -> list[str]:
+        """What ``/diagnostics`` warns about: missing frames or pose, no calibration yet, a refused calibration."""
+        out = ["missing frames or pose"] if self.no_frame or self.no_pose else []
+        if not self.camera.is_calibrated:
+            out.append("waiting for camera_info")
+        if self._calibration_problem is not None:
+            out.append(f"camera_info refused: {self._calibration_problem}")
+        return out
 
 
 @console_main

@@ -16,8 +16,8 @@ from gsrmr_common.link_model import SLOT_S, LinkBudget
 from gsrmr_common.node_params import NodeParameters, ros_parameter
 from gsrmr_common.tf_tree import BASE_FRAME, CAMERA_OPTICAL_FRAME, ODOM_FRAME
 
-LIVE_PARAMETERS = frozenset({"jpeg_quality", "default_upload_image", "max_frame_age_s", "map_from_odom",
-                             "camera_frame_id", "hold_images_while_queued", "uplink_ack_stale_s"})
+LIVE_PARAMETERS = frozenset({"jpeg_quality", "uplink_width_px", "default_upload_image", "max_frame_age_s",
+                             "map_from_odom", "camera_frame_id", "hold_images_while_queued", "uplink_ack_stale_s"})
 
 
 @dataclass(frozen=True)
@@ -27,6 +27,10 @@ class RobotParameters(NodeParameters):
     slot_s: float = ros_parameter(SLOT_S, "Slot length τ [s]; must equal the server's", min_value=0.01,
                                   max_value=10.0, read_only=True)
     jpeg_quality: int = ros_parameter(80, "JPEG quality of uploaded images (1-100)", min_value=1, max_value=100)
+    uplink_width_px: int = ros_parameter(
+        320, "Width of uploaded images [px]: camera frames are rectified to the pinhole camera and scaled down to it "
+        "(aspect kept; narrower frames are not enlarged); uplink/camera_info describes the result",
+        min_value=16, max_value=4096)
     default_upload_image: bool = ros_parameter(True, "Upload the image in slots no schedule covers")
     max_frame_age_s: float = ros_parameter(0.5, "Older camera frames are not uploaded [s]", min_value=0.0,
                                            max_value=10.0)

@@ -24,10 +24,14 @@ from gsrmr_sim.sim_stack import link_budget
 
 REPO = Path(__file__).resolve().parents[1]
 
-# name: (default, (min, max) or None, read_only, description) — what the robot node declared inline before.
+# name: (default, (min, max) or None, read_only, description) — what the robot node declared inline before
+# (and uplink_width_px, added with the uplink's rectification).
 ROBOT_DECLARED = {
     "slot_s": (0.1, (0.01, 10.0), True, "Slot length τ [s]; must equal the server's"),
     "jpeg_quality": (80, (1, 100), False, "JPEG quality of uploaded images (1-100)"),
+    "uplink_width_px": (320, (16, 4096), False, "Width of uploaded images [px]: camera frames are rectified to the "
+                        "pinhole camera and scaled down to it (aspect kept; narrower frames are not enlarged); "
+                        "uplink/camera_info describes the result"),
     "default_upload_image": (True, None, False, "Upload the image in slots no schedule covers"),
     "max_frame_age_s": (0.5, (0.0, 10.0), False, "Older camera frames are not uploaded [s]"),
     "map_from_odom": ([0.0, 0.0, 0.0], None, False, "Pose of the odom frame in map: [a_m, b_m, theta_rad]"),
@@ -81,6 +85,7 @@ def test_robot_live_and_nested_parameters():
     ("jpeg_quality", 0, "jpeg_quality must be in [1, 100]"),
     ("max_frame_age_s", 11.0, "in [0.0, 10.0]"),
     ("uplink_ack_stale_s", 0.01, "in [0.05, 60.0]"),
+    ("uplink_width_px", 8, "uplink_width_px must be in [16, 4096]"),
     ("default_upload_image", 1, "must be a bool"),
 ])
 def test_robot_problem_refuses_with_a_reason(name, value, reason):
