@@ -1,5 +1,5 @@
-"""World nodes as real processes: the mock camera publishes Image + CameraInfo (+ virtual view and
-mask) rendered at the odometry pose; the route follower drives the loop, counts a lap and stops."""
+"""World nodes as real processes: the mock camera publishes Image + CameraInfo (+ depth) rendered at the true
+pose and stamped with that pose's stamp; the route follower drives the loop, counts a lap and stops."""
 
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ from gsrmr_common.camera import camera_from_pose
 from gsrmr_common.ros_wire import UPLINK_QOS
 from gsrmr_common.route import LoopPath
 from gsrmr_common.wire import MR_SLOT_INFO_TOPIC, MRSlotInfo
+from gsrmr_sim.world.camera_node import TruePose, frame_pose
 from gsrmr_sim.world.raycast import RayCastWorld
 from gsrmr_sim.world.recorder import with_resolution
 from gsrmr_sim.world.scene import load_scene
@@ -60,8 +61,9 @@ def spin_until(node: Node, done: Callable[[], bool], timeout_s: float, tick: Cal
         executor.remove_node(node)
 
 
-def odom_msg(x: float, y: float, yaw: float) -> Odometry:
+def odom_msg(x: float, y: float, yaw: float, stamp: tuple[int, int] = (0, 0)) -> Odometry:
     msg = Odometry()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = stamp
     msg.header.frame_id = "map"
     msg.child_frame_id = "base_link"
     msg.pose.pose.position.x, msg.pose.pose.position.y = x, y
@@ -92,30 +94,44 @@ def test_mock_camera_publishes_image_info_and_depth_at_the_odometry_pose(ros_pro
     depth = np.frombuffer(bytes(depths[-1].data), "<f4").reshape(48, 64)
     assert depths[-1].encoding == "32FC1" and np.all(depth > 0) and np.isfinite(depth).mean() > 0.9
 
-    # Now the true pose arrives: the camera must render exactly there.
-    pose = (0.4, -0.3, 2.0)
+    # Now the true pose arrives, two poses in turn, each message with its own stamp (the publisher's clock, here far
+    # from the camera's): each frame must be rendered exactly at one of them and carry that pose's stamp.
+    poses = [(0.4, -0.3, 2.0), (0.4, -0.3, 2.4)]
     odom_pub = test_node.create_publisher(Odometry, "/sim/ground_truth/odom", qos_profile_sensor_data)
-    expected, expected_depth = RayCastWorld(scene, 1).render(camera_from_pose(*pose, scene.camera.mount, k))
-    expected_u8 = np.clip(np.round(expected * 255), 0, 255).astype(np.uint8)
+    rendered = [RayCastWorld(scene, 1).render(camera_from_pose(*p, scene.camera.mount, k)) for p in poses]
+    expected_u8 = [np.clip(np.round(rgb * 255), 0, 255).astype(np.uint8) for rgb, _ in rendered]
+    published: dict[tuple[int, int], int] = {}  # stamp → index of the pose sent with it
 
-    def matches() -> bool:
-        if not images:
-            return False
-        got = np.frombuffer(bytes(images[-1].data), np.uint8).reshape(48, 64, 3)
-        return bool(np.abs(got.astype(int) - expected_u8).max() <= 1)
+    def publish_next() -> None:
+        n = len(published)
+        stamp = (1_000 + n, 250_000_000 + n)
+        published[stamp] = n % 2
+        odom_pub.publish(odom_msg(*poses[n % 2], stamp=stamp))
+
+    def key(m: Image | CameraInfo) -> tuple[int, int]:
+        return m.header.stamp.sec, m.header.stamp.nanosec
+
+    def true_frames() -> list[Image]:
+        return [m for m in images if key(m) in published]
 
     images.clear()
     depths.clear()
-    assert spin_until(test_node, matches, 30.0, tick=lambda: odom_pub.publish(odom_msg(*pose)))
-    stamp = (images[-1].header.stamp.sec, images[-1].header.stamp.nanosec)
-
-    def depth_since_match() -> Image | None:  # the depth of the matching frame or a later one (same pose)
-        return next((m for m in depths if (m.header.stamp.sec, m.header.stamp.nanosec) >= stamp), None)
-
-    assert spin_until(test_node, lambda: depth_since_match() is not None, 5.0,
-                      tick=lambda: odom_pub.publish(odom_msg(*pose)))
-    got_depth = np.frombuffer(bytes(depth_since_match().data), "<f4").reshape(48, 64)
-    assert np.allclose(got_depth, expected_depth, rtol=1e-6)
+    infos.clear()
+    assert spin_until(test_node, lambda: {published[key(m)] for m in true_frames()} == {0, 1}, 30.0,
+                      tick=publish_next), ros_processes.output(cam_proc)
+    first = images.index(true_frames()[0])
+    assert all(key(m) in published for m in images[first:])  # from the first true pose on: only its stamps
+    assert len({key(m) for m in images}) == len(images)  # no stamp twice
+    for m in true_frames():
+        got = np.frombuffer(bytes(m.data), np.uint8).reshape(48, 64, 3)
+        assert np.abs(got.astype(int) - expected_u8[published[key(m)]]).max() <= 1, key(m)
+    # CameraInfo and depth carry the frame's stamp too, the depth of the pose it names
+    assert spin_until(test_node, lambda: any(key(m) in published for m in depths)
+                      and any(key(m) in published for m in infos), 5.0, tick=publish_next)
+    assert {key(m) for m in infos if key(m) in published} & {key(m) for m in true_frames()}
+    for m in (m for m in depths if key(m) in published):
+        got_depth = np.frombuffer(bytes(m.data), "<f4").reshape(48, 64)
+        assert np.allclose(got_depth, rendered[published[key(m)]][1], rtol=1e-6)
 
     # round:=0 follows the route follower's lap counter: after lap 1 the operating round starts
     lap_pub = test_node.create_publisher(Int32, "sim/route/lap", 10)
@@ -128,6 +144,17 @@ def test_mock_camera_publishes_image_info_and_depth_at_the_odometry_pose(ros_pro
     assert spin_until(test_node, lap_logged, 20.0, tick=lambda: lap_pub.publish(Int32(data=1)))
     assert ros_processes.interrupt(cam_proc) < 10.0
     assert cam_proc.returncode == 0, ros_processes.output(cam_proc)
+
+
+def test_a_frame_is_stamped_with_the_true_pose_it_renders():
+    """The mock camera's rule (:func:`frame_pose`): the newest true pose at its own stamp; nothing when that pose was
+    rendered already; the scripted pose at ``now`` once the true pose is older than the timeout."""
+    pose = (0.4, -0.3, 2.0)
+    latest = TruePose(pose, stamp_ns=5_000_000_123, received_ns=9_000_000_000)
+    assert frame_pose(latest, 9_010_000_000, 1.0, None) == (5_000_000_123, pose)
+    assert frame_pose(latest, 9_010_000_000, 1.0, 5_000_000_123) is None
+    assert frame_pose(latest, 10_000_000_001, 1.0, 5_000_000_123) == (10_000_000_001, None)
+    assert frame_pose(None, 42, 1.0, None) == (42, None)
 
 
 def test_route_follower_drives_counts_a_lap_and_stops(ros_processes, test_node):

@@ -95,6 +95,7 @@ class MockLimo:
         host_ids = frozenset({proto.ID_MOTION_COMMAND, proto.ID_CONTROL_MODE})
         self._parser = proto.FrameParser(known_ids=host_ids, confirm_frames=1, check_count=False)
         self._x, self._y, self._yaw = start_pose
+        self._pose_stamp_ns = 0
         self._vel = kin.BodyVelocity()
         self._cmd: proto.MotionCommand | None = None
         self._cmd_t = -math.inf
@@ -139,6 +140,12 @@ class MockLimo:
         """True pose of base_link in map: (x_m, y_m, yaw_rad), yaw unwrapped."""
         with self._lock:
             return self._x, self._y, self._yaw
+
+    def true_pose_stamped(self) -> tuple[int, tuple[float, float, float]]:
+        """(system time in ns at which the pose is true — the integration tick that made it —, true pose):
+        what a motion-capture system would stamp it with (0 before the first tick: the start pose)."""
+        with self._lock:
+            return self._pose_stamp_ns, (self._x, self._y, self._yaw)
 
     def true_velocity(self) -> kin.BodyVelocity:
         """Velocity applied over the current tick (base_link frame)."""
@@ -271,6 +278,7 @@ class MockLimo:
             ym = 0.5 * (yaw0 + self._yaw)
             self._x += (v.vx_mps * math.cos(ym) - v.vy_mps * math.sin(ym)) * dt
             self._y += (v.vx_mps * math.sin(ym) + v.vy_mps * math.cos(ym)) * dt
+            self._pose_stamp_ns = time.time_ns()  # the system (ROS) time this pose is true at
             # 2) report that velocity and the state
             frames = [self._system_state(), self._motion_state(v), self._euler()]
             # 3) apply the latest command for the next tick (own watchdog: stop when commands stop)

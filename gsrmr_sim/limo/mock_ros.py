@@ -16,6 +16,7 @@ import threading
 
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
+from rclpy.time import Time
 
 from gsrmr_common.interrupts import console_main
 from gsrmr_common.ros_node import run_node
@@ -33,10 +34,12 @@ class GroundTruthPublisher(Node):
         self.get_logger().info(f"mock LIMO on {mock.link_path}; true pose on {self._pub.topic_name}")
 
     def _tick(self) -> None:
-        x, y, yaw = self.mock.true_pose()
+        stamp_ns, (x, y, yaw) = self.mock.true_pose_stamped()
         v = self.mock.true_velocity()
         msg = Odometry()
-        msg.header.stamp = self.get_clock().now().to_msg()
+        # stamped with the time the pose is true at (the mock's integration tick, up to one tick before now),
+        # so the mock camera renders each frame at exactly the pose its stamp names
+        msg.header.stamp = Time(nanoseconds=stamp_ns or self.get_clock().now().nanoseconds).to_msg()
         msg.header.frame_id = "map"
         msg.child_frame_id = "base_link"
         msg.pose.pose.position.x = x

@@ -15,29 +15,37 @@ never cross the robot's uplink.
 
 The pose is the true pose from ``odom_topic`` (default ``sim/ground_truth/odom``, relative to the node's
 namespace: ``/sim/ground_truth/odom`` in the root one; nav_msgs/Odometry in
-``map``: x, y and yaw of base_link). Until the first message arrives (or when it is older than
-``odom_timeout_s``) the node falls back to a scripted pose: the route driven open-loop at its nominal
-speed (arc length = speed · round time, heading along the path). Round time is the node clock
-(sim time if ``use_sim_time``) since start; the scene's change events apply by it when ``round`` = 2.
+``map``: x, y and yaw of base_link). Each frame is rendered at the newest true pose and stamped (Image, CameraInfo,
+depth, truth frame) with that pose's ``header.stamp`` — the time the pose holds for, so frame stamp and rendered pose
+agree exactly (:func:`frame_pose`; an unstamped pose, stamp 0, holds for its arrival time). Stamping with the tick's
+``now`` instead would pair the frame with a pose 0–20 ms older (the true pose comes at 50 Hz) plus the DDS latency:
+up to about 1 cm at 0.3 m/s, and rendering at a pose interpolated at ``now`` would have to extrapolate past the newest
+pose. A tick that finds no newer pose than the last frame's publishes nothing (a camera never stamps two frames
+alike). Until the first message arrives (or when the newest arrived more than ``odom_timeout_s`` ago) the node falls
+back to a scripted pose, stamped ``now``: the route driven open-loop at its nominal speed (arc length = speed · round
+time, heading along the path). Round time is the frame's stamp minus the round's start on the node clock (sim time
+if ``use_sim_time``): node start, or with ``clock_from_motion`` the stamp of the first true pose that moved; the
+scene's change events apply by it when ``round`` = 2.
 With ``round`` = 0 the node follows ``sim/route/lap`` (std_msgs/Int32 from the route follower): the
 round becomes 1 + laps (capped at 2) and the round clock restarts at every lap.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 import math
 
 from nav_msgs.msg import Odometry
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
-from rclpy.time import Time
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Int32
 
 from gsrmr_common.camera import camera_from_pose
 from gsrmr_common.interrupts import console_main
 from gsrmr_common.ros_node import declare, run_node
+from gsrmr_common.ros_wire import ns_to_stamp, stamp_to_ns
 from gsrmr_common.route import LoopPath
 from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
 from gsrmr_sim.limo.mock import GROUND_TRUTH_TOPIC
@@ -51,6 +59,28 @@ from gsrmr_sim.world.scene import load_scene
 def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
     """Yaw (rad, about +z) of a quaternion."""
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+@dataclass(frozen=True)
+class TruePose:
+    """A true pose from ``odom_topic``: (a_m, b_m, theta_rad) of ``base_link`` in ``map``, the time it holds for
+    (``stamp_ns``: its ``header.stamp``, or its arrival when unstamped) and its arrival on the node clock [ns]."""
+
+    pose: tuple[float, float, float]
+    stamp_ns: int
+    received_ns: int
+
+
+def frame_pose(latest: TruePose | None, now_ns: int, odom_timeout_s: float,
+               last_frame_stamp_ns: int | None) -> tuple[int, tuple[float, float, float] | None] | None:
+    """The stamp [ns] and pose of the frame a tick renders: the newest true pose at its own stamp when it arrived at
+    most ``odom_timeout_s`` ago; else ``now_ns`` and None (the scripted pose at that time). None: no frame, the
+    newest true pose was rendered already (its stamp is ``last_frame_stamp_ns``)."""
+    if latest is None or now_ns - latest.received_ns > odom_timeout_s * 1e9:
+        return now_ns, None
+    if latest.stamp_ns == last_frame_stamp_ns:
+        return None
+    return latest.stamp_ns, latest.pose
 
 
 def image_msg(img_u8: np.ndarray, encoding: str, stamp: object, frame_id: str = CAMERA_OPTICAL_FRAME) -> Image:
@@ -118,10 +148,11 @@ class MockCamera(Node):
         self.create_subscription(Odometry, odom_topic, self._on_odom, qos_profile_sensor_data)
         if self.round_param == 0:
             self.create_subscription(Int32, "sim/route/lap", self._on_lap, 10)
-        self.odom_pose: tuple[float, float, float] | None = None
-        self.odom_time: Time | None = None
+        self.true_pose: TruePose | None = None
         self.rest_pose: tuple[float, float, float] | None = None  # first true pose, while waiting for motion
-        self.start: Time | None = None if self.clock_from_motion else self.get_clock().now()
+        # the round's start on the node clock [ns] (None: waiting for the true pose to move)
+        self.start_ns: int | None = None if self.clock_from_motion else self.get_clock().now().nanoseconds
+        self.last_frame_stamp_ns: int | None = None
         self.frames = 0
         period = 1.0 / (rate or self.scene.camera.rate_hz)
         self.timer = self.create_timer(period, self._tick)
@@ -132,7 +163,7 @@ class MockCamera(Node):
 
     def _on_lap(self, msg: Int32) -> None:
         new_round = min(2, 1 + int(msg.data))
-        self.start = self.get_clock().now()
+        self.start_ns = self.get_clock().now().nanoseconds
         if new_round != self.round_index:
             self.round_index = new_round
             self.world = make_world(self.scene, new_round)
@@ -140,13 +171,18 @@ class MockCamera(Node):
 
     def _on_odom(self, msg: Odometry) -> None:
         q = msg.pose.pose.orientation
-        self.odom_pose = (msg.pose.pose.position.x, msg.pose.pose.position.y,
-                          yaw_from_quaternion(q.x, q.y, q.z, q.w))
-        self.odom_time = self.get_clock().now()
-        if self.start is None:
-            self.rest_pose = self.rest_pose or self.odom_pose
-            if has_moved(self.odom_pose, self.rest_pose):
-                self.start = self.odom_time
+        pose = (msg.pose.pose.position.x, msg.pose.pose.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
+        received_ns = self.get_clock().now().nanoseconds
+        try:
+            stamp_ns = stamp_to_ns(msg.header.stamp) or received_ns  # unstamped: holds for its arrival
+        except ValueError as err:
+            self.get_logger().warning(f"true pose refused: {err}", throttle_duration_sec=5.0)
+            return
+        self.true_pose = TruePose(pose, stamp_ns, received_ns)
+        if self.start_ns is None:
+            self.rest_pose = self.rest_pose or pose
+            if has_moved(pose, self.rest_pose):
+                self.start_ns = stamp_ns
                 self.get_logger().info("robot moving: round clock started")
 
     def scripted_pose(self, t_s: float) -> tuple[float, float, float]:
@@ -170,24 +206,28 @@ class MockCamera(Node):
         return info
 
     def _tick(self) -> None:
-        now = self.get_clock().now()
-        t_s = 0.0 if self.start is None else max(0.0, (now - self.start).nanoseconds * 1e-9)
-        fresh = (self.odom_pose is not None and self.odom_time is not None
-                 and (now - self.odom_time).nanoseconds * 1e-9 <= self.odom_timeout_s)
-        pose = self.odom_pose if fresh and self.odom_pose is not None else self.scripted_pose(t_s)
+        choice = frame_pose(self.true_pose, self.get_clock().now().nanoseconds, self.odom_timeout_s,
+                            self.last_frame_stamp_ns)
+        if choice is None:  # the newest true pose is on the last frame already
+            return
+        stamp_ns, true_pose = choice
+        t_s = 0.0 if self.start_ns is None else max(0.0, (stamp_ns - self.start_ns) * 1e-9)
+        pose = true_pose if true_pose is not None else self.scripted_pose(t_s)
         cam = camera_from_pose(*pose, self.scene.camera.mount, self.k)
         rgb, depth = self.world.render(cam, t_s)
-        stamp = now.to_msg()
+        stamp = ns_to_stamp(stamp_ns)
         rgb_u8 = np.clip(np.round(rgb * 255), 0, 255).astype(np.uint8)
         self.pub_image.publish(image_msg(rgb_u8, "rgb8", stamp))
         if self.truth is not None:
-            self.truth.put(now.nanoseconds, rgb_u8)
+            self.truth.put(stamp_ns, rgb_u8)
         self.pub_info.publish(self.camera_info(stamp))
         if self.publish_depth:
             self.pub_depth.publish(depth_msg(depth, stamp))
+        self.last_frame_stamp_ns = stamp_ns
         self.frames += 1
         if self.frames == 1:
-            self.get_logger().info(f"first frame published (pose source: {'odom' if fresh else 'scripted'})")
+            source = "true pose, stamped with its stamp" if true_pose is not None else "scripted"
+            self.get_logger().info(f"first frame published (pose source: {source})")
 
 
 @console_main
