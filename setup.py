@@ -29,6 +29,9 @@ CONSOLE_SCRIPTS = [
     "gsrmr-train = gsrmr_server.splatting.train_cli:train_main",
     "gsrmr-render = gsrmr_server.splatting.cli:render_main",
     "gsrmr-compact = gsrmr_server.splatting.train_cli:compact_main",
+    "gsrmr-align = gsrmr_server.splatting.align_cli:main",
+    # a robot's recorded bag → a nerfstudio dataset in map (deployment tool, no ROS runtime)
+    "gsrmr-dataset = gsrmr_common.dataset_tool:main",
     # LIMO base: driver node and byte-exact mock base
     "gsrmr-limo-base = gsrmr_robot.limo.node:main",
     "gsrmr-mock-limo = gsrmr_sim.limo.mock_ros:main",
@@ -42,6 +45,7 @@ CONSOLE_SCRIPTS = [
     "gsrmr-robot = gsrmr_robot.robot_node:main",
     "gsrmr-server = gsrmr_server.server_node:main",
     "gsrmr-scheduler = gsrmr_server.scheduler_node:main",
+    "gsrmr-survey = gsrmr_server.survey_cli:main",
     "gsrmr-experiments = gsrmr_sim.experiments.cli:main",
     "gsrmr-demo = gsrmr_sim.demo:main",
     "gsrmr-uplink-relay = gsrmr_sim.fault_relay_node:main",

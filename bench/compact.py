@@ -35,10 +35,11 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from gsrmr_common.camera import Camera, Intrinsics  # noqa: E402
+from gsrmr_common.nerfstudio import holdout_split  # noqa: E402
 from gsrmr_server.splatting.compact import CompactConfig, Compactor  # noqa: E402
 from gsrmr_server.splatting.model import GaussianModel  # noqa: E402
 from gsrmr_server.splatting.render import render  # noqa: E402
-from gsrmr_server.splatting.train import TrainConfig, Trainer, holdout_split  # noqa: E402
+from gsrmr_server.splatting.train import TrainConfig, Trainer  # noqa: E402
 
 SIZES = ((320, 240), (648, 420))
 

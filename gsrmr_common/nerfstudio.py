@@ -1,7 +1,8 @@
 """nerfstudio ``transforms.json`` datasets: the one reader and writer of the format in gsrmr.
 
-The world recorder writes round-1 frames with :func:`write_dataset`; the GS trainer reads them with
-:func:`read_dataset`. Layout (nerfstudio "data/nerfstudio" convention)::
+The world recorder writes round-1 frames with :func:`write_dataset`, the bag tool (``gsrmr-dataset``) streams
+them with :class:`DatasetWriter`; the GS trainer reads them with :func:`read_dataset`. Layout (nerfstudio
+"data/nerfstudio" convention)::
 
     DIR/transforms.json
     DIR/images/frame_00000.png      RGB, 8 bit
@@ -44,16 +45,26 @@ def _intrinsics_dict(k: Intrinsics) -> dict:
     return {"fl_x": k.fx, "fl_y": k.fy, "cx": k.cx, "cy": k.cy, "w": k.width, "h": k.height}
 
 
-def write_dataset(root: str | Path, frames: list[DatasetFrame]) -> Path:
-    """Write frames as a nerfstudio dataset under ``root``; returns the transforms.json path."""
-    root = Path(root)
-    (root / "images").mkdir(parents=True, exist_ok=True)
-    if not frames:
-        raise ValueError("write_dataset: no frames")
-    shared = frames[0].camera.intrinsics
-    meta: dict = {"camera_model": "OPENCV", **_intrinsics_dict(shared),
-                  "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0, "frames": []}
-    for i, frame in enumerate(frames):
+class DatasetWriter:
+    """Writes a nerfstudio dataset frame by frame: each image (and depth) goes to disk as it is added, the
+    ``transforms.json`` at :meth:`finish` — so a long recording never has to be held in memory.
+
+    ``add(frame, index)`` names the files ``frame_<index>`` (default: the next number); :meth:`finish` lists the
+    frames by index (they must be 0 … n − 1, each once) with the intrinsics of frame 0 as the shared ones (a
+    frame with other intrinsics carries its own keys). Output is deterministic: same frames, same bytes.
+    """
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+        (self.root / "images").mkdir(parents=True, exist_ok=True)
+        self._entries: dict[int, tuple[Intrinsics, dict]] = {}
+
+    def add(self, frame: DatasetFrame, index: int | None = None) -> str:
+        """Write one frame's image (RGB, ``uint8`` as it is or float in [0, 1]) and depth; returns its
+        ``file_path`` (relative to the root)."""
+        i = len(self._entries) if index is None else int(index)
+        if i < 0 or i in self._entries:
+            raise ValueError(f"frame {i}: index already written or negative")
         img = np.asarray(frame.image)
         if img.ndim != 3 or img.shape[2] != 3:
             raise ValueError(f"frame {i}: image must be H×W×3, got {img.shape}")
@@ -62,26 +73,53 @@ def write_dataset(root: str | Path, frames: list[DatasetFrame]) -> Path:
                              f"{frame.camera.width}×{frame.camera.height}")
         rel = f"images/frame_{i:05d}.png"
         u8 = img if img.dtype == np.uint8 else np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)
-        cv2.imwrite(str(root / rel), cv2.cvtColor(u8, cv2.COLOR_RGB2BGR))
+        cv2.imwrite(str(self.root / rel), cv2.cvtColor(u8, cv2.COLOR_RGB2BGR))
         entry: dict = {"file_path": rel,
                        "transform_matrix": opencv_w2c_to_opengl_c2w(frame.camera.world_to_camera).tolist()}
-        if frame.camera.intrinsics != shared:
-            entry.update(_intrinsics_dict(frame.camera.intrinsics))
         if frame.depth_m is not None:
-            (root / "depths").mkdir(exist_ok=True)
+            (self.root / "depths").mkdir(exist_ok=True)
             drel = f"depths/frame_{i:05d}.png"
             depth = np.nan_to_num(np.asarray(frame.depth_m, dtype=np.float64), nan=0.0, posinf=0.0)
             mm = np.clip(np.round(depth / DEPTH_SCALE_M), 0, 65535).astype(np.uint16)
-            cv2.imwrite(str(root / drel), mm)
+            cv2.imwrite(str(self.root / drel), mm)
             entry["depth_file_path"] = drel
         if frame.pose is not None:
             entry["gsrmr_pose"] = [float(v) for v in frame.pose]
-        meta["frames"].append(entry)
-    if any("depth_file_path" in f for f in meta["frames"]):
-        meta["depth_unit_scale_factor"] = DEPTH_SCALE_M
-    out = root / "transforms.json"
-    out.write_text(json.dumps(meta, indent=1))
-    return out
+        self._entries[i] = (frame.camera.intrinsics, entry)
+        return rel
+
+    def finish(self) -> Path:
+        """Write ``transforms.json`` of the frames added; returns its path."""
+        if not self._entries:
+            raise ValueError("write_dataset: no frames")
+        if sorted(self._entries) != list(range(len(self._entries))):
+            missing = sorted(set(range(max(self._entries) + 1)) - set(self._entries))
+            raise ValueError(f"frames must be numbered 0 … n − 1; missing {missing[:5]}")
+        shared = self._entries[0][0]
+        meta: dict = {"camera_model": "OPENCV", **_intrinsics_dict(shared),
+                      "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0, "frames": []}
+        for i in range(len(self._entries)):
+            intrinsics, entry = self._entries[i]
+            entry = dict(entry)
+            if intrinsics != shared:
+                head = {k: entry.pop(k) for k in ("file_path", "transform_matrix")}
+                entry = {**head, **_intrinsics_dict(intrinsics), **entry}
+            meta["frames"].append(entry)
+        if any("depth_file_path" in f for f in meta["frames"]):
+            meta["depth_unit_scale_factor"] = DEPTH_SCALE_M
+        out = self.root / "transforms.json"
+        out.write_text(json.dumps(meta, indent=1))
+        return out
+
+
+def write_dataset(root: str | Path, frames: list[DatasetFrame]) -> Path:
+    """Write frames as a nerfstudio dataset under ``root``; returns the transforms.json path."""
+    writer = DatasetWriter(root)
+    if not frames:
+        raise ValueError("write_dataset: no frames")
+    for frame in frames:
+        writer.add(frame)
+    return writer.finish()
 
 
 def _frame_intrinsics(meta: dict, entry: dict, name: str) -> Intrinsics:
@@ -145,3 +183,13 @@ def read_dataset(root: str | Path, *, load_images: bool = True) -> list[DatasetF
         pose = entry.get("gsrmr_pose")
         out.append(DatasetFrame(camera, image, depth, tuple(pose) if pose else None, entry["file_path"]))
     return out
+
+
+def holdout_split(frames: list[DatasetFrame], every: int) -> tuple[list[DatasetFrame], list[DatasetFrame]]:
+    """(training, held-out) frames: every ``every``-th frame (the last of each group of ``every``) is held
+    out; ``every`` ≤ 0 holds out none. The split of ``gsrmr-train --holdout-every``, ``gsrmr-compact`` and
+    ``gsrmr-survey`` (which scores the held-out frames only)."""
+    if every <= 0:
+        return list(frames), []
+    return ([f for i, f in enumerate(frames) if i % every != every - 1],
+            [f for i, f in enumerate(frames) if i % every == every - 1])

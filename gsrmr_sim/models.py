@@ -22,10 +22,10 @@ from pathlib import Path
 import shutil
 import time
 
-from gsrmr_common.nerfstudio import read_dataset
+from gsrmr_common.nerfstudio import holdout_split, read_dataset
 from gsrmr_server.splatting.compact import CompactConfig, Compactor
 from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.train import HistoryRow, Trainer, holdout_split
+from gsrmr_server.splatting.train import HistoryRow, Trainer
 from gsrmr_server.splatting.train_config import TrainConfig
 from gsrmr_sim.world.recorder import record_round1, with_resolution
 from gsrmr_sim.world.scene import Scene, load_scene, resolve_scene_path

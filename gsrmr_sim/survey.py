@@ -1,24 +1,25 @@
 """GS losses L_t of a recorded round: what each slot would lose with Φ(s_t) instead of r_t.
 
 ``L_t = MR loss(m_t, m̂_t)`` with m̂_t the live server's composite of a key-only slot at the true pose s_t,
-and — with ``jpeg_quality`` — ``J_t``, the loss of an image slot (the robot's JPEG of r_t), both made by the
-live slot core and scored by the deployment's scoring library (:mod:`gsrmr_server.scoring`) through
-:class:`~gsrmr_sim.offline_server.OfflineServer` (the one composition pipeline). This is the L_t the paper's
-optimisation assumes known; the experiments use it directly, and ``make demo`` uses it to seed the
-scheduler's loss map (a rehearsal of the operating round), which the running system then corrects online
-from the losses it measures in image slots.
+and — with ``jpeg_quality`` — ``J_t``, the loss of an image slot (the robot's JPEG of r_t, with the pose key the
+robot reports), both made by the live slot core's composer and scored by the deployment's scoring library:
+:func:`gsrmr_server.frame_loss.frame_loss`, the function the deployment survey (``gsrmr-survey``,
+:mod:`gsrmr_server.deployment_survey`) scores a mapping round's frames with — here called with the simulator's
+true frames r_t, at each slot's time, with :class:`~gsrmr_sim.offline_server.OfflineServer`'s composer (the one
+composition pipeline). This is the L_t the paper's optimisation assumes known; the experiments use it directly,
+and ``make demo`` uses it to seed the scheduler's loss map (a rehearsal of the operating round), which the
+running system then corrects online from the losses it measures in image slots.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
+from gsrmr_server.deployment_survey import seed_loss_map
+from gsrmr_server.frame_loss import frame_loss
 from gsrmr_server.loss_map import LossMap
-from gsrmr_server.scheduling.problem import IMAGE, KEY
 from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_sim.offline_server import TRUE, OfflineServer
+from gsrmr_sim.offline_server import REPORTED, TRUE, OfflineServer
 from gsrmr_sim.world.recorder import Round2Record
 
 #: Bump when what :func:`gs_losses` measures changes (cached seed maps and loss files carry it).
@@ -40,23 +41,23 @@ class SlotLoss:
 def gs_losses(record: Round2Record, model: GaussianModel, background=(0.0, 0.0, 0.0), *, mr_content: str,
               jpeg_quality: int | None = None, server: OfflineServer | None = None) -> list[SlotLoss]:
     """L_t, PSNR and SSIM of a key slot at the true pose for every slot of ``record``; with ``jpeg_quality``
-    also J_t, the loss an image slot leaves. ``server`` reuses an :class:`OfflineServer` (and its cache)."""
+    also J_t, the loss an image slot leaves (the key the robot reports, at the server's JPEG quality). ``server``
+    reuses an :class:`OfflineServer`: its composer, frames, reported poses and JPEG quality."""
     srv = server or OfflineServer(record, model, mr_content=mr_content, background_rgb=tuple(background),
                                   jpeg_quality=jpeg_quality or 80)
-    keys = srv.evaluate([KEY] * len(record), pose=TRUE)
-    images = srv.evaluate([IMAGE] * len(record)) if jpeg_quality is not None else [None] * len(record)
-    poses = record.poses
-    return [SlotLoss(t, tuple(float(v) for v in poses[t]), k.loss, k.psnr_db, k.ssim,  # type: ignore[arg-type]
-                     im.loss if im is not None else float("nan"))
-            for t, (k, im) in enumerate(zip(keys, images, strict=True))]
+    quality = srv.jpeg_quality if jpeg_quality is not None else None  # image slots as the server's uplink sends them
+    composer, times = srv.core.composer, record.times_s
+    out = []
+    for t, pose in enumerate(record.poses):
+        q = frame_loss(composer, srv.frame_u8(t), srv.key(t, TRUE), content_time_s=float(times[t]),
+                       jpeg_quality=quality, image_pose=srv.key(t, REPORTED))
+        out.append(SlotLoss(t, (float(pose[0]), float(pose[1]), float(pose[2])), q.loss, q.psnr_db, q.ssim,
+                            q.image_loss))
+    return out
 
 
 def loss_map_from(losses: list[SlotLoss], **kwargs) -> LossMap:
-    """A loss map holding every surveyed slot (and, where measured, the mean image-slot loss)."""
-    lm = LossMap(**kwargs)
-    for s in losses:
-        lm.add(*s.pose, s.loss)
-    measured = [s.image_loss for s in losses if np.isfinite(s.image_loss)]
-    if measured:
-        lm.image_loss = float(np.mean(measured))
-    return lm
+    """A loss map holding every surveyed slot (and, where measured, the mean image-slot loss): the deployment
+    survey's :func:`~gsrmr_server.deployment_survey.seed_loss_map`; ``kwargs`` are :class:`LossMap` settings."""
+    return seed_loss_map([s.pose for s in losses], [s.loss for s in losses], [s.image_loss for s in losses],
+                         **kwargs)

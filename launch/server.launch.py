@@ -1,12 +1,15 @@
 """On the workstation: MR composition server + online scheduler.
 
-ros2 launch gsrmr server.launch.py model_path:=/path/to/sandbox.ply loss_threshold:=0.03
+ros2 launch gsrmr server.launch.py model_path:=/path/to/sandbox.ply loss_threshold:=0.03 \
+    loss_map_file:=/path/to/loss_map.json
 
 The render intrinsics come from the robot's ``uplink/camera_info`` (latched); the camera's mount from
 config/camera_mount.yaml (the robot loads the same file). Parameters: config/link.yaml (shared uplink
 model), config/camera_mount.yaml, config/server.yaml, config/scheduler.yaml and the route file
 (``route_file:=``, default config/routes/sandbox.yaml) — every file keyed ``/**``, so the launch
-arguments below (passed after them) always win, also under ``namespace:=…``.
+arguments below (passed after them) always win, also under ``namespace:=…``. ``loss_map_file:=`` seeds the
+scheduler's loss map (its ``loss_map_file`` parameter): the JSON ``gsrmr-survey MODEL DATASET --out FILE`` writes
+from the mapping round (docs/scheduling.md).
 """
 
 import os
@@ -37,6 +40,8 @@ def generate_launch_description() -> LaunchDescription:
                               description="the robot's route as scheduler parameters (config/routes/*.yaml)"),
         DeclareLaunchArgument("loss_threshold", default_value="0.03", description="average MR-loss budget L_th"),
         DeclareLaunchArgument("method", default_value="exact", description="scheduling method"),
+        DeclareLaunchArgument("loss_map_file", default_value="",
+                              description="the scheduler's seed loss map: gsrmr-survey's JSON ('' = none)"),
         DeclareLaunchArgument("record_dir", default_value="", description="slots.csv + MCAP ('' = off)"),
         DeclareLaunchArgument("namespace", default_value="", description="ROS namespace of both nodes"),
         Node(package="gsrmr", executable="gsrmr-server", name="gsrmr_server", namespace=namespace, output="screen",
@@ -46,5 +51,6 @@ def generate_launch_description() -> LaunchDescription:
         Node(package="gsrmr", executable="gsrmr-scheduler", name="gsrmr_scheduler", namespace=namespace,
              output="screen",
              parameters=[link, scheduler, LaunchConfiguration("route_file"),
-                         {"method": _arg("method", str), "loss_threshold": _arg("loss_threshold", float)}]),
+                         {"method": _arg("method", str), "loss_threshold": _arg("loss_threshold", float),
+                          "loss_map_file": _arg("loss_map_file", str)}]),
     ])

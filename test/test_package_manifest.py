@@ -18,7 +18,8 @@ ROSDEP_KEYS = {
     "tqdm": "python3-tqdm", "psutil": "python3-psutil", "pytest": "python3-pytest",
     "pytest-timeout": "python3-pytest-timeout", "hypothesis": "python3-hypothesis",
     "plyfile": None, "mcap": None, "mcap-ros2-support": None, "clarabel": None, "scs": None, "osqp": None,
-    "highspy": None, "rosbags": None,
+    "highspy": None, "rosbags": None, "apsw": None, "backports.zstd": None, "lz4": None, "ruamel.yaml": None,
+    "typing_extensions": None, "zstandard": None,
 }
 BUILD_TOOLS = {"setuptools", "wheel", "ruff", "import-linter", "grimp"}  # build and lint tools, not the package's
 

@@ -37,7 +37,7 @@ import torch
 from tqdm import tqdm
 
 from gsrmr_common.metrics import psnr
-from gsrmr_common.nerfstudio import DatasetFrame, read_dataset
+from gsrmr_common.nerfstudio import DatasetFrame, holdout_split, read_dataset
 from gsrmr_server.splatting.contribution import max_blend_weight
 from gsrmr_server.splatting.diffrender import render_torch
 from gsrmr_server.splatting.initialise import init_points, knn_scales, resize_frames, scene_extent
@@ -66,15 +66,6 @@ class HistoryRow(NamedTuple):
     loss: float
     test_psnr_db: float
     num_gaussians: int
-
-
-def holdout_split(frames: list[DatasetFrame], every: int) -> tuple[list[DatasetFrame], list[DatasetFrame]]:
-    """(training, held-out) frames: every ``every``-th frame (the last of each group of ``every``) is held
-    out; ``every`` ≤ 0 holds out none. The split of ``gsrmr-train --holdout-every`` and ``gsrmr-compact``."""
-    if every <= 0:
-        return list(frames), []
-    return ([f for i, f in enumerate(frames) if i % every != every - 1],
-            [f for i, f in enumerate(frames) if i % every == every - 1])
 
 
 class Trainer:

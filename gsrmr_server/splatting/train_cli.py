@@ -9,11 +9,11 @@ import json
 from pathlib import Path
 import sys
 
-from gsrmr_common.nerfstudio import read_dataset
+from gsrmr_common.nerfstudio import holdout_split, read_dataset
 from gsrmr_server.splatting.cli import rgb_arg
 from gsrmr_server.splatting.compact import CompactConfig, Compactor
 from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.train import Trainer, holdout_split
+from gsrmr_server.splatting.train import Trainer
 from gsrmr_server.splatting.train_config import TrainConfig
 
 
