@@ -17,12 +17,18 @@
    run, the hindsight optimum over what either choice would have cost and given in each slot (``regret`` =
    energy / hindsight energy); write the report folder: MR image strip, x/p profile plot, ``slots.csv`` (with
    ``scored``), ``run.mcap``, ``summary.json``. The last stdout line is the summary as one JSON object.
+
+``--model PLY`` replaces step 1 by a model from elsewhere (``gsrmr-train``, a GPU model brought into ``map`` by
+``gsrmr-align``), ``--loss-map JSON`` step 2 by a seed map from elsewhere (``gsrmr-survey``); both are checked before
+anything runs, and the summary names the model and the loss map used (path, SHA-256, where it came from;
+docs/hardware.md).
 """
 
 from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+import hashlib
 import json
 from pathlib import Path
 import signal
@@ -32,11 +38,12 @@ import time
 import numpy as np
 import yaml
 
+from gsrmr_server.loss_map import LossMap
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_sim import netns
 from gsrmr_sim.fleet import fleet_demo
 from gsrmr_sim.link_events import LinkEvent, parse_link_events
-from gsrmr_sim.models import live_model, live_recipe
+from gsrmr_sim.models import LIVE_MAX_PSNR_DROP_DB, BuiltModel, live_model, live_recipe
 from gsrmr_sim.report import copy_recording, link_summary, log, run_summary, write_report
 from gsrmr_sim.round_start import first_moving_slot as first_moving_slot  # re-exported: test_pipeline_units
 from gsrmr_sim.sim_stack import config_dir, robot_jpeg_quality, sim_stack
@@ -46,21 +53,72 @@ from gsrmr_sim.world.recorder import Round2Record, record_round2
 from gsrmr_sim.world.scene import load_scene
 
 REPO = Path(__file__).resolve().parents[1]
+#: The options that say how the demo builds its model: ``--model`` replaces the building, so they are refused with it.
+MODEL_BUILDING_OPTIONS = ("frames", "train_iterations", "train_seconds", "train_width", "budget", "max_psnr_drop_db",
+                          "no_compact")
 
 
-def ensure_survey(scene_name: str, model_path: Path, slots: int, round_index: int = 1) -> Path:
-    """Seed loss map JSON (cached beside the model): L_t of the model along the route's slot poses against
-    the world of round ``round_index`` — 1, the mapping round (what exists before round 2: its frames and
-    the model; the default), or 2, a rehearsal of the very round being scored (the ``--oracle`` mode)."""
+class DemoInputError(ValueError):
+    """A ``--model`` or ``--loss-map`` file the demo cannot use (the message is the one line it prints)."""
+
+
+def file_sha256(path: Path) -> str:
+    """Hex SHA-256 of the file's bytes: which model or loss map a run used, whatever its path."""
+    with open(path, "rb") as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()
+
+
+def load_outside_model(path: str) -> GaussianModel:
+    """``--model PLY``: the 3DGS model read as the server reads it; :class:`DemoInputError` when it cannot be."""
+    try:
+        return GaussianModel.load_ply(path)
+    except (OSError, ValueError) as err:  # FileNotFoundError, IsADirectoryError, PlyFormatError
+        raise DemoInputError(f"--model {path}: {' '.join(str(err).splitlines())} — give a 3DGS .ply in map "
+                             "(gsrmr-train --out, or gsrmr-align --out for a model trained elsewhere)") from err
+
+
+def load_outside_loss_map(path: str) -> LossMap:
+    """``--loss-map JSON``: the seed map read as the scheduler reads its ``loss_map_file``
+    (:meth:`gsrmr_server.loss_map.LossMap.load`); :class:`DemoInputError` when it cannot be."""
+    try:
+        return LossMap.load(path)
+    except KeyError as err:
+        raise DemoInputError(f"--loss-map {path}: not a LossMap JSON (no key {err}) — give gsrmr-survey's --out "
+                             "file") from err
+    except (OSError, ValueError, TypeError, AttributeError) as err:  # missing, unreadable, not JSON, bad values
+        raise DemoInputError(f"--loss-map {path}: {' '.join(str(err).splitlines())} — give gsrmr-survey's --out "
+                             "file (a LossMap JSON)") from err
+
+
+def outside_built_model(path: Path, model: GaussianModel) -> BuiltModel:
+    """A ``--model`` file as the report's :class:`~gsrmr_sim.models.BuiltModel`: no training record, so its
+    held-out PSNR is unknown (NaN)."""
+    return BuiltModel(model, path.parent, {}, path.name)
+
+
+def input_record(model_path: Path, model_source: str, loss_map_path: Path, loss_map_source: str) -> dict:
+    """The summary's record of what the run used: each file's absolute path, SHA-256 and where it came from."""
+    return {"model_path": str(model_path.resolve()), "model_sha256": file_sha256(model_path),
+            "model_source": model_source, "loss_map_path": str(loss_map_path.resolve()),
+            "loss_map_sha256": file_sha256(loss_map_path), "loss_map_seed": loss_map_source}
+
+
+def ensure_survey(scene_name: str, model_path: Path, slots: int, round_index: int = 1,
+                  cache_dir: Path | None = None) -> Path:
+    """Seed loss map JSON (cached in ``cache_dir``, default beside the model): L_t of the model along the route's
+    slot poses against the world of round ``round_index`` — 1, the mapping round (what exists before round 2: its
+    frames and the model; the default), or 2, a rehearsal of the very round being scored (the ``--oracle`` mode)."""
     quality = robot_jpeg_quality(str(config_dir() / "robot.yaml"))  # what an image slot leaves (JPEG)
+    folder = model_path.parent if cache_dir is None else cache_dir
+    folder.mkdir(parents=True, exist_ok=True)
     # L_t depends on the model; the image-slot loss on the robot's JPEG quality
-    out = model_path.parent / f"loss_map_{model_path.stem}_{slots}_round{round_index}_q{quality}_v{SURVEY_VERSION}.json"
+    out = folder / f"loss_map_{model_path.stem}_{slots}_round{round_index}_q{quality}_v{SURVEY_VERSION}.json"
     if out.exists():
         log(f"loss-map seed cached: {out}")
         return out
     scene = load_scene(scene_name)
     t0 = time.perf_counter()
-    rec_dir = record_round2(scene, model_path.parent / f"survey_round{round_index}_{slots}", slots=slots,
+    rec_dir = record_round2(scene, folder / f"survey_round{round_index}_{slots}", slots=slots,
                             round_index=round_index)
     losses = gs_losses(Round2Record(rec_dir), GaussianModel.load_ply(model_path), scene.background,
                        mr_content=scene.mr_content, jpeg_quality=quality)
@@ -136,9 +194,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--budget", type=int, default=None,
                     help="Gaussian budget of the trained model (default: the scene's model.budget, else 100k): "
                          "render time per slot grows with it (docs/splatting.md)")
-    ap.add_argument("--max-psnr-drop-db", type=float, default=0.3,
-                    help="compact the trained model to the smallest one within this held-out PSNR loss "
-                         "(gsrmr-compact; bench/compact.py: sandbox 97k → 17k Gaussians at −0.21 dB)")
+    ap.add_argument("--max-psnr-drop-db", type=float, default=None,
+                    help=f"compact the trained model to the smallest one within this held-out PSNR loss (default "
+                         f"{LIVE_MAX_PSNR_DROP_DB}; gsrmr-compact; bench/compact.py: sandbox 97k → 17k Gaussians at "
+                         "−0.21 dB)")
     ap.add_argument("--no-compact", action="store_true", help="run on the trained (uncompacted) model")
     ap.add_argument("--channel-seed", type=int, default=7,
                     help="seed of the simulated channel: the fading of the k-th slot of round 2 depends only "
@@ -160,6 +219,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                          "scheduler and simulated world; channel seed + k - 1 for robot k), one report folder per "
                          "robot and fleet totals (gsrmr_sim.fleet); without it, the single robot in the root "
                          "namespace (default)")
+    ap.add_argument("--model", default=None, metavar="PLY",
+                    help="run on this 3DGS model in the scene's map frame (e.g. gsrmr-train's, or a GPU model after "
+                         "gsrmr-align) instead of building the scene's model from the simulator's round 1")
+    ap.add_argument("--loss-map", default=None, metavar="JSON",
+                    help="seed the scheduler with this loss map (gsrmr-survey's --out, a LossMap JSON) instead of "
+                         "the simulator's survey of the model")
     ap.add_argument("--param", action="append", default=[], metavar="NODE:NAME=VALUE",
                     help="set a node's parameter on top of the stack's (YAML value), e.g. "
                          "gsrmr_robot:hold_images_while_queued=false; repeatable")
@@ -185,6 +250,19 @@ def main(argv: Sequence[str] | None = None) -> int:
             ap.error("--oracle reads the simulated radio on the server side; it is not run across two hosts")
     elif link_events:
         ap.error("--link-events needs --hosts 2")
+    if args.model is not None:
+        given = [f"--{name.replace('_', '-')}" for name in MODEL_BUILDING_OPTIONS
+                 if getattr(args, name) not in (None, False, 0)]
+        if given:
+            ap.error(f"--model replaces the model building: drop {', '.join(given)}")
+    if args.robots is not None and (args.model or args.loss_map):
+        ap.error("--model and --loss-map are for one robot: the fleet's summaries do not record them")
+    try:  # both outside files are checked before anything is built or started
+        outside_model = load_outside_model(args.model) if args.model is not None else None
+        outside_map = load_outside_loss_map(args.loss_map) if args.loss_map is not None else None
+    except DemoInputError as err:
+        print(f"gsrmr-demo: {err}", file=sys.stderr)
+        return 2
 
     scene = load_scene(args.scene)
     slots = args.slots or scene.slots
@@ -193,12 +271,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         ap.error(f"--out {out} already holds a run; use a fresh folder")
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
-    recipe = live_recipe(args.scene, frames=args.frames or None, train_seconds=args.train_seconds,
-                         iterations=args.train_iterations, width=args.train_width, budget=args.budget)
-    built = live_model(recipe, Path(args.cache), max_psnr_drop_db=None if args.no_compact else args.max_psnr_drop_db,
-                       log=log)
+    survey_cache = None
+    if outside_model is not None:
+        built = outside_built_model(Path(args.model), outside_model)
+        model_source = "--model"
+        survey_cache = Path(args.cache) / f"outside-{file_sha256(built.path)[:12]}"  # never into the model's folder
+        log(f"model: {built.path} (--model, {outside_model.num_gaussians} Gaussians, SH degree "
+            f"{outside_model.sh_degree})")
+    else:
+        recipe = live_recipe(args.scene, frames=args.frames or None, train_seconds=args.train_seconds,
+                             iterations=args.train_iterations, width=args.train_width, budget=args.budget)
+        drop_db = args.max_psnr_drop_db if args.max_psnr_drop_db is not None else LIVE_MAX_PSNR_DROP_DB
+        built = live_model(recipe, Path(args.cache), max_psnr_drop_db=None if args.no_compact else drop_db, log=log)
+        model_source = "built from the simulator's round 1"
     model = built.path
-    seed = ensure_survey(args.scene, model, slots, round_index=2 if args.oracle else 1)
+    if outside_map is not None:
+        seed, seed_source = Path(args.loss_map), "--loss-map"
+        log(f"loss-map seed: {seed} (--loss-map, {len(outside_map.cells)} cells, image_loss "
+            f"{'none' if outside_map.image_loss is None else f'{outside_map.image_loss:.4f}'})")
+    else:
+        seed = ensure_survey(args.scene, model, slots, round_index=2 if args.oracle else 1, cache_dir=survey_cache)
+        seed_source = "round-2 survey (oracle)" if args.oracle else "mapping round"
+    inputs = input_record(model, model_source, seed, seed_source)
     if args.robots is not None:
         return fleet_demo(args, slots=slots, slot_s=scene.slot_s, out=out, built=built, loss_map=seed,
                           link_events=link_events, t_start=t_start)
@@ -211,7 +305,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     link_events=link_events, link_log=link_log, overrides=args.overrides)
     rows = run.rows
     copy_recording(out, run.record_dir, run.first_moving, len(rows))
-    summary = {**run_summary(args, rows, scene.slot_s, built, args.channel_seed),
+    summary = {**run_summary(args, rows, scene.slot_s, built, args.channel_seed), **inputs,
+               **({"model_compacted": None} if outside_model is not None else {}),  # not known of an outside model
                "hosts": args.hosts, **(link_summary(link_log, rows, args.uplink_mbit) if args.hosts == 2 else {}),
                "report_dir": str(out)}
     write_report(out, rows, summary)
@@ -224,6 +319,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"  MR images: mean loss {summary['mean_loss']:.4f}, PSNR {summary['psnr_db']:.2f} dB pooled "
           f"({summary['psnr_slot_mean_db']:.2f} dB per-slot mean), "
           f"SSIM {summary['ssim']:.4f}; on time {summary['slots_on_time']}/{summary['slots']}")
+    print(f"  model {inputs['model_path']} ({model_source}, sha256 {inputs['model_sha256'][:12]}); loss-map seed "
+          f"{inputs['loss_map_path']} ({seed_source}, sha256 {inputs['loss_map_sha256'][:12]})")
     if args.hosts == 2:
         print(f"  two hosts: uplink limited to {args.uplink_mbit:g} Mbit/s; {summary['link_uplink_bytes']} B crossed "
               f"robot → server ({summary['link_uplink_mbit_mean']:.2f} Mbit/s mean), "

@@ -1,17 +1,23 @@
-"""``gsrmr-demo``'s two-host options (pure: nothing is started)."""
+"""``gsrmr-demo``'s options — two hosts, parameters, an outside model and loss map — and its report (pure: nothing
+is started)."""
 
 from __future__ import annotations
 
+import hashlib
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from gsrmr_server.loss_map import LossMap
+from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_sim import demo
 from gsrmr_sim.link_events import parse_link_events
 import gsrmr_sim.netns as netns
 from gsrmr_sim.report import link_summary, write_report
 from gsrmr_sim.round_start import first_round_row
+from gsrmr_sim.stack_runner import RobotRun
 from gsrmr_sim.truth_frames import TruthFrameReader, TruthFrameWriter
 
 
@@ -104,3 +110,125 @@ def test_truth_frames_round_trip_by_capture_stamp_and_prune(tmp_path):
     assert int(reader.frame(None, stamps[3] + 1_000_000)[0, 0, 0]) == 3
     assert reader.frame(None, stamps[0]) is None
     assert TruthFrameReader(tmp_path / "missing").frame(None, stamps[4]) is None
+
+
+# ------------------------------------------------------------------------------- --model and --loss-map
+
+
+def tiny_model(path: Path) -> Path:
+    rng = np.random.default_rng(0)
+    GaussianModel.from_points(rng.uniform(-1.0, 1.0, (20, 3)), rng.uniform(0.0, 1.0, (20, 3))).save_ply(path)
+    return path
+
+
+def tiny_loss_map(path: Path) -> Path:
+    lm = LossMap(image_loss=0.011)
+    lm.add(0.2, -1.1, 0.0, 0.04)
+    lm.save(path)
+    return path
+
+
+def one_error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    return err[0]
+
+
+def test_outside_files_are_checked_before_anything_runs(tmp_path, capsys, monkeypatch):
+    def must_not_run(*_a, **_k):
+        raise AssertionError("the demo went on with a bad --model / --loss-map")
+
+    monkeypatch.setattr(demo, "live_model", must_not_run)
+    monkeypatch.setattr(demo, "ensure_survey", must_not_run)
+    out = tmp_path / "report"
+    model, lm = tiny_model(tmp_path / "model.ply"), tiny_loss_map(tmp_path / "map.json")
+    (tmp_path / "garbage.ply").write_bytes(b"ply\nformat nonsense\n")
+    (tmp_path / "not_json.json").write_text("{cells: ")
+    (tmp_path / "no_cells.json").write_text(json.dumps({"cell_m": 0.25}))
+    (tmp_path / "bad_value.json").write_text(json.dumps({**LossMap().to_json(), "forgetting": 2.0}))
+    (tmp_path / "a_list.json").write_text("[1, 2]")
+    cases = {("--model", str(tmp_path / "missing.ply")): "no such .ply",
+             ("--model", str(tmp_path / "garbage.ply")): "not a readable .ply",
+             ("--model", str(tmp_path)): "--model",
+             ("--loss-map", str(tmp_path / "missing.json")): "No such file",
+             ("--loss-map", str(tmp_path / "not_json.json")): "Expecting",
+             ("--loss-map", str(tmp_path / "no_cells.json")): "not a LossMap JSON (no key",
+             ("--loss-map", str(tmp_path / "bad_value.json")): "forgetting must be in (0, 1]",
+             ("--loss-map", str(tmp_path / "a_list.json")): "--loss-map"}
+    for (flag, path), says in cases.items():
+        other = ["--loss-map", str(lm)] if flag == "--model" else ["--model", str(model)]
+        assert demo.main([flag, path, *other, "--out", str(out)]) == 2, (flag, path)
+        line = one_error_line(capsys)
+        assert line.startswith(f"gsrmr-demo: {flag} {path}: ") and says in line, line
+    assert not out.exists()  # refused before the report folder was made
+
+
+def test_model_building_options_and_the_fleet_are_refused_with_outside_files(tmp_path, capsys):
+    model, lm = tiny_model(tmp_path / "model.ply"), tiny_loss_map(tmp_path / "map.json")
+    for extra in (["--train-iterations", "10"], ["--no-compact"], ["--max-psnr-drop-db", "0.5"], ["--frames", "8"]):
+        with pytest.raises(SystemExit):
+            demo.main(["--model", str(model), *extra])
+        assert "--model replaces the model building: drop --" in capsys.readouterr().err
+    for flag, path in (("--model", model), ("--loss-map", lm)):
+        with pytest.raises(SystemExit):
+            demo.main([flag, str(path), "--robots", "2"])
+        assert "the fleet's summaries do not record them" in capsys.readouterr().err
+
+
+def fake_rows(n: int) -> list[dict]:
+    """Scored rows as the runner returns them, enough for the summary and the report."""
+    return [{"slot": 500 + k, "x": k % 2, "power_w": 0.2 if k % 2 else None, "stamp_s": 50.0 + 0.1 * k,
+             "source": "image" if k % 2 else "render", "energy_j": 0.01 if k % 2 else 0.001,
+             "energy_upload_all_j": 0.01, "latency_ms": 40.0, "loss": 0.02, "psnr_db": 30.0, "ssim": 0.9,
+             "faults": ""} for k in range(n)]
+
+
+def test_outside_model_and_loss_map_are_run_and_recorded(tmp_path, capsys, monkeypatch):
+    model, lm = tiny_model(tmp_path / "model.ply"), tiny_loss_map(tmp_path / "map.json")
+    ran = {}
+
+    def must_not_run(*_a, **_k):
+        raise AssertionError("the simulator built a model or surveyed one although both were given")
+
+    def run_stack(**kwargs):
+        ran.update(kwargs)
+        return RobotRun("", "", tmp_path / "no_recording", rows=fake_rows(6))
+
+    monkeypatch.setattr(demo, "live_model", must_not_run)
+    monkeypatch.setattr(demo, "ensure_survey", must_not_run)
+    monkeypatch.setattr(demo, "run_stack", run_stack)
+    out = tmp_path / "report"
+    assert demo.main(["--model", str(model), "--loss-map", str(lm), "--out", str(out), "--slots", "6"]) == 0
+    assert (ran["model_path"], ran["loss_map"]) == (model, lm)
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    written = json.loads((out / "summary.json").read_text())
+    keys = ("model_path", "model_sha256", "model_source", "loss_map_path", "loss_map_sha256", "loss_map_seed")
+    assert {k: written[k] for k in keys} == {k: summary[k] for k in keys}  # the report folder's copy says the same
+    assert summary["model_path"] == str(model.resolve()) and summary["loss_map_path"] == str(lm.resolve())
+    assert summary["model_sha256"] == hashlib.sha256(model.read_bytes()).hexdigest()
+    assert summary["loss_map_sha256"] == hashlib.sha256(lm.read_bytes()).hexdigest()
+    assert (summary["model_source"], summary["loss_map_seed"]) == ("--model", "--loss-map")
+    assert summary["model_gaussians"] == 20 and summary["model_compacted"] is None
+    assert summary["slots"] == 6 and summary["images_sent"] == 3
+
+
+def test_outside_model_alone_is_surveyed_into_the_cache_not_beside_it(tmp_path, capsys, monkeypatch):
+    (tmp_path / "models").mkdir()
+    model = tiny_model(tmp_path / "models" / "model.ply")
+    lm = tiny_loss_map(tmp_path / "seed.json")
+    surveyed = {}
+
+    def ensure_survey(scene, model_path, slots, round_index=1, cache_dir=None):
+        surveyed.update(model_path=model_path, cache_dir=cache_dir, round_index=round_index)
+        return lm
+
+    monkeypatch.setattr(demo, "ensure_survey", ensure_survey)
+    monkeypatch.setattr(demo, "run_stack", lambda **_k: RobotRun("", "", tmp_path / "none", rows=fake_rows(4)))
+    cache = tmp_path / "cache"
+    assert demo.main(["--model", str(model), "--out", str(tmp_path / "r"), "--slots", "4", "--cache", str(cache),
+                      "--oracle"]) == 0
+    digest = hashlib.sha256(model.read_bytes()).hexdigest()
+    assert surveyed == {"model_path": model, "cache_dir": cache / f"outside-{digest[:12]}", "round_index": 2}
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert (summary["model_source"], summary["loss_map_seed"]) == ("--model", "round-2 survey (oracle)")
+    assert summary["loss_map_sha256"] == hashlib.sha256(lm.read_bytes()).hexdigest()
