@@ -13,6 +13,12 @@ the COLMAP/nerfstudio convention), ``camera_model: "OPENCV"`` with zero distorti
 ``file_path``, optional ``depth_file_path`` and ``transform_matrix``: camera→world in OpenGL/Blender
 axes (x right, y up, z back). Frames may also carry their own ``fl_x``… keys (nerfstudio allows
 per-frame intrinsics) and gsrmr adds the robot pose as ``gsrmr_pose`` = [a_m, b_m, theta_rad] when known.
+
+A dataset may name a sparse point cloud with the top-level key ``ply_file_path`` (nerfstudio's convention, as
+``ns-process-data``'s COLMAP export writes ``sparse_pc.ply``): a ``.ply`` whose ``vertex`` element holds ``x y z``
+(in the frame of the ``transform_matrix`` poses: metres in ``map`` for a gsrmr dataset) and ``red green blue``
+(uint8), the path relative to the dataset folder. :func:`dataset_point_cloud` reads it (the trainer's ``--init
+points``), :meth:`DatasetWriter.set_point_cloud` writes it.
 """
 
 from __future__ import annotations
@@ -24,10 +30,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from plyfile import PlyData, PlyElement, PlyParseError
 
 from gsrmr_common.camera import Camera, Intrinsics, opencv_w2c_to_opengl_c2w, opengl_c2w_to_opencv_w2c
 
 DEPTH_SCALE_M = 1e-3  # depth PNG unit: millimetres
+POINT_CLOUD_KEY = "ply_file_path"  # nerfstudio: the sparse point cloud, relative to the dataset folder
+POINT_CLOUD_FILE = "sparse_pc.ply"  # the name nerfstudio's COLMAP export gives it
 
 
 @dataclass
@@ -58,6 +67,14 @@ class DatasetWriter:
         self.root = Path(root)
         (self.root / "images").mkdir(parents=True, exist_ok=True)
         self._entries: dict[int, tuple[Intrinsics, dict]] = {}
+        self._point_cloud: str | None = None
+
+    def set_point_cloud(self, points_m: np.ndarray, colors: np.ndarray, name: str = POINT_CLOUD_FILE) -> str:
+        """Write a sparse point cloud (N×3 points in the poses' frame, N×3 colours: ``uint8`` or float in [0, 1])
+        as ``name`` under the root and name it in ``transforms.json`` (``ply_file_path``); returns ``name``."""
+        write_point_cloud(self.root / name, points_m, colors)
+        self._point_cloud = name
+        return name
 
     def add(self, frame: DatasetFrame, index: int | None = None) -> str:
         """Write one frame's image (RGB, ``uint8`` as it is or float in [0, 1]) and depth; returns its
@@ -107,19 +124,97 @@ class DatasetWriter:
             meta["frames"].append(entry)
         if any("depth_file_path" in f for f in meta["frames"]):
             meta["depth_unit_scale_factor"] = DEPTH_SCALE_M
+        if self._point_cloud is not None:
+            meta[POINT_CLOUD_KEY] = self._point_cloud
         out = self.root / "transforms.json"
         out.write_text(json.dumps(meta, indent=1))
         return out
 
 
-def write_dataset(root: str | Path, frames: list[DatasetFrame]) -> Path:
-    """Write frames as a nerfstudio dataset under ``root``; returns the transforms.json path."""
+def write_dataset(root: str | Path, frames: list[DatasetFrame],
+                  point_cloud: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
+    """Write frames as a nerfstudio dataset under ``root``; returns the transforms.json path. ``point_cloud``
+    (points N×3 in the poses' frame, colours N×3) is written as ``sparse_pc.ply`` and named by ``ply_file_path``."""
     writer = DatasetWriter(root)
     if not frames:
         raise ValueError("write_dataset: no frames")
     for frame in frames:
         writer.add(frame)
+    if point_cloud is not None:
+        writer.set_point_cloud(*point_cloud)
     return writer.finish()
+
+
+def write_point_cloud(path: str | Path, points_m: np.ndarray, colors: np.ndarray) -> Path:
+    """A point cloud as nerfstudio's COLMAP export writes it: binary ``.ply``, one ``vertex`` element of float32
+    ``x y z`` and uint8 ``red green blue`` (``colors`` N×3: ``uint8``, or float in [0, 1], rounded)."""
+    pts = np.asarray(points_m, dtype=np.float64)
+    col = np.asarray(colors)
+    if pts.ndim != 2 or pts.shape[1] != 3 or not np.all(np.isfinite(pts)):
+        raise ValueError(f"point cloud: points must be a finite N×3 array, got shape {pts.shape}")
+    if col.shape != pts.shape:
+        raise ValueError(f"point cloud: colours must be N×3 like the points, got {col.shape} for {pts.shape}")
+    u8 = col if col.dtype == np.uint8 else np.clip(np.round(col.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
+    data = np.empty(len(pts), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"),
+                                     ("blue", "u1")])
+    for i, axis in enumerate("xyz"):
+        data[axis] = pts[:, i]
+    for i, channel in enumerate(("red", "green", "blue")):
+        data[channel] = u8[:, i]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    PlyData([PlyElement.describe(data, "vertex")]).write(str(path))
+    return path
+
+
+def read_point_cloud(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """(N×3 float64 points, N×3 float64 colours in [0, 1]) of a ``.ply`` point cloud: ``vertex`` ``x y z`` and
+    ``red green blue`` (integer 0–255, or float in [0, 1]; mid grey 0.5 when the file has no colour). ValueError
+    naming the file for anything else."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no point cloud at {path}")
+    try:
+        ply = PlyData.read(str(path))
+    except (PlyParseError, ValueError, EOFError, IndexError, TypeError) as exc:
+        raise ValueError(f"{path}: not a readable .ply file ({exc})") from exc
+    if "vertex" not in [e.name for e in ply.elements]:
+        raise ValueError(f"{path}: no 'vertex' element")
+    v = ply["vertex"].data
+    fields = set(v.dtype.names or ())
+    if not {"x", "y", "z"} <= fields:
+        raise ValueError(f"{path}: vertex needs x, y, z properties, has {sorted(fields)}")
+    points = np.stack([np.asarray(v[a], dtype=np.float64) for a in "xyz"], axis=1)
+    finite = np.isfinite(points).all(axis=1)
+    if not finite.all():
+        raise ValueError(f"{path}: a point holds NaN/inf (first at vertex {int(np.argmin(finite))})")
+    channels = ("red", "green", "blue")
+    if set(channels) <= fields:
+        raw = np.stack([np.asarray(v[c]) for c in channels], axis=1)
+        colors = raw.astype(np.float64) / 255.0 if np.issubdtype(raw.dtype, np.integer) else raw.astype(np.float64)
+    else:
+        colors = np.full_like(points, 0.5)
+    return points, np.clip(colors, 0.0, 1.0)
+
+
+def transforms_path(root: str | Path) -> Path:
+    """The ``transforms.json`` of a dataset given as its folder or the file itself."""
+    root = Path(root)
+    return root if root.is_file() else root / "transforms.json"
+
+
+def dataset_point_cloud(root: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """The point cloud the dataset names (``ply_file_path`` in transforms.json, relative to the dataset folder):
+    (N×3 points [m, the poses' frame], N×3 colours in [0, 1]), or None when it names none."""
+    path = transforms_path(root)
+    if not path.exists():
+        raise FileNotFoundError(f"no transforms.json at {path}")
+    rel = json.loads(path.read_text()).get(POINT_CLOUD_KEY)
+    if rel is None:
+        return None
+    if not isinstance(rel, str) or not rel:
+        raise ValueError(f"{path}: {POINT_CLOUD_KEY!r} must be a path relative to the dataset folder")
+    return read_point_cloud(path.parent / rel)
 
 
 def _frame_intrinsics(meta: dict, entry: dict, name: str) -> Intrinsics:

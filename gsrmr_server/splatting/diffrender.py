@@ -117,25 +117,37 @@ class TorchRenderOutput:
 
 def render_torch(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor,
                  opacity_logits: torch.Tensor, sh: torch.Tensor, camera: Camera, background=(0.0, 0.0, 0.0),
-                 *, sh_degree: int = 0, near_m: float = NEAR_M) -> TorchRenderOutput:
+                 *, sh_degree: int = 0, near_m: float = NEAR_M,
+                 world_to_camera: torch.Tensor | None = None) -> TorchRenderOutput:
     """Differentiable render for training (parameters as torch tensors, same layout as the model).
 
     Culling, depth sort and tile binning are non-differentiable (numba); projection, activations
     and SH are torch autograd; compositing is :class:`RasterizeFunction` (numba forward and exact
     numba backward). Same image as :func:`render` up to float rounding.
+
+    ``world_to_camera`` (4×4 tensor, OpenCV axes), when given, replaces ``camera.world_to_camera`` (the
+    intrinsics stay the camera's): the pose as a function of learned parameters (pose refinement,
+    :mod:`~gsrmr_server.splatting.camera_opt`). Gradients then reach it through the projected means, the
+    conics and depths (the projection Jacobian) and the SH view directions (the camera centre −Rᵀt); the
+    culling, sort and binning pass uses its detached value.
     """
     bg = _check_background(background)
     width, height = camera.width, camera.height
     k = camera.intrinsics
     intr = (k.fx, k.fy, k.cx, k.cy)
+    pose_np = camera.world_to_camera if world_to_camera is None else \
+        world_to_camera.detach().to(torch.float64).numpy()
     with torch.no_grad():
         arrays = [t.detach().float().numpy() for t in (means, quats, log_scales, opacity_logits)]
-        geom, box = project_numpy(*arrays, camera.world_to_camera, intr, width, height, near_m)
+        geom, box = project_numpy(*arrays, pose_np, intr, width, height, near_m)
     visible = np.nonzero((box[:, 0] <= box[:, 1]) & (box[:, 2] <= box[:, 3]))[0]
     order = visible[depth_order(geom[visible, 6])]
     idx = torch.from_numpy(order)
     m = means[idx]
-    w2c = torch.as_tensor(camera.world_to_camera, dtype=means.dtype)
+    if world_to_camera is None:
+        w2c = torch.as_tensor(camera.world_to_camera, dtype=means.dtype)
+    else:
+        w2c = world_to_camera.to(means.dtype)
     means2d, conic, _, z = project_torch(m, quats[idx], log_scales[idx], w2c, intr, width, height)
     if means2d.requires_grad:
         means2d.retain_grad()
@@ -144,7 +156,10 @@ def render_torch(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Ten
     if degree == 0:
         colors = torch.clamp_min(sh[idx, 0, :] * C0 + 0.5, 0.0)
     else:
-        center = torch.as_tensor(camera.center_world, dtype=means.dtype)
+        if world_to_camera is None:
+            center = torch.as_tensor(camera.center_world, dtype=means.dtype)
+        else:
+            center = (-world_to_camera[:3, :3].T @ world_to_camera[:3, 3]).to(means.dtype)
         dirs = m - center
         dirs = dirs / dirs.norm(dim=1, keepdim=True).clamp_min(1e-12)
         colors = eval_sh_torch(sh[idx], dirs, degree)

@@ -1,5 +1,6 @@
 """The optimiser state of a training run and the operations on it: Adam per parameter group, row selection
-(prune / append with zeroed moments), the opacity reset.
+(prune / append with zeroed moments), the opacity reset. The per-frame pose and exposure corrections have their
+own per-row Adam (:class:`~gsrmr_server.splatting.camera_opt.FrameCorrections`).
 """
 
 from __future__ import annotations
@@ -9,6 +10,8 @@ from dataclasses import dataclass, field
 import math
 
 import torch
+
+from gsrmr_server.splatting.camera_opt import FrameCorrections
 
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 
@@ -27,6 +30,11 @@ class TrainState:
     last_seen: torch.Tensor = field(default_factory=lambda: torch.zeros(0, dtype=torch.long))
     sh_active: int = 0
     history: list = field(default_factory=list)
+    # Per-training-frame corrections (camera_opt), None unless TrainConfig.pose_opt / exposure_opt; their
+    # summaries (dicts of floats) recorded beside the history rows while either is on.
+    pose: FrameCorrections | None = None
+    exposure: FrameCorrections | None = None
+    correction_history: list = field(default_factory=list)
 
 
 def adam_step(state: TrainState, lr: Callable[[str, int], float], it: int, beta1: float = 0.9,

@@ -13,9 +13,17 @@
   for two passes over the views are pruned as unused, and a final pass removes every Gaussian whose
   largest blending weight over all training views is below 1/255 (it cannot change any pixel).
 * The SH degree is raised by one every ``sh_increase_interval`` up to ``sh_degree``.
-* Initialisation: back-projected depth pixels when the dataset has depth, else random points in the
-  cameras' bounding box grown by the extent; scales from the 3-nearest-neighbour distance.
-* Checkpoints (torch.save) hold parameters, Adam moments, statistics, iteration and RNG state.
+* Initialisation (``TrainConfig.init``, :func:`~gsrmr_server.splatting.initialise.choose_init`): ``auto`` =
+  back-projected depth pixels when the training frames have depth, else the point cloud the dataset names
+  (nerfstudio ``ply_file_path``, subsampled to ``init_points`` from the seed), else random points in the cameras'
+  bounding box grown by the extent; or one of them explicitly. Scales from the 3-nearest-neighbour distance.
+* Optional per-frame corrections (:mod:`~gsrmr_server.splatting.camera_opt`): a camera pose refinement
+  (``pose_opt``: the corrected world→camera enters the differentiable projection) and an exposure model
+  (``exposure_opt``: per-channel gain and bias on the rendered image before the loss), each with its mean held
+  at zero so the model stays in ``map`` at the average exposure. Evaluation renders the held-out frames at their
+  recorded poses without any exposure model (what the live server does at the robot's pose keys).
+* Checkpoints (torch.save) hold parameters, Adam moments, statistics, iteration and RNG state (and the
+  corrections when they are on).
 
 The pieces live beside this module, split as gsplat splits its strategy from its ops:
 :mod:`~gsrmr_server.splatting.losses`, :mod:`~gsrmr_server.splatting.initialise`,
@@ -36,11 +44,32 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from gsrmr_common.camera import Camera
 from gsrmr_common.metrics import psnr
-from gsrmr_common.nerfstudio import DatasetFrame, holdout_split, read_dataset
+from gsrmr_common.nerfstudio import DatasetFrame, dataset_point_cloud, holdout_split, read_dataset
+from gsrmr_server.splatting.camera_opt import (
+    EXPOSURE_DIM,
+    POSE_DIM,
+    FrameCorrections,
+    apply_exposure,
+    corrected_world_to_camera,
+    corrected_world_to_camera_np,
+    exposure_summary,
+    per_frame_rows,
+    pose_summary,
+    refine_pose,
+    undo_exposure,
+)
 from gsrmr_server.splatting.contribution import max_blend_weight
 from gsrmr_server.splatting.diffrender import render_torch
-from gsrmr_server.splatting.initialise import init_points, knn_scales, resize_frames, scene_extent
+from gsrmr_server.splatting.initialise import (
+    INIT_METHODS,
+    has_depth,
+    initial_points,
+    knn_scales,
+    resize_frames,
+    scene_extent,
+)
 from gsrmr_server.splatting.losses import ssim_torch, train_loss
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.splatting.optim import PARAM_NAMES, TrainState, adam_step, reset_opacity, select_rows
@@ -72,9 +101,11 @@ class Trainer:
     """Optimises a Gaussian model on a list of training frames (see the module docstring)."""
 
     def __init__(self, frames: list[DatasetFrame], config: TrainConfig | None = None,
-                 test_frames: list[DatasetFrame] | None = None, initial_model: GaussianModel | None = None) -> None:
+                 test_frames: list[DatasetFrame] | None = None, initial_model: GaussianModel | None = None,
+                 point_cloud: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """``initial_model`` (e.g. to fine-tune a trained model) replaces the point initialisation; its SH
-        degree is the active one from the start."""
+        degree is the active one from the start. ``point_cloud`` (N×3 points [m] in the frames' world, N×3
+        colours in [0, 1]) is the dataset's sparse cloud for ``init`` ``points`` / ``auto``."""
         self.config = config or TrainConfig()
         cfg = self.config
         if cfg.torch_threads:
@@ -82,31 +113,47 @@ class Trainer:
             torch.set_num_threads(cfg.torch_threads)
         if not frames:
             raise ValueError("Trainer: no training frames")
+        if cfg.init not in INIT_METHODS:
+            raise ValueError(f"Trainer: init must be one of {', '.join(INIT_METHODS)}, got {cfg.init!r}")
         self.frames = resize_frames(frames, cfg.resolution)
         self.test_frames = resize_frames(test_frames or [], cfg.resolution)
         self.targets = [torch.from_numpy(np.ascontiguousarray(f.image, np.float32)) for f in self.frames]
         self.extent = scene_extent([f.camera for f in self.frames])
         self.rng = np.random.default_rng(cfg.seed)
         self.torch_gen = torch.Generator().manual_seed(cfg.seed)
+        self.point_cloud = point_cloud
+        self.init_source = "model"  # where the initial Gaussians came from: depth, points, random or model
         if initial_model is None:
             self.state = self._initial_state()
         else:
             self.state = self._state_from_model(initial_model.with_degree(min(initial_model.sh_degree,
                                                                                cfg.sh_degree)))
             self.state.sh_active = min(initial_model.sh_degree, cfg.sh_degree)
+        if cfg.pose_opt:
+            self.state.pose = FrameCorrections.zeros(len(self.frames), POSE_DIM)
+        if cfg.exposure_opt:
+            self.state.exposure = FrameCorrections.zeros(len(self.frames), EXPOSURE_DIM)
+        # the recorded world→camera of each training frame, float64, for the pose refinement
+        self._recorded_w2c = [torch.as_tensor(f.camera.world_to_camera, dtype=torch.float64)
+                              for f in self.frames] if cfg.pose_opt else []
         self._perm: list[int] = []
 
     @classmethod
     def from_dataset(cls, path: str | Path, config: TrainConfig | None = None,
                      holdout_every: int = 0) -> Trainer:
-        """Read a nerfstudio dataset; every ``holdout_every``-th frame (if > 0) becomes a test view."""
+        """Read a nerfstudio dataset; every ``holdout_every``-th frame (if > 0) becomes a test view. The point
+        cloud the dataset names (``ply_file_path``) is read when the initialisation would use it."""
+        cfg = config or TrainConfig()
         train, test = holdout_split(read_dataset(path), holdout_every)
-        return cls(train, config, test)
+        wants_cloud = cfg.init == "points" or (cfg.init == "auto" and not has_depth(train))
+        cloud = dataset_point_cloud(path) if wants_cloud else None
+        return cls(train, config, test, point_cloud=cloud)
 
     # ------------------------------------------------------------------ state
     def _initial_state(self) -> TrainState:
         cfg = self.config
-        pts, cols = init_points(self.frames, cfg.init_points, self.extent, self.rng)
+        pts, cols, self.init_source = initial_points(cfg.init, self.frames, cfg.init_points, self.extent, self.rng,
+                                                     self.point_cloud)
         scales = np.clip(knn_scales(pts), 1e-4, 0.1 * self.extent)
         model = GaussianModel.from_points(pts, np.clip(cols, 0, 1), scales_m=scales, opacities=0.1,
                                           degree=cfg.sh_degree)
@@ -136,11 +183,16 @@ class Trainer:
                              p["opacity_logits"].numpy(), sh.numpy())
 
     def lr(self, name: str, step: int) -> float:
-        """Learning rate of a parameter group at ``step`` (position: exponential decay × extent)."""
+        """Learning rate of a parameter group at ``step`` (position: exponential decay × extent; the per-frame
+        ``pose`` and ``exposure`` corrections: exponential decay from their initial to their final rate)."""
         cfg = self.config
+        t = min(max(step / max(cfg.iterations, 1), 0.0), 1.0)
         if name == "means":
-            t = min(max(step / max(cfg.iterations, 1), 0.0), 1.0)
             return math.exp((1 - t) * math.log(cfg.lr_means) + t * math.log(cfg.lr_means_final)) * self.extent
+        if name == "pose":
+            return math.exp((1 - t) * math.log(cfg.lr_pose) + t * math.log(cfg.lr_pose_final))
+        if name == "exposure":
+            return math.exp((1 - t) * math.log(cfg.lr_exposure) + t * math.log(cfg.lr_exposure_final))
         return {"quats": cfg.lr_quats, "log_scales": cfg.lr_scales, "opacity_logits": cfg.lr_opacity,
                 "sh_dc": cfg.lr_sh_dc, "sh_rest": cfg.lr_sh_rest}[name]
 
@@ -151,7 +203,11 @@ class Trainer:
         return int(self._perm.pop())
 
     def step(self) -> tuple[float, float]:
-        """One optimisation step on one training view; returns (loss, PSNR dB of that view)."""
+        """One optimisation step on one training view; returns (loss, PSNR dB of that view).
+
+        With ``pose_opt`` the view is rendered at its recorded pose corrected by its learned δ, with
+        ``exposure_opt`` its render passes through its learned gain and bias before the loss; the loss returned
+        is the photometric one (without the corrections' L2 penalties)."""
         cfg, st = self.config, self.state
         it = st.step + 1
         view = self._next_view()
@@ -160,11 +216,20 @@ class Trainer:
         for v in p.values():
             v.requires_grad_(True)
             v.grad = None
+        pose_row = None if st.pose is None else st.pose.row(view)
+        exposure_row = None if st.exposure is None else st.exposure.row(view)
+        w2c = None if pose_row is None else corrected_world_to_camera(self._recorded_w2c[view], pose_row)
         sh = torch.cat([p["sh_dc"], p["sh_rest"]], dim=1)
         out = render_torch(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], sh, frame.camera,
-                           cfg.background, sh_degree=st.sh_active, near_m=cfg.near_m)
-        loss = train_loss(out.rgb, target)
-        loss.backward()
+                           cfg.background, sh_degree=st.sh_active, near_m=cfg.near_m, world_to_camera=w2c)
+        rgb = out.rgb if exposure_row is None else apply_exposure(out.rgb, exposure_row)
+        loss = train_loss(rgb, target)
+        objective = loss
+        if pose_row is not None:
+            objective = objective + cfg.pose_reg * (pose_row * pose_row).sum()
+        if exposure_row is not None:
+            objective = objective + cfg.exposure_reg * (exposure_row * exposure_row).sum()
+        objective.backward()
         with torch.no_grad():
             idx = torch.from_numpy(out.index)
             if out.means2d.grad is not None and len(idx):
@@ -176,7 +241,8 @@ class Trainer:
                                                    torch.from_numpy(out.radius_px.astype(np.float32)))
             st.last_seen[idx] = it
             self._adam(it)
-            mse = float(((out.rgb.clamp(0, 1) - target) ** 2).mean())
+            self._update_corrections(it, view, pose_row, exposure_row)
+            mse = float(((rgb.clamp(0, 1) - target) ** 2).mean())
         st.step = it
         if it % cfg.sh_increase_interval == 0 and st.sh_active < cfg.sh_degree:
             st.sh_active += 1
@@ -188,6 +254,55 @@ class Trainer:
 
     def _adam(self, it: int) -> None:
         adam_step(self.state, self.lr, it)
+
+    def _update_corrections(self, it: int, view: int, pose_row: torch.Tensor | None,
+                            exposure_row: torch.Tensor | None) -> None:
+        """Adam step of the view's pose and exposure rows, then the gauge rule (the rows' mean is zero)."""
+        st = self.state
+        for name, table, row in (("pose", st.pose, pose_row), ("exposure", st.exposure, exposure_row)):
+            if table is None or row is None or row.grad is None:
+                continue
+            table.adam_update(view, row.grad, self.lr(name, it))
+            table.remove_mean()
+
+    # ------------------------------------------------------------------ per-frame corrections
+    def training_cameras(self) -> list[Camera]:
+        """The training views' cameras as the model was fitted to them: the recorded ones, corrected by the
+        learned pose δ when ``pose_opt`` is on."""
+        if self.state.pose is None:
+            return [f.camera for f in self.frames]
+        deltas = self.state.pose.values.numpy()
+        return [Camera(f.camera.intrinsics, corrected_world_to_camera_np(f.camera.world_to_camera, d))
+                for f, d in zip(self.frames, deltas, strict=True)]
+
+    def refined_frames(self) -> list[DatasetFrame]:
+        """The training frames as the model sees them: refined cameras (:meth:`training_cameras`) and, with
+        ``exposure_opt``, images mapped back to the model's exposure ((image − b)/gain, clipped). The recorded
+        frames when both options are off (e.g. for the compaction's fine-tuning)."""
+        st = self.state
+        if st.pose is None and st.exposure is None:
+            return list(self.frames)
+        out = []
+        for i, (f, cam) in enumerate(zip(self.frames, self.training_cameras(), strict=True)):
+            image = f.image if st.exposure is None else undo_exposure(f.image, st.exposure.values[i].numpy())
+            out.append(DatasetFrame(cam, image, f.depth_m, f.pose, f.file_path))
+        return out
+
+    def corrections_summary(self) -> dict[str, float]:
+        """Size of the learned corrections: mean and max |τ| (cm) and |ω| (degrees) over the training frames, and
+        the range of the exposure gains and biases (only the keys of the options that are on)."""
+        st = self.state
+        out: dict[str, float] = {}
+        if st.pose is not None:
+            out.update(pose_summary(st.pose))
+        if st.exposure is not None:
+            out.update(exposure_summary(st.exposure))
+        return out
+
+    def corrections_per_frame(self) -> list[dict]:
+        """Per training frame: its file, the pose correction (δ: ω rad, τ m, world axes; |τ| cm, |ω| degrees)
+        and the exposure (gains r, g, b and biases r, g, b), for the options that are on."""
+        return per_frame_rows([f.file_path for f in self.frames], self.state.pose, self.state.exposure)
 
     # ------------------------------------------------------------------ density control
     def _apply(self, keep: torch.Tensor, new: dict[str, torch.Tensor] | None = None) -> None:
@@ -203,7 +318,7 @@ class Trainer:
 
     def prune_unused(self) -> int:
         """Remove Gaussians that change no training pixel (max blending weight < 1/255); returns count."""
-        weights = max_blend_weight(self.model(), [f.camera for f in self.frames], self.config.near_m)
+        weights = max_blend_weight(self.model(), self.training_cameras(), self.config.near_m)
         keep = torch.from_numpy(weights >= 1.0 / 255.0)
         removed = int((~keep).sum())
         self._apply(keep)
@@ -220,19 +335,49 @@ class Trainer:
                             near_m=self.config.near_m).rgb, f.image) for f in frames]
         return float(np.mean(vals))
 
+    def evaluate_pose_refined(self, steps: int = 20, lr_pose: float | None = None,
+                              frames: list[DatasetFrame] | None = None) -> tuple[float, list[np.ndarray]]:
+        """Test-time pose refinement: the mean PSNR (dB) of ``frames`` (default: the held-out frames) after
+        ``steps`` Adam steps (step size ``lr_pose``, default the config's) of a pose correction per frame with
+        the model frozen (:func:`~gsrmr_server.splatting.camera_opt.refine_pose`), and the corrections (δ = ω rad,
+        τ m, world axes). Not the fair held-out figure (:meth:`evaluate`, at the recorded poses): it tells how
+        much of the error is the frame's pose."""
+        frames = self.test_frames if frames is None else frames
+        if not frames:
+            return float("nan"), []
+        cfg, st = self.config, self.state
+        lr = cfg.lr_pose if lr_pose is None else lr_pose
+        model = self.model()
+        vals, deltas = [], []
+        for f in frames:
+            d = refine_pose(st.params, f, steps, lr, background=cfg.background, sh_degree=st.sh_active,
+                            near_m=cfg.near_m)
+            cam = Camera(f.camera.intrinsics, corrected_world_to_camera_np(f.camera.world_to_camera, d))
+            vals.append(psnr(render(model, cam, cfg.background, sh_degree=st.sh_active, near_m=cfg.near_m).rgb,
+                             f.image))
+            deltas.append(d)
+        return float(np.mean(vals)), deltas
+
     def save_checkpoint(self, path: str | Path) -> Path:
         """torch.save everything needed to resume: tensors and plain Python types only, so that
         :meth:`load_checkpoint` reads it with ``torch.load(weights_only=True)`` (no arbitrary unpickling)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         st = self.state
-        torch.save({"config": self.config.to_dict(), "params": st.params, "exp_avg": st.exp_avg,
-                    "exp_avg_sq": st.exp_avg_sq, "step": st.step, "grad_accum": st.grad_accum,
-                    "grad_count": st.grad_count, "max_radius": st.max_radius, "last_seen": st.last_seen,
-                    "sh_active": int(st.sh_active), "history": [tuple(_plain(v) for v in h) for h in st.history],
-                    "rng": self.rng.bit_generator.state,
-                    "torch_rng": self.torch_gen.get_state(), "extent": float(self.extent),
-                    "perm": [int(i) for i in self._perm]}, path)
+        ck = {"config": self.config.to_dict(), "params": st.params, "exp_avg": st.exp_avg,
+              "exp_avg_sq": st.exp_avg_sq, "step": st.step, "grad_accum": st.grad_accum,
+              "grad_count": st.grad_count, "max_radius": st.max_radius, "last_seen": st.last_seen,
+              "sh_active": int(st.sh_active), "history": [tuple(_plain(v) for v in h) for h in st.history],
+              "rng": self.rng.bit_generator.state,
+              "torch_rng": self.torch_gen.get_state(), "extent": float(self.extent),
+              "perm": [int(i) for i in self._perm]}
+        if st.pose is not None:
+            ck["pose_corrections"] = st.pose.to_dict()
+        if st.exposure is not None:
+            ck["exposure_corrections"] = st.exposure.to_dict()
+        if st.pose is not None or st.exposure is not None:
+            ck["correction_history"] = [dict(r) for r in st.correction_history]
+        torch.save(ck, path)
         return path
 
     def load_checkpoint(self, path: str | Path) -> None:
@@ -247,6 +392,14 @@ class Trainer:
         self.torch_gen.set_state(ck["torch_rng"])
         self.extent = ck["extent"]
         self._perm = [int(i) for i in ck["perm"]]
+        for key, name, on in (("pose_corrections", "pose", self.config.pose_opt),
+                              ("exposure_corrections", "exposure", self.config.exposure_opt)):
+            if on != (key in ck):
+                raise ValueError(f"checkpoint {path}: {name} corrections {'missing' if on else 'present'}, but this "
+                                 f"run has {name} optimisation {'on' if on else 'off'}: resume with the same options")
+            if on:
+                setattr(st, name, FrameCorrections.from_dict(ck[key]))
+        st.correction_history = [dict(r) for r in ck.get("correction_history", [])]
 
     def train(self, iterations: int | None = None, *, checkpoint: str | Path | None = None,
               eval_every: int = 0, progress: bool = True, time_budget_s: float | None = None,
@@ -271,8 +424,8 @@ class Trainer:
             if st.step % 10 == 0:
                 bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{view_psnr:.2f}", n=self.num_gaussians)
             if eval_every and st.step % eval_every == 0:
-                st.history.append(HistoryRow(st.step, time.perf_counter() - wall0, cpu_used, loss, self.evaluate(),
-                                             self.num_gaussians))
+                self._record(HistoryRow(st.step, time.perf_counter() - wall0, cpu_used, loss, self.evaluate(),
+                                        self.num_gaussians))
             if checkpoint and self.config.checkpoint_every and st.step % self.config.checkpoint_every == 0:
                 self.save_checkpoint(checkpoint)
             if time_budget_s is not None and time.perf_counter() - wall0 >= time_budget_s:
@@ -284,8 +437,15 @@ class Trainer:
             c0 = time.process_time()
             self.prune_unused()
             cpu_used += time.process_time() - c0
-        st.history.append(HistoryRow(st.step, time.perf_counter() - wall0, cpu_used, loss, self.evaluate(),
-                                     self.num_gaussians))
+        self._record(HistoryRow(st.step, time.perf_counter() - wall0, cpu_used, loss, self.evaluate(),
+                                self.num_gaussians))
         if checkpoint:
             self.save_checkpoint(checkpoint)
         return self.model()
+
+    def _record(self, row: HistoryRow) -> None:
+        """Append a history row (and, with pose or exposure optimisation, the corrections' summary beside it)."""
+        st = self.state
+        st.history.append(row)
+        if st.pose is not None or st.exposure is not None:
+            st.correction_history.append({"iteration": int(row.iteration), **self.corrections_summary()})

@@ -39,6 +39,24 @@ class TrainConfig:
     near_m: float = NEAR_M
     final_prune: bool = True
     torch_threads: int | None = 1  # torch.set_num_threads for the process (None = leave as is)
+    # Where the initial Gaussians come from (initialise.choose_init): "auto" = depth when a training frame has
+    # depth, else the point cloud the dataset names (ply_file_path), else random; or "depth", "points", "random".
+    init: str = "auto"
+    # Per-frame camera pose refinement (camera_opt): δ = (ω rad, τ m) in world axes per training frame, Adam step
+    # size per update of a frame's row (rad and m) decaying exponentially from lr_pose to lr_pose_final over
+    # `iterations` (as the position rate), L2 penalty pose_reg·(|ω|² + |τ|²) on the loss, the corrections' mean
+    # held at zero (the gauge: the model stays in map).
+    pose_opt: bool = False
+    lr_pose: float = 2e-3
+    lr_pose_final: float = 5e-4
+    pose_reg: float = 1e-2
+    # Per-frame exposure compensation (camera_opt): exp(g)·rgb + b per channel before the loss, training only;
+    # Adam step size lr_exposure → lr_exposure_final (log-gain and bias units), L2 penalty
+    # exposure_reg·(|g|² + |b|²), mean zero.
+    exposure_opt: bool = False
+    lr_exposure: float = 2e-2
+    lr_exposure_final: float = 5e-3
+    exposure_reg: float = 1e-3
 
     def to_dict(self) -> dict:
         """JSON-friendly dict."""
