@@ -9,9 +9,9 @@ PACKAGE = "gsrmr"
 
 
 def config_files() -> list[tuple[str, list[str]]]:
-    """config/**/*.yaml, installed under share/gsrmr/config keeping the sub-folders."""
+    """config/**/*.yaml and *.xml (the SROS2 policy), installed under share/gsrmr/config keeping the sub-folders."""
     groups: dict[str, list[str]] = {}
-    for path in sorted(glob("config/**/*.yaml", recursive=True)):
+    for path in sorted(glob("config/**/*.yaml", recursive=True) + glob("config/**/*.xml", recursive=True)):
         groups.setdefault(os.path.dirname(path), []).append(path)
     return [(os.path.join("share", PACKAGE, folder), files) for folder, files in groups.items()]
 

@@ -62,8 +62,9 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, *, 
     except RuntimeError:
         # SIGINT shuts the context down while the executor may be taking a message, or while the factory
         # still creates entities; rclpy then raises a RuntimeError instead of ExternalShutdownException.
-        # Only a real error (the context still up) re-raises.
-        if rclpy.ok() and POLICY.received == 0:
+        # Without a signal it is a real error — also one raised before any context exists (rcl refusing to
+        # initialise, e.g. SROS2 enforced without the node's enclave: it must exit non-zero and say why).
+        if POLICY.received == 0:
             raise
     finally:
         POLICY.enter(CLEANUP)

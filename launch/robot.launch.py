@@ -7,23 +7,55 @@ Parameters: config/link.yaml (shared uplink model), config/limo_base.yaml, confi
 loaded by the server), config/robot.yaml — every
 file keyed ``/**``, so the launch arguments below (passed after them) always win, also under
 ``namespace:=…``.
+
+SROS2 (docs/security.md): ``keystore:=KS`` runs both nodes enforced — ROS_SECURITY_KEYSTORE=KS,
+ROS_SECURITY_ENABLE=true, ROS_SECURITY_STRATEGY=Enforce, each node in its enclave ``/gsrmr/<node>``
+(``--enclave /gsrmr/robot``, ``/gsrmr/limo_base``; config/security/policy.xml names them).
 """
 
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
 
-def generate_launch_description() -> LaunchDescription:
-    config = os.path.join(get_package_share_directory("gsrmr"), "config")
+def _security(context, node_name: str) -> dict:
+    """The Node arguments that run ``node_name`` enforced in its enclave when ``keystore:=`` names a keystore
+    (as the SROS2 tutorials export them; Enforce: a node whose enclave is missing does not start), else none.
+    The same rule as server.launch.py and gsrmr_sim/launch_nodes.py (test/test_security.py holds them to
+    config/security/policy.xml)."""
+    keystore = LaunchConfiguration("keystore").perform(context)
+    if not keystore:
+        return {}
+    return {"ros_arguments": ["--enclave", "/gsrmr/" + node_name.removeprefix("gsrmr_")],
+            "additional_env": {"ROS_SECURITY_KEYSTORE": os.path.abspath(os.path.expanduser(keystore)),
+                               "ROS_SECURITY_ENABLE": "true", "ROS_SECURITY_STRATEGY": "Enforce"}}
+
+
+def _nodes(context, config: str) -> list[Node]:
     link, base, mount, robot = (os.path.join(config, name)
                                 for name in ("link.yaml", "limo_base.yaml", "camera_mount.yaml", "robot.yaml"))
     namespace = LaunchConfiguration("namespace")
+    return [
+        Node(package="gsrmr", executable="gsrmr-limo-base", name="gsrmr_limo_base", namespace=namespace,
+             output="screen",
+             parameters=[base, {"port": ParameterValue(LaunchConfiguration("port"), value_type=str)}],
+             **_security(context, "gsrmr_limo_base")),
+        Node(package="gsrmr", executable="gsrmr-robot", name="gsrmr_robot", namespace=namespace, output="screen",
+             parameters=[link, mount, robot, {"jpeg_quality": ParameterValue(LaunchConfiguration("jpeg_quality"),
+                                                                      value_type=int)}],
+             remappings=[("camera/image_raw", LaunchConfiguration("camera_image_topic")),
+                         ("camera/camera_info", LaunchConfiguration("camera_info_topic"))],
+             **_security(context, "gsrmr_robot")),
+    ]
+
+
+def generate_launch_description() -> LaunchDescription:
+    config = os.path.join(get_package_share_directory("gsrmr"), "config")
     return LaunchDescription([
         DeclareLaunchArgument("port", default_value="/dev/ttyTHS1", description="LIMO serial port"),
         DeclareLaunchArgument("camera_image_topic", default_value="/camera/color/image_raw",
@@ -32,12 +64,8 @@ def generate_launch_description() -> LaunchDescription:
                               description="sensor_msgs/CameraInfo of that camera"),
         DeclareLaunchArgument("jpeg_quality", default_value="80", description="JPEG quality of uploaded images"),
         DeclareLaunchArgument("namespace", default_value="", description="ROS namespace of both nodes"),
-        Node(package="gsrmr", executable="gsrmr-limo-base", name="gsrmr_limo_base", namespace=namespace,
-             output="screen",
-             parameters=[base, {"port": ParameterValue(LaunchConfiguration("port"), value_type=str)}]),
-        Node(package="gsrmr", executable="gsrmr-robot", name="gsrmr_robot", namespace=namespace, output="screen",
-             parameters=[link, mount, robot, {"jpeg_quality": ParameterValue(LaunchConfiguration("jpeg_quality"),
-                                                                      value_type=int)}],
-             remappings=[("camera/image_raw", LaunchConfiguration("camera_image_topic")),
-                         ("camera/camera_info", LaunchConfiguration("camera_info_topic"))]),
+        DeclareLaunchArgument("keystore", default_value="",
+                              description="SROS2 keystore: run enforced, each node in its enclave /gsrmr/<node> "
+                                          "('' = off)"),
+        OpaqueFunction(function=_nodes, kwargs={"config": config}),
     ])

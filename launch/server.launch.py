@@ -10,13 +10,17 @@ model), config/camera_mount.yaml, config/server.yaml, config/scheduler.yaml and 
 arguments below (passed after them) always win, also under ``namespace:=…``. ``loss_map_file:=`` seeds the
 scheduler's loss map (its ``loss_map_file`` parameter): the JSON ``gsrmr-survey MODEL DATASET --out FILE`` writes
 from the mapping round (docs/scheduling.md).
+
+SROS2 (docs/security.md): ``keystore:=KS`` runs both nodes enforced — ROS_SECURITY_KEYSTORE=KS,
+ROS_SECURITY_ENABLE=true, ROS_SECURITY_STRATEGY=Enforce, each node in its enclave ``/gsrmr/<node>``
+(``--enclave /gsrmr/server``, ``/gsrmr/scheduler``; config/security/policy.xml names them).
 """
 
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
@@ -26,12 +30,41 @@ def _arg(name: str, value_type: type) -> ParameterValue:
     return ParameterValue(LaunchConfiguration(name), value_type=value_type)
 
 
-def generate_launch_description() -> LaunchDescription:
-    config = os.path.join(get_package_share_directory("gsrmr"), "config")
+def _security(context, node_name: str) -> dict:
+    """The Node arguments that run ``node_name`` enforced in its enclave when ``keystore:=`` names a keystore
+    (as the SROS2 tutorials export them; Enforce: a node whose enclave is missing does not start), else none.
+    The same rule as robot.launch.py and gsrmr_sim/launch_nodes.py (test/test_security.py holds them to
+    config/security/policy.xml)."""
+    keystore = LaunchConfiguration("keystore").perform(context)
+    if not keystore:
+        return {}
+    return {"ros_arguments": ["--enclave", "/gsrmr/" + node_name.removeprefix("gsrmr_")],
+            "additional_env": {"ROS_SECURITY_KEYSTORE": os.path.abspath(os.path.expanduser(keystore)),
+                               "ROS_SECURITY_ENABLE": "true", "ROS_SECURITY_STRATEGY": "Enforce"}}
+
+
+def _nodes(context, config: str) -> list[Node]:
     link, mount, server, scheduler = (os.path.join(config, n) for n in ("link.yaml", "camera_mount.yaml", "server.yaml",
                                                                        "scheduler.yaml"))
-    sandbox_route = os.path.join(config, "routes", "sandbox.yaml")
     namespace = LaunchConfiguration("namespace")
+    return [
+        Node(package="gsrmr", executable="gsrmr-server", name="gsrmr_server", namespace=namespace, output="screen",
+             parameters=[link, mount, server, {"model_path": _arg("model_path", str),
+                                               "mr_content": _arg("mr_content", str),
+                                               "record_dir": _arg("record_dir", str)}],
+             **_security(context, "gsrmr_server")),
+        Node(package="gsrmr", executable="gsrmr-scheduler", name="gsrmr_scheduler", namespace=namespace,
+             output="screen",
+             parameters=[link, scheduler, LaunchConfiguration("route_file"),
+                         {"method": _arg("method", str), "loss_threshold": _arg("loss_threshold", float),
+                          "loss_map_file": _arg("loss_map_file", str)}],
+             **_security(context, "gsrmr_scheduler")),
+    ]
+
+
+def generate_launch_description() -> LaunchDescription:
+    config = os.path.join(get_package_share_directory("gsrmr"), "config")
+    sandbox_route = os.path.join(config, "routes", "sandbox.yaml")
     return LaunchDescription([
         DeclareLaunchArgument("model_path", description="Gaussian-splatting model (.ply, 3DGS layout)"),
         DeclareLaunchArgument("mr_content", default_value="sandbox",
@@ -44,13 +77,8 @@ def generate_launch_description() -> LaunchDescription:
                               description="the scheduler's seed loss map: gsrmr-survey's JSON ('' = none)"),
         DeclareLaunchArgument("record_dir", default_value="", description="slots.csv + MCAP ('' = off)"),
         DeclareLaunchArgument("namespace", default_value="", description="ROS namespace of both nodes"),
-        Node(package="gsrmr", executable="gsrmr-server", name="gsrmr_server", namespace=namespace, output="screen",
-             parameters=[link, mount, server, {"model_path": _arg("model_path", str),
-                                               "mr_content": _arg("mr_content", str),
-                                        "record_dir": _arg("record_dir", str)}]),
-        Node(package="gsrmr", executable="gsrmr-scheduler", name="gsrmr_scheduler", namespace=namespace,
-             output="screen",
-             parameters=[link, scheduler, LaunchConfiguration("route_file"),
-                         {"method": _arg("method", str), "loss_threshold": _arg("loss_threshold", float),
-                          "loss_map_file": _arg("loss_map_file", str)}]),
+        DeclareLaunchArgument("keystore", default_value="",
+                              description="SROS2 keystore: run enforced, each node in its enclave /gsrmr/<node> "
+                                          "('' = off)"),
+        OpaqueFunction(function=_nodes, kwargs={"config": config}),
     ])

@@ -5,6 +5,9 @@ ros2 launch gsrmr sim.launch.py model_path:=/path/to/sandbox.ply record_dir:=/tm
 The process list comes from gsrmr_sim.sim_stack, the same definition `make demo` runs, each process a
 launch Node by gsrmr_sim.launch_nodes. Every config file is keyed ``/**`` and the launch arguments come
 after them, so the arguments always win.
+
+SROS2 (docs/security.md): ``keystore:=KS`` runs every node enforced in its enclave ``/gsrmr/<node>``
+(gsrmr_sim.launch_nodes.security_arguments; config/security/policy.xml names them).
 """
 
 from launch import LaunchDescription
@@ -22,7 +25,10 @@ def _nodes(context):
                       link_path=arg("serial_link"),
                       # all processes start at once here: the robot sets off once the server composes
                       overrides={"gsrmr_route_follower": {"wait_for_server": True}})
-    return [launch_node(s, namespace=arg("namespace")) for s in specs]
+    # without a keystore the call stays launch_node(spec, namespace): test_launch_files stands in for it so
+    keystore = LaunchConfiguration("keystore", default="").perform(context)
+    security = {"keystore": keystore} if keystore else {}
+    return [launch_node(s, namespace=arg("namespace"), **security) for s in specs]
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -36,5 +42,8 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("serial_link", default_value="/tmp/gsrmr_limo",
                               description="pty symlink of the mock LIMO's serial port"),
         DeclareLaunchArgument("namespace", default_value="", description="ROS namespace of every node"),
+        DeclareLaunchArgument("keystore", default_value="",
+                              description="SROS2 keystore: run enforced, each node in its enclave /gsrmr/<node> "
+                                          "('' = off)"),
         OpaqueFunction(function=_nodes),
     ])

