@@ -182,7 +182,9 @@ def live_recipe(scene_name: str, *, frames: int | None = None, train_seconds: fl
             iterations = DEFAULT_TRAIN_ITERATIONS
     width = width or scene.model_train_width_px or LIVE_TRAIN_WIDTH_PX
     budget = budget or scene.model_budget or LIVE_BUDGET
-    config = TrainConfig(resolution=width, sh_degree=0, budget=budget)
+    # trained over the background the server composes the render over (ServerParameters.background_rgb = the
+    # scene's): over black, where the model is not opaque the live render showed grey the training never saw
+    config = TrainConfig(resolution=width, sh_degree=0, budget=budget, background=tuple(scene.background))
     if scene.model_init_points:
         config = replace(config, init_points=scene.model_init_points)
     if iterations is not None:  # the schedule scaled to the count
