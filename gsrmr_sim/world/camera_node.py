@@ -154,6 +154,7 @@ class MockCamera(Node):
         self.start_ns: int | None = None if self.clock_from_motion else self.get_clock().now().nanoseconds
         self.last_frame_stamp_ns: int | None = None
         self.frames = 0
+        self.pose_source = ""
         period = 1.0 / (rate or self.scene.camera.rate_hz)
         self.timer = self.create_timer(period, self._tick)
         self.get_logger().info(f"mock camera ready: scene {self.scene.name}, round {self.round_index}, "
@@ -225,9 +226,12 @@ class MockCamera(Node):
             self.pub_depth.publish(depth_msg(depth, stamp))
         self.last_frame_stamp_ns = stamp_ns
         self.frames += 1
+        source = "true pose, stamped with its stamp" if true_pose is not None else "scripted"
         if self.frames == 1:
-            source = "true pose, stamped with its stamp" if true_pose is not None else "scripted"
             self.get_logger().info(f"first frame published (pose source: {source})")
+        elif source != self.pose_source:
+            self.get_logger().info(f"frame {self.frames}: pose source now {source}")
+        self.pose_source = source
 
 
 @console_main
