@@ -29,7 +29,6 @@ from __future__ import annotations
 import argparse
 from collections.abc import Sequence
 import hashlib
-import json
 from pathlib import Path
 import signal
 import sys
@@ -44,7 +43,7 @@ from gsrmr_sim import netns
 from gsrmr_sim.fleet import fleet_demo
 from gsrmr_sim.link_events import LinkEvent, parse_link_events
 from gsrmr_sim.models import LIVE_MAX_PSNR_DROP_DB, BuiltModel, live_model, live_recipe
-from gsrmr_sim.report import copy_recording, link_summary, log, run_summary, write_report
+from gsrmr_sim.report import copy_recording, link_summary, log, run_summary, summary_json, write_report
 from gsrmr_sim.round_start import first_moving_slot as first_moving_slot  # re-exported: test_pipeline_units
 from gsrmr_sim.sim_stack import config_dir, robot_jpeg_quality, sim_stack
 from gsrmr_sim.stack_runner import RobotRun, limo_link_path, run_round
@@ -328,7 +327,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"{summary['ledger_bytes_sent']} B in the scored slots")
     print(f"  report: {out}")
     summary.pop("faults", None)
-    print(json.dumps(summary), flush=True)
+    print(summary_json(summary), flush=True)
     return 0
 
 

@@ -91,6 +91,22 @@ def copy_recording(out: Path, recording: Path, first_moving: int, scored: int) -
         write_slots_csv(out / "slots.csv", every)
 
 
+def _finite_or_none(value: object) -> object:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite_or_none(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_or_none(v) for v in value]
+    return value
+
+
+def summary_json(summary: dict, indent: int | None = None) -> str:
+    """The summary as strict JSON: a figure that is not known (NaN, e.g. the held-out PSNR of a ``--model`` file)
+    or not finite is ``null`` — Python's bare ``NaN`` is not JSON, and strict readers (jq, JavaScript) refuse it."""
+    return json.dumps(_finite_or_none(summary), indent=indent, allow_nan=False)
+
+
 def write_report(report_dir: Path, rows: list[dict], summary: dict) -> None:
     """x/p profile plot, MR image strip, CSV copy, summary.json."""
     report_dir.mkdir(parents=True, exist_ok=True)
@@ -126,4 +142,4 @@ def write_report(report_dir: Path, rows: list[dict], summary: dict) -> None:
                 tiles.append(img)
         if tiles:
             cv2.imwrite(str(report_dir / "mr_strip.png"), np.hstack(tiles))
-    (report_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+    (report_dir / "summary.json").write_text(summary_json(summary, indent=1))

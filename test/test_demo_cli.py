@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,7 @@ from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_sim import demo
 from gsrmr_sim.link_events import parse_link_events
 import gsrmr_sim.netns as netns
-from gsrmr_sim.report import link_summary, write_report
+from gsrmr_sim.report import link_summary, summary_json, write_report
 from gsrmr_sim.round_start import first_round_row
 from gsrmr_sim.stack_runner import RobotRun
 from gsrmr_sim.truth_frames import TruthFrameReader, TruthFrameWriter
@@ -76,10 +77,18 @@ def test_link_summary_counts_what_crossed_between_start_and_end():
 def test_report_folder_has_the_profile_plot_and_the_summary(tmp_path):
     rows = [{"slot": 500 + k, "x": k % 2, "power_w": 0.2 if k % 2 else None, "stamp_s": 50.0 + 0.1 * k,
              "source": "image" if k % 2 else "render"} for k in range(12)]
-    summary = {"slots": 12, "energy_ratio_vs_upload_all": 2.5}
+    summary = {"slots": 12, "energy_ratio_vs_upload_all": 2.5, "model_heldout_psnr_db": math.nan,
+               "rounds": [{"regret": math.inf, "images_sent": 3}]}
     write_report(tmp_path / "report", rows, summary)
     assert (tmp_path / "report" / "profile_x_p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert json.loads((tmp_path / "report" / "summary.json").read_text()) == summary
+
+    def strict(token: str) -> None:
+        raise AssertionError(f"{token} is not JSON")
+
+    # an unknown figure (an outside model's held-out PSNR) is null, never a bare NaN
+    assert json.loads((tmp_path / "report" / "summary.json").read_text(), parse_constant=strict) == \
+        {**summary, "model_heldout_psnr_db": None, "rounds": [{"regret": None, "images_sent": 3}]}
+    assert json.loads(summary_json(summary), parse_constant=strict)["model_heldout_psnr_db"] is None
     assert not (tmp_path / "report" / "mr_strip.png").exists()  # no run.mcap, no strip
 
 
