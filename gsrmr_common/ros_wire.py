@@ -37,6 +37,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from gsrmr_common import wire
 from gsrmr_common.camera import Intrinsics
 from gsrmr_common.image_bridge import imgmsg_to_numpy, numpy_to_imgmsg
+from gsrmr_common.image_decode import IMAGE_TYPE, ImageDecodeError, decode_colour
 from gsrmr_common.jpeg import ImageRejected, decode_jpeg
 from gsrmr_common.slot_clock import SlotClock
 
@@ -46,6 +47,9 @@ SCHEDULE_LABELS = ("meta", "x", "power_w")  # + "gain_threshold" when the schedu
 # the encodings image_bridge converts to rgb8; image_from_msg has always matched their names
 # case-insensitively (image_bridge, like ROS, is case-sensitive)
 _RGB_SOURCE_ENCODINGS = frozenset({"rgb8", "bgr8", "rgba8", "bgra8", "mono8", "mono16"})
+# YUV 4:2:2 as USB cameras send it (usb_cam, v4l2_camera): UYVY (``yuv422``, ``uyvy``), YUYV (``yuv422_yuy2``,
+# ``yuyv``); decoded by :mod:`gsrmr_common.image_decode`, as the dataset tool decodes a recorded frame
+_YUV422_ENCODINGS = frozenset({"yuv422", "uyvy", "yuv422_yuy2", "yuyv"})
 
 
 # QoS of the robot ↔ workstation topics (camera and odometry inputs use the sensor-data profile).
@@ -208,19 +212,37 @@ def image_from_msg(msg: Image, *, max_pixels: int = wire.MAX_IMAGE_PIXELS) -> np
     """``sensor_msgs/Image`` → H×W×3 ``uint8`` RGB (a new array), as ``cv_bridge`` converts to ``rgb8``.
 
     Supports ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8`` (alpha dropped), ``mono8`` (replicated to three
-    channels) and ``mono16`` (replicated and scaled to 8 bit, ``(v + 128) // 257``); the encoding name is
-    matched case-insensitively, ``step`` may include row padding, ``is_bigendian`` is honoured. Raises
+    channels), ``mono16`` (replicated and scaled to 8 bit, ``(v + 128) // 257``) and YUV 4:2:2 — ``yuv422``/``uyvy``
+    (UYVY) and ``yuv422_yuy2``/``yuyv`` (YUYV), even widths, BT.601 video range as OpenCV converts it (what USB
+    cameras send); the encoding name is matched case-insensitively, ``step`` may include row padding,
+    ``is_bigendian`` is honoured. Raises
     :class:`ImageRejected` on any other encoding (``16UC1``/``32FC1`` hold plain numbers, which
     ``cv_bridge`` refuses to turn into colour), an empty or oversized image, ``step`` <
     width·channels·bytes, or ``len(data) != step·height``.
     """
     enc = msg.encoding.lower()
+    if enc in _YUV422_ENCODINGS:
+        return _yuv422_to_rgb(msg, max_pixels)
     if enc in _RGB_SOURCE_ENCODINGS and enc != msg.encoding:
         msg = Image(header=msg.header, height=msg.height, width=msg.width, encoding=enc,
                     is_bigendian=msg.is_bigendian, step=msg.step, data=msg.data)
     try:
         return imgmsg_to_numpy(msg, "rgb8", max_pixels=max_pixels)
     except ValueError as exc:
+        raise ImageRejected(str(exc)) from exc
+
+
+def _yuv422_to_rgb(msg: Image, max_pixels: int) -> np.ndarray:
+    """A YUV 4:2:2 frame → RGB (OpenCV's BT.601 video-range conversion), as strict about its geometry as
+    :func:`gsrmr_common.image_bridge.imgmsg_to_numpy` is about the others."""
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    if height * width > max_pixels:
+        raise ImageRejected(f"image {width}×{height} exceeds {max_pixels} px")
+    if len(msg.data) != step * height:
+        raise ImageRejected(f"image data has {len(msg.data)} bytes, step·height = {step}·{height} = {step * height}")
+    try:
+        return decode_colour(msg, IMAGE_TYPE)
+    except ImageDecodeError as exc:
         raise ImageRejected(str(exc)) from exc
 
 

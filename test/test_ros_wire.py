@@ -236,9 +236,34 @@ def test_fuzz_image_from_msg_rejects_or_returns_rgb(height: int, width: int, ste
         out = rw.image_from_msg(msg)
     except ImageRejected:
         return
-    channels = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1}[encoding.lower()]
+    channels = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1, "yuv422": 2}[encoding.lower()]
     assert len(data) == step * height and step >= width * channels
     assert out.shape == (height, width, 3) and out.dtype == np.uint8
+    assert encoding != "yuv422" or width % 2 == 0
+
+
+def test_image_from_msg_takes_yuv422_as_usb_cameras_send_it() -> None:
+    """UYVY (``yuv422``, ``uyvy``) and YUYV (``yuv422_yuy2``, ``yuyv``) → RGB exactly as OpenCV converts them (the
+    live robot as the dataset tool: real USB cameras send these); odd widths, short data and oversize refused."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    uyvy = rng.integers(0, 256, (6, 8, 2), np.uint8)
+    yuyv = uyvy[:, :, ::-1].copy()
+    for encoding, packed, code in (("yuv422", uyvy, cv2.COLOR_YUV2RGB_UYVY), ("UYVY", uyvy, cv2.COLOR_YUV2RGB_UYVY),
+                                   ("yuv422_yuy2", yuyv, cv2.COLOR_YUV2RGB_YUYV),
+                                   ("yuyv", yuyv, cv2.COLOR_YUV2RGB_YUYV)):
+        padded = np.zeros((6, 20), np.uint8)  # 4 bytes of row padding
+        padded[:, :16] = packed.reshape(6, 16)
+        msg = Image(height=6, width=8, step=20, encoding=encoding, data=padded.tobytes())
+        out = rw.image_from_msg(msg)
+        assert out.shape == (6, 8, 3) and np.array_equal(out, cv2.cvtColor(packed, code)), encoding
+    with pytest.raises(ImageRejected, match="even width"):
+        rw.image_from_msg(Image(height=2, width=3, step=6, encoding="yuv422", data=bytes(12)))
+    with pytest.raises(ImageRejected, match="bytes"):
+        rw.image_from_msg(Image(height=2, width=4, step=8, encoding="yuv422", data=bytes(15)))
+    with pytest.raises(ImageRejected, match="exceeds"):
+        rw.image_from_msg(Image(height=2, width=4, step=8, encoding="yuv422", data=bytes(16)), max_pixels=7)
 
 
 # ------------------------------------------------------------------ ledger row, loss sample, wire names
