@@ -105,9 +105,13 @@ def _bit_flip_run(link: str, run_s: float, line_speed_mps: float, seed: int) -> 
         time.sleep(0.3)
         out["end_true"], out["snap"] = mock.true_pose(), drv.snapshot()
         out["elapsed_s"] = time.monotonic() - t_start
+        # Both streams run on until the with-block ends: the accepted frames first, then the sent ones (the mock
+        # records a frame before it writes it), so every frame accepted so far is in the sent list. (The other
+        # order, or the accepted list after the block, let frames the driver took after the sent list was copied
+        # count as "corrupt" — a clean-clone run under load 7 failed so.)
+        out["accepted"] = list(accepted)
         out["sent"] = [raw for _, raw, _ in mock.sent_frames]
         out["corrupted"] = mock.frames_corrupted
-    out["accepted"] = accepted
     return out
 
 

@@ -136,7 +136,10 @@ def test_robot_participant_killed_and_restarted_images_resume(two_hosts):
     _alive(stack)
 
 
-CAP_WITHIN_S = 12.0  # the longest the scheduler may take to cap the images after the cut
+# The longest the scheduler may take to cap the images after the cut: a bound against "never", not a latency figure
+# (the cap waits for ledger rows that queue behind images on the cut link; at load 7–9 a scheduler replanned 12 s
+# apart and a 12 s bound failed a clean-clone run)
+CAP_WITHIN_S = 40.0
 STEADY_S = 8.0  # the steady state measured after the cap
 _CAP_LINE = re.compile(r"\[(\d+\.\d+)\] \[gsrmr_scheduler\]: uplink image cap: image_cap=(?!none)")
 
@@ -170,7 +173,9 @@ def test_uplink_cut_below_one_image_per_slot_robot_holds_back_scheduler_plans_fe
     while time.monotonic() < deadline and _first_cap_s(stack.log("gsrmr_scheduler"), t_cut) is None:
         time.sleep(0.2)
     t_capped = _first_cap_s(stack.log("gsrmr_scheduler"), t_cut)
-    assert t_capped is not None, f"no cap within {CAP_WITHIN_S} s of the cut: {stack.log('gsrmr_scheduler')[-3000:]}"
+    rates_since_cut = [r["uplink_rate_bps"] for r in _rows(stack) if r["stamp_s"] >= t_cut]
+    assert t_capped is not None, (f"no cap within {CAP_WITHIN_S} s of the cut; the robot's uplink rates since then "
+                                  f"{rates_since_cut}: {stack.log('gsrmr_scheduler')[-3000:]}")
     steady_from = t_capped + 1.0
     time.sleep(max(0.0, steady_from - time.time()))
     drops_before = hosts.queue_stats()["dropped"]
