@@ -13,6 +13,8 @@ Tables printed:
    8-bit additive checksum cannot see.
 3. Command latency: ``LimoDriver.set_command`` → the mock has received the matching 0x111 (pty,
    50 Hz streaming; median/p95/max over ``--latency-samples``).
+5. Command timeout (table printed before 4): last ``set_command`` → the base stopped, the driver's 0.5 s timeout
+   (min/median/max over ``--stop-samples``; the tests only check "never before 0.5 s, and it stops").
 4. Acceptance run: ``--run-s`` seconds, ``bit_flip_rate=0.01`` (per frame), 2 m straight line at
    0.25 m/s then arcs until the end: corrupt frames accepted, odometry error at the end of the line
    and at the end of the run.
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 from pathlib import Path
 import random
 import statistics
@@ -125,6 +128,31 @@ def bench_latency(samples: int) -> None:
     print(f"| {statistics.median(lat_ms):.1f} | {lat_ms[int(0.95 * (len(lat_ms) - 1))]:.1f} | {lat_ms[-1]:.1f} |")
 
 
+def bench_stop_latency(samples: int) -> None:
+    """The driver's command timeout (0.5 s): last ``set_command`` → the mock's true velocity is zero (the mock's own
+    watchdog set to 10 s, so the stop is the driver's)."""
+    after_s = []
+    with tempfile.TemporaryDirectory() as d:
+        link = str(Path(d) / "limo")
+        with MockLimo(link, cmd_timeout_s=10.0) as mock, LimoDriver(link, cmd_timeout_s=0.5) as drv:
+            wait_until(lambda: drv.motion_mode() == p.MotionMode.DIFF, 3.0)
+            for _ in range(samples):
+                end = time.monotonic() + 0.5
+                while time.monotonic() < end:
+                    drv.set_command(0.4, 0.0)
+                    last = time.monotonic()
+                    time.sleep(0.02)
+                if wait_until(lambda: mock.true_velocity().vx_mps == 0.0, 5.0):
+                    after_s.append(time.monotonic() - last)
+                time.sleep(0.2)
+    ms = sorted(x * 1e3 for x in after_s)
+    print(f"\n## 5. Command timeout: last set_command → base stopped (driver cmd_timeout 0.5 s, {len(ms)} of "
+          f"{samples} stopped; load {' '.join(f'{v:.2f}' for v in os.getloadavg())})")
+    print("| min_ms | median_ms | max_ms |")
+    print("|---|---|---|")
+    print(f"| {ms[0]:.1f} | {statistics.median(ms):.1f} | {ms[-1]:.1f} |")
+
+
 def bench_acceptance(run_s: float, seed: int) -> None:
     accepted: list[bytes] = []
     with tempfile.TemporaryDirectory() as d:
@@ -156,6 +184,7 @@ def bench_acceptance(run_s: float, seed: int) -> None:
             x2, y2, _yaw2 = mock.true_pose()
             snap = drv.snapshot()
             elapsed = time.monotonic() - t_start
+            accepted = list(accepted)  # before the sent frames: every frame accepted so far was sent
             sent = [raw for _, raw, _ in mock.sent_frames]
             n_corrupted = mock.frames_corrupted
     bad, j = 0, 0
@@ -185,6 +214,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--run-s", type=float, default=60.0)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--latency-samples", type=int, default=100)
+    ap.add_argument("--stop-samples", type=int, default=20)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--skip-run", action="store_true", help="skip the pty runs (tables 3 and 4)")
     args = ap.parse_args(argv)
@@ -193,6 +223,7 @@ def main(argv: list[str] | None = None) -> int:
     bench_residual()
     if not args.skip_run:
         bench_latency(args.latency_samples)
+        bench_stop_latency(args.stop_samples)
         bench_acceptance(args.run_s, args.seed)
     return 0
 
