@@ -35,8 +35,8 @@ class ParameterSpec:
 
 def ros_parameter(default: Any, description: str, *, min_value: float | None = None,
                   max_value: float | None = None, read_only: bool = False, constraints: str = "") -> Any:
-    """A dataclass field that is a ROS parameter: ``default`` (bool, int, float, str or a tuple of floats,
-    which gives its ROS type) and its descriptor."""
+    """A dataclass field that is a ROS parameter: ``default`` (bool, int, float, str, a tuple of floats or a
+    non-empty tuple of strings, which gives its ROS type) and its descriptor."""
     return field(default=default, metadata={SPEC_KEY: ParameterSpec(description, min_value, max_value, read_only,
                                                                     constraints)})
 
@@ -54,6 +54,12 @@ def _type_problem(name: str, default: Any, value: Any) -> str | None:
         ok, want = number(value), "a number"
     elif isinstance(default, str):
         ok, want = isinstance(value, str), "a string"
+    elif isinstance(default, tuple) and _is_string_list(default):
+        want = "a list of strings"
+        try:
+            ok = not isinstance(value, (str, bytes)) and all(isinstance(v, str) for v in value)
+        except TypeError:
+            ok = False
     elif isinstance(default, tuple):
         want = "a list of numbers"
         try:
@@ -65,12 +71,17 @@ def _type_problem(name: str, default: Any, value: Any) -> str | None:
     return None if ok else f"{name} must be {want}, got {value!r}"
 
 
+def _is_string_list(default: tuple) -> bool:
+    """A tuple default of strings (a ROS string array; an empty tuple is a list of numbers)."""
+    return bool(default) and all(isinstance(v, str) for v in default)
+
+
 def _coerce(default: Any, value: Any) -> Any:
-    """``value`` as the type of ``default`` (a float field stores a float, a list a tuple of floats)."""
+    """``value`` as the type of ``default`` (a float field stores a float, a list a tuple of floats or strings)."""
     if isinstance(default, float):
         return float(value)
     if isinstance(default, tuple):
-        return tuple(float(v) for v in value)
+        return tuple(str(v) for v in value) if _is_string_list(default) else tuple(float(v) for v in value)
     return value
 
 

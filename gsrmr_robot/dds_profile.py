@@ -11,6 +11,12 @@ of uplink (the robot's key, ledger and image writers, each to the server and the
 :func:`use_uplink_profile` points ``FASTDDS_DEFAULT_PROFILES_FILE`` at this profile before rclpy starts, unless
 the user set a profile file of their own (then their file rules, and acknowledgements come as it says — the robot
 then still stops holding images back after ``uplink_ack_stale_s``). Other RMW implementations ignore it.
+
+The file configures the robot's DDS participant, so no other user may be able to replace it: it is written into a
+directory only this user can enter (:func:`private_dir`: ``$XDG_RUNTIME_DIR/gsrmr``, else ``<tmp>/gsrmr-<uid>``,
+each used only when it is a real directory of this user with mode 0700 — a directory someone else made under that
+name is not used —, else a fresh ``mkdtemp`` one), through a temporary file created exclusively (0600) and renamed
+over the profile.
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ from __future__ import annotations
 import hashlib
 import os
 from pathlib import Path
+import stat
 import tempfile
 
 HEARTBEAT_PERIOD_NS = 50_000_000
@@ -36,14 +43,47 @@ UPLINK_PROFILE_XML = f"""<?xml version="1.0" encoding="UTF-8"?>
 PROFILE_VARIABLES = ("FASTDDS_DEFAULT_PROFILES_FILE", "FASTRTPS_DEFAULT_PROFILES_FILE")
 
 
-def uplink_profile_path() -> Path:
-    """The profile as a file (written once per content into the temporary directory)."""
+def _private(path: Path) -> bool:
+    """``path`` is a directory (not a link) of this user that no one else may enter or write (mode & 0o077 == 0)."""
+    try:
+        st = os.lstat(path)
+    except OSError:
+        return False
+    return stat.S_ISDIR(st.st_mode) and st.st_uid == os.getuid() and not st.st_mode & 0o077
+
+
+def private_dir(environ: dict[str, str] | None = None) -> Path:
+    """A directory only this user can enter: ``$XDG_RUNTIME_DIR/gsrmr`` or ``<tmp>/gsrmr-<uid>`` (made 0700 if
+    missing, used only if it is this user's and private), else a fresh ``mkdtemp`` directory."""
+    env = os.environ if environ is None else environ
+    candidates = [Path(env["XDG_RUNTIME_DIR"]) / "gsrmr"] if env.get("XDG_RUNTIME_DIR") else []
+    candidates.append(Path(tempfile.gettempdir()) / f"gsrmr-{os.getuid()}")
+    for folder in candidates:
+        try:
+            folder.mkdir(mode=0o700)
+        except FileExistsError:
+            pass
+        except OSError:
+            continue
+        if _private(folder):
+            return folder
+    return Path(tempfile.mkdtemp(prefix="gsrmr-"))
+
+
+def uplink_profile_path(environ: dict[str, str] | None = None) -> Path:
+    """The profile as a file in :func:`private_dir`: written to an exclusively created temporary file (0600) and
+    renamed over ``gsrmr_robot_fastdds_<content hash>.xml``."""
     digest = hashlib.sha256(UPLINK_PROFILE_XML.encode()).hexdigest()[:12]
-    path = Path(tempfile.gettempdir()) / f"gsrmr_robot_fastdds_{digest}.xml"
-    if not path.exists():
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(UPLINK_PROFILE_XML)
+    folder = private_dir(environ)
+    path = folder / f"gsrmr_robot_fastdds_{digest}.xml"
+    fd, tmp = tempfile.mkstemp(prefix=".profile-", suffix=".tmp", dir=folder)  # O_EXCL, mode 0600
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(UPLINK_PROFILE_XML)
         os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
     return path
 
 
@@ -54,5 +94,5 @@ def use_uplink_profile(environ: dict[str, str] | None = None) -> str:
     for name in PROFILE_VARIABLES:
         if env.get(name):
             return env[name]
-    env["FASTDDS_DEFAULT_PROFILES_FILE"] = str(uplink_profile_path())
+    env["FASTDDS_DEFAULT_PROFILES_FILE"] = str(uplink_profile_path(env))
     return env["FASTDDS_DEFAULT_PROFILES_FILE"]

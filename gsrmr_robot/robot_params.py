@@ -2,7 +2,9 @@
 
 :class:`gsrmr_robot.robot_node.RobotNode` declares them, refuses a change :meth:`RobotParameters.change_problem`
 gives a reason for (on-set callback) and applies an accepted one by replacing its ``params`` (post-set callback).
-Live: :data:`LIVE_PARAMETERS`; the others are read-only.
+Live: :data:`LIVE_PARAMETERS`, and only when the node was started with ``live_parameter_changes`` (off by default:
+without SROS2 any participant can call a node's parameter service); the others are read-only — among them the
+writer lists of the known-writer checks (``docs/security.md``, "Application checks").
 """
 
 from __future__ import annotations
@@ -15,9 +17,13 @@ from gsrmr_common.camera import CameraMount
 from gsrmr_common.link_model import SLOT_S, LinkBudget
 from gsrmr_common.node_params import NodeParameters, ros_parameter
 from gsrmr_common.tf_tree import BASE_FRAME, CAMERA_OPTICAL_FRAME, ODOM_FRAME
+from gsrmr_common.writer_admission import writer_list_problem
 
 LIVE_PARAMETERS = frozenset({"jpeg_quality", "uplink_width_px", "default_upload_image", "max_frame_age_s",
                              "map_from_odom", "camera_frame_id", "hold_images_while_queued", "uplink_ack_stale_s"})
+#: The read-only lists of node names (relative: in the robot's namespace; ``*``: any) allowed to write an input
+#: topic, or — ``image_readers`` — whose acknowledgements the hold-back waits for.
+WRITER_LISTS = ("schedule_writers", "channel_writers", "camera_writers", "odom_writers", "image_readers")
 
 
 @dataclass(frozen=True)
@@ -45,15 +51,36 @@ class RobotParameters(NodeParameters):
                                               "back [s]", min_value=0.05, max_value=60.0)
     odom_frame_id: str = ros_parameter(ODOM_FRAME, "Odometry frame (child of map in TF)", read_only=True)
     base_frame_id: str = ros_parameter(BASE_FRAME, "Robot body frame (parent of the camera in TF)", read_only=True)
+    live_parameter_changes: bool = ros_parameter(
+        False, "Allow the live parameters to change while the node runs (any participant may call the parameter "
+        "service without SROS2; every change is logged)", read_only=True)
+    schedule_writers: tuple[str, ...] = ros_parameter(
+        ("gsrmr_scheduler",), "Nodes whose gsrmr/schedule is taken (relative names resolve in the robot's namespace; "
+        "* = any)", read_only=True)
+    channel_writers: tuple[str, ...] = ros_parameter(
+        ("*",), "Nodes whose radio/channel_gain is taken: the radio driver (* = any)", read_only=True)
+    camera_writers: tuple[str, ...] = ros_parameter(
+        ("*",), "Nodes whose camera/image_raw and camera/camera_info are taken: the camera driver (* = any)",
+        read_only=True)
+    odom_writers: tuple[str, ...] = ros_parameter(
+        ("*",), "Nodes whose odom is taken: the base driver (* = any)", read_only=True)
+    image_readers: tuple[str, ...] = ros_parameter(
+        ("gsrmr_server",), "Readers of uplink/image_raw/compressed whose acknowledgements hold images back; with "
+        "another reader matched the hold-back times images by the measured throughput instead", read_only=True)
+    max_tx_power_w: float = ros_parameter(
+        0.1, "The radio's maximum transmit power [W]: a schedule asking for more is refused", min_value=1e-6,
+        max_value=10.0, read_only=True)
     # Declared read-only by gsrmr_common.ros_node.declare_camera_mount / declare_link_budget (config/*.yaml).
     camera_mount: CameraMount = field(default_factory=CameraMount)
     link: LinkBudget = field(default_factory=LinkBudget)
 
     @classmethod
     def rule(cls, name: str, value: Any) -> str | None:
-        """``map_from_odom`` is 3 finite numbers; ``camera_frame_id`` is not empty."""
+        """``map_from_odom`` is 3 finite numbers; ``camera_frame_id`` is not empty; a writer list names nodes."""
         if name == "map_from_odom" and (len(value) != 3 or not all(math.isfinite(v) for v in value)):
             return "map_from_odom must be 3 finite numbers [a_m, b_m, theta_rad]"
         if name == "camera_frame_id" and not value:
             return "camera_frame_id must not be empty"
+        if name in WRITER_LISTS:
+            return writer_list_problem(name, value)
         return None

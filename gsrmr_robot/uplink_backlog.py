@@ -17,6 +17,12 @@ polls that every few milliseconds; :class:`UplinkBacklog` turns the publish and 
 A queued image that stays unacknowledged for ``stale_after_s`` no longer holds images back (its reader may
 be gone, or acknowledgements may not be configured to come promptly): the robot then sends again, at most one
 image per ``stale_after_s`` into a link that does not answer. Times are monotonic seconds.
+
+DDS acknowledges *all* matched readers at once (``wait_for_all_acked`` has no per-reader form in rclpy), so a
+reliable reader that never acknowledges — any participant can subscribe the image topic — would hold every image
+back. The node therefore trusts the acknowledgements only while every matched reader is a known one (its
+``image_readers``); with another reader matched (``acks_trusted`` false) an image counts as delivered after its
+bits at the last trusted throughput estimate (``rate_bps``), none held back without an estimate.
 """
 
 from __future__ import annotations
@@ -37,6 +43,8 @@ class UplinkBacklog:
     last_ack_delay_s: float = math.nan
     acked_images: int = 0
     held_back: int = 0  # images the schedule asked for and the robot did not send (queued)
+    acks_trusted: bool = True  # False while a reader that is not a known one is matched: acks then say nothing
+    model_deliveries: int = 0  # images taken as delivered by the throughput model (acks not trusted)
 
     def __post_init__(self) -> None:
         if not self.stale_after_s > 0:
@@ -69,8 +77,21 @@ class UplinkBacklog:
         return self.sent_s is not None
 
     def queued(self, now_s: float) -> bool:
-        """An unacknowledged image younger than ``stale_after_s`` is on its way: hold the next one back."""
-        return self.sent_s is not None and now_s - self.sent_s < self.stale_after_s
+        """An unacknowledged image younger than ``stale_after_s`` is on its way: hold the next one back. Without
+        trusted acknowledgements the image is on its way until its bits at ``rate_bps`` have passed (then it is
+        taken as delivered: no throughput sample), and nothing is held back without a throughput estimate."""
+        if self.sent_s is None:
+            return False
+        age = now_s - self.sent_s
+        if not self.acks_trusted:
+            expected = self.queued_bits / self.rate_bps if math.isfinite(self.rate_bps) and self.rate_bps > 0 \
+                else 0.0
+            if age >= min(expected, self.stale_after_s):
+                self.sent_s, self.queued_bits = None, 0
+                self.model_deliveries += 1
+                return False
+            return True
+        return age < self.stale_after_s
 
     def queued_for_s(self, now_s: float) -> float:
         """How long the oldest unacknowledged image has waited (0 when nothing is queued)."""

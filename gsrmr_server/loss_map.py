@@ -7,7 +7,12 @@ future poses from the same map: the cell's estimate if it has samples, else the 
 weighted mean of sampled cells of the same heading sector within ``radius_m``, else ``prior``.
 
 Each cell keeps an exponentially weighted mean (``forgetting`` = weight of the newest sample once a
-cell has more than 1/forgetting samples) so the map follows a world that changes during a round.
+cell has more than 1/forgetting samples) so the map follows a world that changes during a round. A sample
+enters it clipped to [mean / ``outlier_factor``, mean × ``outlier_factor``] (``outlier_factor`` = 20, the bound
+of :data:`gsrmr_server.loss_predictor.MAX_LOG_DEVIATION`; the mean floored at 10⁻³ for the upper bound): a sample of
+the metric's maximum counts as 20× its cell, not as 60×, while a lasting change is followed at once. Clean rounds
+do not reach the bound: a loss sample lay at most 13.0× from its cell's mean in the 2146 image slots of 20 recorded
+rounds (``bench/plausibility_replay.py --seed-map``; a bound of 4× would have clipped about one sample in eight).
 ``image_loss`` (optional) is the mean MR loss an *image* slot leaves — its JPEG — measured where the map
 was made (the mapping-round survey encodes each frame at the robot's quality). Pure Python/numpy; JSON
 save/load so a run can seed the next one.
@@ -39,6 +44,7 @@ class LossMap:
     prior: float = 0.05
     forgetting: float = 0.5
     cells: dict[tuple[int, int, int], _Cell] = field(default_factory=dict)
+    outlier_factor: float = 20.0  # a sample counts at most this factor away from its cell's mean
     image_loss: float | None = None  # mean MR loss an image slot leaves (its JPEG), where it was measured
 
     def __post_init__(self) -> None:
@@ -52,6 +58,8 @@ class LossMap:
             raise ValueError("loss map: prior must be a finite loss >= 0")
         if self.image_loss is not None and not (self.image_loss >= 0 and math.isfinite(self.image_loss)):
             raise ValueError("loss map: image_loss must be a finite loss >= 0")
+        if not (self.outlier_factor >= 1 and math.isfinite(self.outlier_factor)):
+            raise ValueError("loss map: outlier_factor must be a finite factor >= 1")
 
     def key(self, a_m: float, b_m: float, theta_rad: float) -> tuple[int, int, int]:
         """Grid cell of a pose."""
@@ -70,7 +78,8 @@ class LossMap:
             return
         cell.count += 1
         w = max(1.0 / cell.count, self.forgetting)
-        cell.mean += w * (loss - cell.mean)
+        bounded = min(max(loss, cell.mean / self.outlier_factor), max(cell.mean, 1e-3) * self.outlier_factor)
+        cell.mean += w * (bounded - cell.mean)
 
     def predict(self, a_m: float, b_m: float, theta_rad: float) -> float:
         """Predicted MR loss at a pose."""

@@ -23,6 +23,12 @@ and models it as a level μ plus a burst that decays back to it (an Ornstein–U
   (1 until 3 samples; clipped to [1/4, 4]). Instead of a fixed ``loss_margin`` the margin is what the run's
   own errors say it must be: P(measured ≤ margin × predicted) ≈ the quantile on recent slots.
 
+Robust to one writer's outliers: a measured ℓ enters clipped to μ ± ``ln 20`` (:data:`MAX_LOG_DEVIATION`: the
+bursts seen are 3–5×, so they pass whole) around the level so far — one sample of 0 or of the metric's maximum
+moves the burst prediction by at most 20× for τ slots and the level (a median) hardly at all —, while a lasting
+change moves the median within half the history. The scheduler takes one sample per slot, after its plausibility
+checks (:class:`gsrmr_common.plausibility.LossSampleCheck`).
+
 Loss values are the MR loss ``(1 − λ)·L1 + λ·(1 − SSIM)`` (λ = 0.2) of images in [0, 1]; poses are
 (a_m, b_m, theta_rad) in ``map``; slots are absolute slot indices.
 """
@@ -37,6 +43,8 @@ import numpy as np
 from gsrmr_server.loss_map import LossMap
 
 _FLOOR = 1e-4  # a seed value below this carries no ratio information
+#: A measured log-ratio counts at most this far from the level μ (ln 20: bursts of 3–5× pass unclipped).
+MAX_LOG_DEVIATION = math.log(20.0)
 
 
 class LossPredictor:
@@ -62,7 +70,8 @@ class LossPredictor:
             return
         seed = self.seed_map.predict(*pose)
         if seed > _FLOOR:
-            ell = math.log(max(loss, _FLOOR) / seed)
+            mu = self.level
+            ell = min(max(math.log(max(loss, _FLOOR) / seed), mu - MAX_LOG_DEVIATION), mu + MAX_LOG_DEVIATION)
             samples = self._samples
             if samples and slot < samples[-1][0]:  # late sample: keep the deque ordered by slot
                 items = sorted([*samples, (slot, ell)])

@@ -4,7 +4,9 @@ no ROS; no renderer either: see the import contracts in pyproject.toml).
 :class:`gsrmr_server.scheduler_node.SchedulerNode` declares them, refuses a change
 :meth:`SchedulerParameters.change_problem` gives a reason for (on-set callback) and applies an accepted one by
 replacing its ``params`` (post-set callback): a change of a :data:`PLANNING_PARAMETERS` one updates the planner
-and requests a replan, ``replan_period_s`` re-times the replan timer; the others are read-only.
+and requests a replan, ``replan_period_s`` re-times the replan timer — live changes only when the node was started
+with ``live_parameter_changes`` (off by default: without SROS2 any participant can call the parameter service); the
+others are read-only, among them the writer lists of the known-writer checks (``docs/security.md``).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from typing import Any
 
 from gsrmr_common.link_model import IMAGE_BITS, KEY_BITS, SLOT_S, LinkBudget
 from gsrmr_common.node_params import NodeParameters, ros_parameter
+from gsrmr_common.writer_admission import writer_list_problem
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.planner import PlannerConfig
 from gsrmr_server.scheduling import METHODS
@@ -27,6 +30,8 @@ PLANNING_PARAMETERS = frozenset({"loss_threshold", "horizon", "method", "solver_
 # In-slot rule: images in the better half of the fades until the L_t model holds this many measurements (the seed
 # map may be far off a round with changes)
 STARTUP_EXPLORE_SAMPLES = 3
+#: The read-only lists of node names allowed to write the scheduler's input topics (relative: in its namespace).
+WRITER_LISTS = ("robot_writers", "loss_writers", "channel_writers")
 
 
 def route_waypoints(flat: list[float] | tuple[float, ...]) -> list[tuple[float, float]]:
@@ -109,18 +114,37 @@ class SchedulerParameters(NodeParameters):
     round_slots: int = ros_parameter(
         0, "Slots of an operating round (T) whose mean loss must meet L_th: the round starts when the reported "
         "pose first moves (0 = no rounds: a running mean)", min_value=0, max_value=10_000_000, read_only=True)
+    live_parameter_changes: bool = ros_parameter(
+        False, "Allow the live parameters to change while the node runs (any participant may call the parameter "
+        "service without SROS2; every change is logged)", read_only=True)
+    robot_writers: tuple[str, ...] = ros_parameter(
+        ("gsrmr_robot",), "Nodes whose uplink/pose_key and gsrmr/ledger are taken: the robot (and a relay between; "
+        "relative names resolve in the scheduler's namespace)", read_only=True)
+    loss_writers: tuple[str, ...] = ros_parameter(("gsrmr_server",), "Nodes whose gsrmr/loss_sample is taken",
+                                                  read_only=True)
+    channel_writers: tuple[str, ...] = ros_parameter(
+        ("gsrmr_sim_channel",), "Nodes whose radio/channel_gain the oracle reads (oracle_channel only)", read_only=True)
+    max_speed_mps: float = ros_parameter(
+        1.5, "The robot's top speed: pose keys moving faster are refused (a relocalisation is accepted after 5 keys "
+        "that agree with each other); the LIMO clamps each axis to 1 m/s, √2 diagonally in mecanum mode [m/s]",
+        min_value=0.01, max_value=20.0, read_only=True)
+    replan_min_interval_s: float = ros_parameter(
+        1.0, "gsrmr/replan answers at most one call per this interval; calls in between are refused and counted [s]",
+        min_value=0.0, max_value=3600.0, read_only=True)
     # Declared read-only by gsrmr_common.ros_node.declare_link_budget (config/link.yaml).
     link: LinkBudget = field(default_factory=LinkBudget)
 
     @classmethod
     def rule(cls, name: str, value: Any) -> str | None:
-        """``method`` from its list, ``solver_options`` a JSON object, the route usable."""
+        """``method`` from its list, ``solver_options`` a JSON object, the route usable, a writer list names nodes."""
         if name == "method" and value not in METHODS:
             return f"method {value!r} is not one of {list(METHODS)}"
         if name == "solver_options":
             return solver_options_problem(value)
         if name == "route_waypoints_m":
             return route_problem(value)
+        if name in WRITER_LISTS:
+            return writer_list_problem(name, value)
         return None
 
     @property

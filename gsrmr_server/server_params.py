@@ -2,7 +2,9 @@
 
 :class:`gsrmr_server.server_node.ServerNode` declares them, refuses a change :meth:`ServerParameters.change_problem`
 gives a reason for (on-set callback) and applies an accepted one by replacing its ``params`` (post-set callback).
-Live: ``process_delay_s``, ``measure_loss``, ``jpeg_quality``, ``max_backlog_slots``; the others are read-only.
+Live: ``process_delay_s``, ``measure_loss``, ``jpeg_quality``, ``max_backlog_slots`` — only when the node was started
+with ``live_parameter_changes`` (off by default: without SROS2 any participant can call the parameter service); the
+others are read-only, among them the writer lists of the known-writer checks (``docs/security.md``).
 The server declares no simulation-only parameter: scoring its MR images against the simulator's truth is the
 simulation's scorer node (``gsrmr-sim-scorer``, :mod:`gsrmr_sim.world.scorer_node`).
 """
@@ -15,8 +17,11 @@ from typing import Any
 from gsrmr_common.camera import CameraMount
 from gsrmr_common.link_model import SLOT_S, LinkBudget
 from gsrmr_common.node_params import NodeParameters, ros_parameter
+from gsrmr_common.writer_admission import writer_list_problem
 
 LIVE_PARAMETERS = frozenset({"process_delay_s", "measure_loss", "jpeg_quality", "max_backlog_slots"})
+#: The read-only lists of node names allowed to write the server's input topics (relative: in its namespace; * any).
+WRITER_LISTS = ("robot_writers", "schedule_writers", "cmd_vel_writers")
 
 
 @dataclass(frozen=True)
@@ -43,17 +48,34 @@ class ServerParameters(NodeParameters):
     render_threads: int = ros_parameter(
         1, "CPU threads of the GS render (0 = every core); one thread is steadier when other processes share "
         "the cores", min_value=0, max_value=256, read_only=True)
+    live_parameter_changes: bool = ros_parameter(
+        False, "Allow the live parameters to change while the node runs (any participant may call the parameter "
+        "service without SROS2; every change is logged)", read_only=True)
+    robot_writers: tuple[str, ...] = ros_parameter(
+        ("gsrmr_robot",), "Nodes whose uplink/pose_key, uplink/image_raw/compressed, uplink/camera_info and "
+        "gsrmr/ledger are taken: the robot (and a relay between; relative names resolve in the server's namespace)",
+        read_only=True)
+    schedule_writers: tuple[str, ...] = ros_parameter(("gsrmr_scheduler",), "Nodes whose gsrmr/schedule is taken",
+                                                      read_only=True)
+    cmd_vel_writers: tuple[str, ...] = ros_parameter(("*",), "Nodes whose cmd_vel is recorded (* = any)",
+                                                     read_only=True)
+    max_speed_mps: float = ros_parameter(
+        1.5, "The robot's top speed: pose keys moving faster are refused (a relocalisation is accepted after 5 keys "
+        "that agree with each other); the LIMO clamps each axis to 1 m/s, √2 diagonally in mecanum mode [m/s]",
+        min_value=0.01, max_value=20.0, read_only=True)
     # Declared read-only by gsrmr_common.ros_node.declare_camera_mount / declare_link_budget (config/*.yaml).
     camera_mount: CameraMount = field(default_factory=CameraMount)
     link: LinkBudget = field(default_factory=LinkBudget)
 
     @classmethod
     def rule(cls, name: str, value: Any) -> str | None:
-        """``model_path`` is required; ``background_rgb`` is 3 numbers in [0, 1]."""
+        """``model_path`` is required; ``background_rgb`` is 3 numbers in [0, 1]; a writer list names nodes."""
         if name == "model_path" and not value:
             return "model_path is required (a 3DGS .ply)"
         if name == "background_rgb" and (len(value) != 3 or not all(0.0 <= c <= 1.0 for c in value)):
             return "background_rgb must be 3 numbers in [0, 1]"
+        if name in WRITER_LISTS:
+            return writer_list_problem(name, value)
         return None
 
     @property

@@ -39,6 +39,12 @@ SERVER_DECLARED = {
     "jpeg_quality": (85, (1, 100), False),
     "max_backlog_slots": (30, (1, 100_000), False),
     "render_threads": (1, (0, 256), True),
+    # issue 28: the known-writer lists, live changes off unless started so, the top speed of the pose-key check
+    "live_parameter_changes": (False, None, True),
+    "robot_writers": (["gsrmr_robot"], None, True),
+    "schedule_writers": (["gsrmr_scheduler"], None, True),
+    "cmd_vel_writers": (["*"], None, True),
+    "max_speed_mps": (1.5, (0.01, 20.0), True),
 }
 SCHEDULER_DECLARED = {
     "slot_s": (0.1, (0.01, 10.0), True),
@@ -65,6 +71,13 @@ SCHEDULER_DECLARED = {
     "burst_time_constant_slots": (25.0, (0.1, 1e6), True),
     "probe_gap_slots": (16, (0, 100_000), True),
     "round_slots": (0, (0, 10_000_000), True),
+    # issue 28: the known-writer lists, live changes off unless started so, pose-key check, replan rate limit
+    "live_parameter_changes": (False, None, True),
+    "robot_writers": (["gsrmr_robot"], None, True),
+    "loss_writers": (["gsrmr_server"], None, True),
+    "channel_writers": (["gsrmr_sim_channel"], None, True),
+    "max_speed_mps": (1.5, (0.01, 20.0), True),
+    "replan_min_interval_s": (1.0, (0.0, 3600.0), True),
 }
 
 

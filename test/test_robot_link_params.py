@@ -44,6 +44,20 @@ ROBOT_DECLARED = {
                            "An image unacknowledged this long no longer holds the next one back [s]"),
     "odom_frame_id": ("odom", None, True, "Odometry frame (child of map in TF)"),
     "base_frame_id": ("base_link", None, True, "Robot body frame (parent of the camera in TF)"),
+    # issue 28: live changes off unless started so; the known-writer lists; the radio's maximum power
+    "live_parameter_changes": (False, None, True, "Allow the live parameters to change while the node runs (any "
+                               "participant may call the parameter service without SROS2; every change is logged)"),
+    "schedule_writers": (["gsrmr_scheduler"], None, True, "Nodes whose gsrmr/schedule is taken (relative names "
+                         "resolve in the robot's namespace; * = any)"),
+    "channel_writers": (["*"], None, True, "Nodes whose radio/channel_gain is taken: the radio driver (* = any)"),
+    "camera_writers": (["*"], None, True, "Nodes whose camera/image_raw and camera/camera_info are taken: the camera "
+                       "driver (* = any)"),
+    "odom_writers": (["*"], None, True, "Nodes whose odom is taken: the base driver (* = any)"),
+    "image_readers": (["gsrmr_server"], None, True, "Readers of uplink/image_raw/compressed whose acknowledgements "
+                      "hold images back; with another reader matched the hold-back times images by the measured "
+                      "throughput instead"),
+    "max_tx_power_w": (0.1, (1e-06, 10.0), True, "The radio's maximum transmit power [W]: a schedule asking for more "
+                       "is refused"),
 }
 # config/link.yaml's parameters, as ros_node.declare_link_budget declared them inline before.
 LINK_DECLARED = {
@@ -137,7 +151,8 @@ def ros_context(monkeypatch):
 
 def test_robot_node_declares_the_table_and_checks_changes(ros_context):
     node = RobotNode(context=ros_context, parameter_overrides=[Parameter("jpeg_quality", value=60),
-                                                              Parameter("rician_k", value=2.0)])
+                                                              Parameter("rician_k", value=2.0),
+                                                              Parameter("live_parameter_changes", value=True)])
     try:
         assert node.params.jpeg_quality == node.core.jpeg_quality == 60 and node.link.rician_k == 2.0
         for table in (ROBOT_DECLARED, LINK_DECLARED):

@@ -2,7 +2,9 @@
 
 :class:`gsrmr_robot.limo.node.LimoBaseNode` declares them, refuses a change :meth:`LimoBaseParameters.change_problem`
 gives a reason for (on-set callback) and applies an accepted one (post-set callback: the driver's motion mode and
-heading source). Live: ``motion_mode``, ``heading_source``; the others are read-only.
+heading source). Live: ``motion_mode``, ``heading_source`` — only when the node was started with
+``live_parameter_changes`` (off by default); the others are read-only. ``cmd_vel_writers`` names the nodes the base
+drives from (``docs/security.md``, "cmd_vel").
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from gsrmr_common.node_params import NodeParameters, ros_parameter
+from gsrmr_common.writer_admission import writer_list_problem
 from gsrmr_robot.limo import kinematics as kin
 from gsrmr_robot.limo.odometry import HEADING_SOURCES
 
@@ -43,14 +46,22 @@ class LimoBaseParameters(NodeParameters):
                                              min_value=0.0, max_value=20.0, read_only=True)
     diagnostics_period_s: float = ros_parameter(1.0, "Diagnostics publishing period [s]", min_value=0.1,
                                                 max_value=10.0, read_only=True)
+    cmd_vel_writers: tuple[str, ...] = ros_parameter(
+        ("*",), "Nodes the base takes cmd_vel from (relative names resolve in its namespace): the planner, or a "
+        "twist_mux in front of several; * = any node, as a plain ROS base", read_only=True)
+    live_parameter_changes: bool = ros_parameter(
+        False, "Allow motion_mode and heading_source to change while the node runs (any participant may call the "
+        "parameter service without SROS2; every change is logged)", read_only=True)
 
     @classmethod
     def rule(cls, name: str, value: Any) -> str | None:
-        """``motion_mode`` and ``heading_source`` are one of their names."""
+        """``motion_mode`` and ``heading_source`` are one of their names; ``cmd_vel_writers`` names nodes."""
         if name == "motion_mode" and value not in MOTION_MODES:
             return f"motion_mode must be one of {MOTION_MODES}"
         if name == "heading_source" and value not in HEADING_SOURCES:
             return f"heading_source must be one of {HEADING_SOURCES}"
+        if name == "cmd_vel_writers":
+            return writer_list_problem(name, value)
         return None
 
     @property
