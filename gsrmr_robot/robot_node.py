@@ -54,11 +54,22 @@ What to send in a slot and its energy are decided by the pure slot core
 ``base_frame_id``; ``camera_mount.*`` and the link budget of ``config/link.yaml``) are checked in the on-set
 callback and applied in the post-set callback (a new ``uplink_width_px`` rebuilds the maps and re-publishes
 ``uplink/camera_info``).
+
+Nothing on the graph is taken blindly (``docs/security.md``, "Application checks"): every input is admitted by its
+writer (:class:`gsrmr_common.ros_admission.GatedInputs`: ``schedule_writers``, ``channel_writers``,
+``camera_writers``, ``odom_writers``, each writer endpoint rate-limited); a schedule must be plausible
+(:func:`gsrmr_common.plausibility.schedule_problem`: bounded T, slots near now, powers ≤ ``max_tx_power_w``) and
+its ``seq`` must grow per writer endpoint; a channel gain must lie in the Rician band around the path-loss
+prediction at the robot's position (:class:`gsrmr_common.channel_band.GainBand`; refused: the slot counts as
+unmeasured). The hold-back trusts DDS acknowledgements only while every matched reader of the image topic is one
+of ``image_readers``. Refusals are counted and named on ``/diagnostics``; live parameters change only with
+``live_parameter_changes``.
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
+import json
 import math
 import threading
 
@@ -75,7 +86,10 @@ from std_msgs.msg import Float64MultiArray
 
 from gsrmr_common.calibration import CalibrationError, CameraCalibration
 from gsrmr_common.camera import Intrinsics
+from gsrmr_common.channel_band import GainBand
 from gsrmr_common.interrupts import console_main
+from gsrmr_common.plausibility import Implausible, ScheduleLimits, schedule_problem
+from gsrmr_common.ros_admission import GatedInputs, ParameterAudit
 from gsrmr_common.ros_node import (
     aligned_timer,
     declare_camera_mount,
@@ -102,6 +116,7 @@ from gsrmr_common.slot_clock import SlotClock, SlotTicker
 from gsrmr_common.tf_ros import load_tf2_ros, transform_to_msg
 from gsrmr_common.tf_tree import MAP_FRAME, base_from_camera_optical_transform, map_from_odom_transform
 from gsrmr_common.wire import CHANNEL_TOPIC, ScheduleMsg
+from gsrmr_common.writer_admission import SeqTracker, join_node_name, resolve_writer_name
 from gsrmr_robot.camera_rectify import UplinkCamera
 from gsrmr_robot.dds_profile import use_uplink_profile
 from gsrmr_robot.robot_params import RobotParameters
@@ -124,6 +139,7 @@ class RobotNode(Node):
         p = self.params
         self.slot_s, self.odom_frame, self.base_frame = p.slot_s, p.odom_frame_id, p.base_frame_id
         self.mount, self.link = p.camera_mount, p.link
+        self.audit = ParameterAudit(self, p.live_parameter_changes)
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._after_set)
         self.clock = SlotClock(self.slot_s)
@@ -151,13 +167,28 @@ class RobotNode(Node):
         self._calibration_problem: str | None = None  # why the last camera_info was refused (None: it was usable)
         self.camera_info_changes = 0  # uplink/camera_info publications
         self.frames_uncalibrated = 0  # slots whose fresh frame was withheld: no calibration, or another size
-        self.create_subscription(Image, "camera/image_raw", self._on_image, qos_profile_sensor_data)
-        self.create_subscription(CameraInfo, "camera/camera_info", self._on_camera_info, qos_profile_sensor_data)
-        self.create_subscription(Odometry, "odom", self._on_odom, 20)
-        self.create_subscription(Float64MultiArray, "gsrmr/schedule", self._on_schedule, SCHEDULE_QOS)
-        self.create_subscription(Float64MultiArray, CHANNEL_TOPIC, self._on_channel, 10)
+        # what is taken from the graph, and from whom (docs/security.md, "Application checks")
+        self.implausible = Implausible()
+        self._schedule_seq = SeqTracker()
+        self._schedule_limits = ScheduleLimits(max_power_w=p.max_tx_power_w)
+        self.gain_band = GainBand(self.link.rician_k, self.link.pathloss_exponent)
+        self.inputs = GatedInputs(self)
+        for kind, topic, callback, qos, writers, rate_hz, burst in (
+                (Image, "camera/image_raw", self._on_image, qos_profile_sensor_data, p.camera_writers, 100.0, 100.0),
+                (CameraInfo, "camera/camera_info", self._on_camera_info, qos_profile_sensor_data, p.camera_writers,
+                 100.0, 100.0),
+                (Odometry, "odom", self._on_odom, 20, p.odom_writers, 200.0, 200.0),
+                (Float64MultiArray, CHANNEL_TOPIC, self._on_channel, 10, p.channel_writers, 40.0, 40.0)):
+            self.inputs.subscribe(kind, topic, lambda msg, _gid, cb=callback: cb(msg), qos, writers, rate_hz=rate_hz,
+                                  burst=burst)
+        # the schedule's seq must grow per writer endpoint: its callback takes the GID
+        self.inputs.subscribe(Float64MultiArray, "gsrmr/schedule", self._on_schedule, SCHEDULE_QOS,
+                              p.schedule_writers, rate_hz=20.0, burst=20.0)
         self._gains: dict[int, tuple[float, int]] = {}  # slot → the radio's (measured gain, round slot)
         self.channel_unmeasured = 0
+        self._image_readers = frozenset(resolve_writer_name(r, self.get_namespace()) for r in p.image_readers)
+        self.stranger_readers: tuple[str, ...] = ()  # readers of the image topic that are not image_readers
+        self.create_timer(1.0, self._check_image_readers)
         # 5 ms tick: slot starts are detected with ≤ 5 ms jitter without a drifting periodic timer.
         # run each slot 1 ms after it starts (polling the clock at 200 Hz cost ~5 % of a core)
         aligned_timer(self, self.clock, 0.001, self._tick)
@@ -197,13 +228,19 @@ class RobotNode(Node):
             problem = RobotParameters.change_problem(p.name, p.value)
             if problem:
                 return SetParametersResult(successful=False, reason=problem)
+        refusal = self.audit.refusal(p.name for p in params)
+        if refusal:
+            return SetParametersResult(successful=False, reason=refusal)
         return SetParametersResult(successful=True)
 
     def _after_set(self, params) -> None:
         """Post-set: apply the accepted values; re-send the static TF when a frame or map_from_odom changed, rebuild
         the rectifier for a new ``uplink_width_px`` and re-publish ``uplink/camera_info`` when it changed."""
+        old = self.params
         with self._lock:
             self.params = self.params.with_values({p.name: p.value for p in params})
+            self.audit.record({p.name: (getattr(old, p.name, None), getattr(self.params, p.name, p.value))
+                               for p in params})
             self.core.jpeg_quality = self.params.jpeg_quality
             self.core.default_upload_image = self.params.default_upload_image
             self.backlog.stale_after_s = self.params.uplink_ack_stale_s
@@ -272,19 +309,42 @@ class RobotNode(Node):
             self.get_logger().warning(f"channel sample refused: {err}", throttle_duration_sec=5.0)
             return
         with self._lock:
+            pose = self._poses.latest
+            if pose is not None:  # the Rician band around the path-loss prediction where the robot is
+                distance = self.link.distance_m(pose[:2])
+                reason = self.gain_band.problem(sample.gain, self.link.mean_gain(pose[:2]), distance)
+                if reason:
+                    self.implausible[reason] += 1
+                    self.get_logger().warning(f"channel sample refused ({reason}): gain {sample.gain:.3g} for slot "
+                                              f"{sample.slot}", throttle_duration_sec=5.0)
+                    return
             self._gains[sample.slot] = (sample.gain, sample.round_slot)
             if len(self._gains) > 64:
                 for old in sorted(self._gains)[:-32]:
                     del self._gains[old]
 
-    def _on_schedule(self, msg: Float64MultiArray) -> None:
+    def _on_schedule(self, msg: Float64MultiArray, gid: bytes = b"") -> None:
+        """A schedule from an admitted writer: refused (counted) when malformed, of another τ, implausible (T, slots,
+        powers) or not newer than the last one of the same writer endpoint (seq)."""
         try:
             sched = schedule_from_msg(msg)
         except ValueError as err:
-            self.get_logger().error(f"schedule refused: {err}")
+            self.implausible["schedule_malformed"] += 1
+            self.get_logger().error(f"schedule refused: {err}", throttle_duration_sec=5.0)
             return
         if abs(sched.slot_s - self.slot_s) > 1e-9:
-            self.get_logger().error(f"schedule refused: slot_s {sched.slot_s} != {self.slot_s}")
+            self.implausible["schedule_slot_s"] += 1
+            self.get_logger().error(f"schedule refused: slot_s {sched.slot_s} != {self.slot_s}",
+                                    throttle_duration_sec=5.0)
+            return
+        reason = schedule_problem(sched, self.clock.slot_at(self.get_clock().now().nanoseconds),
+                                  self._schedule_limits)
+        if reason is None and not self._schedule_seq.accept(gid, sched.seq):
+            reason = "schedule_seq"
+        if reason:
+            self.implausible[reason] += 1
+            self.get_logger().warning(f"schedule seq {sched.seq} refused ({reason}) from "
+                                      f"{self.inputs.writer_of('gsrmr/schedule', gid)}", throttle_duration_sec=5.0)
             return
         with self._lock:
             self._schedule = sched
@@ -349,12 +409,28 @@ class RobotNode(Node):
 
     def _poll_acks(self) -> None:
         """Every image published so far acknowledged by every matched reader: book the delay, stop polling."""
-        if not self.backlog.waiting:
+        if not self.backlog.waiting or not self.backlog.acks_trusted:  # untrusted: the throughput model times it
             self._ack_timer.cancel()
             return
         if self._pub_img.wait_for_all_acked(Duration(seconds=0)):
             self.backlog.acked(self.get_clock().now().nanoseconds / 1e9)
             self._ack_timer.cancel()
+
+    def _check_image_readers(self) -> None:
+        """Trust the image writer's acknowledgements only while every matched reader is one of ``image_readers``."""
+        readers = {join_node_name(i.node_namespace, i.node_name)
+                   for i in self.get_subscriptions_info_by_topic(self._pub_img.topic_name)}
+        strangers = tuple(sorted(readers - self._image_readers))
+        if strangers != self.stranger_readers:
+            self.get_logger().warning(
+                f"image readers not in image_readers: {', '.join(strangers)} — their acknowledgements are not waited "
+                "for: the hold-back times images by the measured throughput" if strangers else
+                "every image reader is a known one again: the hold-back follows the acknowledgements")
+        self.stranger_readers = strangers
+        with self._lock:
+            self.backlog.acks_trusted = not strangers
+        if not strangers and self.backlog.waiting and self._ack_timer.is_canceled():
+            self._ack_timer.reset()
 
     def _publish_diagnostics(self) -> None:
         totals = self.ledger.totals()
@@ -366,14 +442,30 @@ class RobotNode(Node):
                  "uplink_rate_bps_estimate": round(self.backlog.rate_bps, 1),
                  "image_ack_delay_ms": round(1e3 * self.backlog.last_ack_delay_s, 2),
                  "image_queued_for_ms": round(1e3 * self.backlog.queued_for_s(
-                     self.get_clock().now().nanoseconds / 1e9), 1)}
+                     self.get_clock().now().nanoseconds / 1e9), 1),
+                 "image_readers_unknown": ",".join(self.stranger_readers) or "none",
+                 "images_delivered_by_model": self.backlog.model_deliveries,
+                 "implausible": json.dumps(self.implausible.values_for_diagnostics()),
+                 **{k: json.dumps(v) if isinstance(v, dict) else v
+                    for k, v in {**self.inputs.gate.diagnostic_values(), **self.audit.diagnostic_values()}.items()}}
         self._pub_diag.publish(diagnostics_msg(
             self, name=f"{self.get_name()}: uplink energy ledger", hardware_id="gsrmr_robot",
             values={**totals, **extra}, problems=self._problems()))
 
+    def on_shutdown(self) -> None:
+        """Log what the input checks refused (called by run_node on exit)."""
+        self.inputs.log_summary(self.implausible, image_readers_unknown=list(self.stranger_readers),
+                                images_delivered_by_model=self.backlog.model_deliveries)
+
     def _problems(self) -> list[str]:
         """What ``/diagnostics`` warns about: missing frames or pose, no calibration yet, a refused calibration."""
         out = ["missing frames or pose"] if self.no_frame or self.no_pose else []
+        out += self.inputs.gate.problems()
+        if self.implausible:
+            out.append("implausible inputs refused: " + ", ".join(f"{k} {n}" for k, n in
+                                                                  sorted(self.implausible.items())))
+        if self.stranger_readers:
+            out.append(f"unknown readers of the uplink images: {', '.join(self.stranger_readers)}")
         if not self.camera.is_calibrated:
             out.append("waiting for camera_info")
         if self._calibration_problem is not None:

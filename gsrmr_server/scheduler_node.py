@@ -11,16 +11,27 @@ reliable, transient local, depth 1), ``/diagnostics``.
 The last schedule and the loss map are saved in ``state_dir`` (when set) after every plan, and loaded
 at start, so a restarted scheduler resumes from its last schedule.
 
+Nothing on the graph is taken blindly (``docs/security.md``, "Application checks"): every input is admitted by its
+writer (:class:`gsrmr_common.ros_admission.GatedInputs`: ``robot_writers`` for the pose keys and the ledger,
+``loss_writers``, ``channel_writers`` for the oracle; each writer endpoint rate-limited); pose keys must move within
+``max_speed_mps``; a ledger row must name a slot near now, once; a loss sample must lie in the metric's range, come
+once per slot, for a slot the ledger says carried an image, at the pose the robot reported for it
+(:class:`gsrmr_common.plausibility.LossSampleCheck`; a sample that comes before its slot's ledger row waits for it,
+20 slots at most). ``gsrmr/replan`` answers at most once per ``replan_min_interval_s``. Refusals are counted by
+writer and by reason on ``/diagnostics``.
+
 Parameters: :class:`~gsrmr_server.scheduler_params.SchedulerParameters` (``self.params``); a change is
 checked in the on-set callback (read-only ones, values out of range or of the wrong type, an unknown
 ``method``, ``solver_options`` that are no JSON object, values the planner's configuration refuses — e.g.
 ``image_bits`` ≤ ``pose_bits`` — are refused with the reason) and applied in the post-set callback: a planning
 parameter builds a new :class:`~gsrmr_server.planner.PlannerConfig` (:meth:`SchedulerParameters.planner_config`)
-that the planner takes with :meth:`~gsrmr_server.planner.OnlinePlanner.reconfigure`.
+that the planner takes with :meth:`~gsrmr_server.planner.OnlinePlanner.reconfigure` — live changes only with
+``live_parameter_changes``.
 """
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import replace
 import json
 import math
@@ -38,6 +49,8 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from gsrmr_common.interrupts import console_main
+from gsrmr_common.plausibility import Implausible, LossSampleCheck, PoseTrack, ledger_problem
+from gsrmr_common.ros_admission import GatedInputs, ParameterAudit
 from gsrmr_common.ros_node import declare_link_budget, declare_parameters, diagnostics_msg, run_node
 from gsrmr_common.ros_wire import (
     SCHEDULE_QOS,
@@ -49,11 +62,16 @@ from gsrmr_common.ros_wire import (
     schedule_to_msg,
 )
 from gsrmr_common.slot_clock import SlotClock
-from gsrmr_common.wire import CHANNEL_TOPIC, ScheduleMsg
+from gsrmr_common.wire import CHANNEL_TOPIC, LossSample, ScheduleMsg
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.planner import OnlinePlanner, PlanResult, RoutePredictor
 from gsrmr_server.scheduler_params import PLANNING_PARAMETERS, SchedulerParameters
 from gsrmr_server.scheduling import Problem, exact, solve
+
+#: Slots whose ledger rows and pose keys the loss-sample check remembers.
+_MEMORY_SLOTS = 2000
+#: A loss sample waits this many slots for its slot's ledger row, then it is refused (``loss_unledgered``).
+_LOSS_WAIT_SLOTS = 20
 
 
 class SchedulerNode(Node):
@@ -93,11 +111,26 @@ class SchedulerNode(Node):
         self._logged_cap: float | None = None  # the uplink image cap last logged
         self._pub = self.create_publisher(Float64MultiArray, "gsrmr/schedule", SCHEDULE_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(Vector3Stamped, "uplink/pose_key", self._on_key, UPLINK_QOS)
-        self.create_subscription(Float64MultiArray, "gsrmr/loss_sample", self._on_loss, UPLINK_QOS)
+        # what is taken from the graph, and from whom (docs/security.md, "Application checks")
+        self.audit = ParameterAudit(self, p.live_parameter_changes)
+        self.implausible = Implausible()
+        self.poses = PoseTrack(p.max_speed_mps, p.slot_s)
+        self.loss_check = LossSampleCheck(_MEMORY_SLOTS)
+        self._ledger_x: OrderedDict[int, int] = OrderedDict()  # slot → what the robot's ledger row says it did
+        self._key_poses: OrderedDict[int, tuple[float, float, float]] = OrderedDict()  # slot → its accepted key
+        self._waiting_loss: dict[int, LossSample] = {}  # samples whose slot's ledger row has not come yet
+        self._service_replan_s: float | None = None  # monotonic time of the last replan the service ran
+        self.replans_refused = 0
+        self.inputs = GatedInputs(self)
+        self.inputs.subscribe(Vector3Stamped, "uplink/pose_key", self._on_key, UPLINK_QOS, p.robot_writers,
+                              rate_hz=40.0, burst=60.0)
+        self.inputs.subscribe(Float64MultiArray, "gsrmr/loss_sample", self._on_loss, UPLINK_QOS, p.loss_writers,
+                              rate_hz=40.0, burst=60.0)
         if p.oracle_channel:
-            self.create_subscription(Float64MultiArray, CHANNEL_TOPIC, self._on_channel, 10)
-        self.create_subscription(Float64MultiArray, "gsrmr/ledger", self._on_ledger, UPLINK_QOS)
+            self.inputs.subscribe(Float64MultiArray, CHANNEL_TOPIC, self._on_channel, 10, p.channel_writers,
+                                  rate_hz=40.0, burst=40.0)
+        self.inputs.subscribe(Float64MultiArray, "gsrmr/ledger", self._on_ledger, UPLINK_QOS, p.robot_writers,
+                              rate_hz=40.0, burst=60.0)
         self.create_service(Trigger, "gsrmr/replan", self._on_replan)
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._apply)
@@ -106,16 +139,29 @@ class SchedulerNode(Node):
         self.create_timer(0.02, self._tick)
         self.create_timer(1.0, self._publish_diagnostics)
 
-    def _on_ledger(self, msg: Float64MultiArray) -> None:
-        """What the robot did in a slot (an in-slot decision may differ from the plan's x)."""
+    def _on_ledger(self, msg: Float64MultiArray, _gid: bytes = b"") -> None:
+        """What the robot did in a slot (an in-slot decision may differ from the plan's x): one plausible row per slot;
+        a loss sample that waited for it is judged now."""
         try:
             row = ledger_from_msg(msg)
         except ValueError:
+            self.implausible["ledger_malformed"] += 1
             return
+        now_slot = self.clock.slot_at(self.get_clock().now().nanoseconds)
+        reason = ledger_problem(row, now_slot)
+        if reason is None and row.slot in self._ledger_x:
+            reason = "ledger_repeat"  # one row per slot: the first stands
+        if reason:
+            self.implausible[reason] += 1
+            return
+        _remember(self._ledger_x, row.slot, row.x)
         with self._lock:
             self.planner.record_action(row.slot, row.x, row.held_back, row.uplink_rate_bps, row.upload_all_bits)
+        waiting = self._waiting_loss.pop(row.slot, None)
+        if waiting is not None:
+            self._take_loss(waiting)
 
-    def _on_channel(self, msg: Float64MultiArray) -> None:
+    def _on_channel(self, msg: Float64MultiArray, _gid: bytes = b"") -> None:
         """Oracle only: learn when the simulator's round (and its fading index) started."""
         try:
             sample = channel_sample_from_msg(msg)
@@ -129,12 +175,15 @@ class SchedulerNode(Node):
     # ---------------------------------------------------------------- parameters
     def _validate(self, params: list[Parameter]) -> SetParametersResult:
         """On-set: refuse a change :class:`SchedulerParameters` gives a reason for (type, range, read-only,
-        method, solver_options) or the planner's configuration refuses (image_bits ≤ pose_bits); change
-        nothing."""
+        method, solver_options) or the planner's configuration refuses (image_bits ≤ pose_bits), or any change while
+        live changes are off; change nothing."""
         for param in params:
             reason = SchedulerParameters.change_problem(param.name, param.value)
             if reason:
                 return SetParametersResult(successful=False, reason=reason)
+        refusal = self.audit.refusal(param.name for param in params)
+        if refusal:
+            return SetParametersResult(successful=False, reason=refusal)
         if any(param.name in PLANNING_PARAMETERS for param in params):
             try:
                 self.params.with_values({param.name: param.value for param in params}).planner_config(
@@ -149,7 +198,10 @@ class SchedulerNode(Node):
         names = {param.name for param in params}
         changed = [param.name for param in params if param.name in PLANNING_PARAMETERS]
         with self._lock:
+            old = self.params
             self.params = self.params.with_values({param.name: param.value for param in params})
+            self.audit.record({param.name: (getattr(old, param.name, None), getattr(self.params, param.name, None))
+                               for param in params})
             if changed:
                 self.planner.reconfigure(self.params.planner_config(self.planner.loss_map))
         if "replan_period_s" in names:
@@ -158,26 +210,54 @@ class SchedulerNode(Node):
             self._request("parameters: " + ", ".join(changed))
 
     # ---------------------------------------------------------------- inputs
-    def _on_key(self, msg: Vector3Stamped) -> None:
+    def _on_key(self, msg: Vector3Stamped, _gid: bytes = b"") -> None:
         try:
             key = pose_key_from_msg(msg, self.clock)
         except ValueError as err:  # wrong frame or invalid stamp: ignore, never raise out of the callback
+            self.implausible["key_malformed"] += 1
             self.get_logger().warning(f"pose key refused: {err}", throttle_duration_sec=5.0)
             return
-        if key.is_valid():
-            self._pose = (key.a_m, key.b_m, key.theta_rad)
-            with self._lock:
-                self.planner.record_pose(key.slot, *self._pose)
+        if not key.is_valid():
+            return
+        if not self.poses.offer(key.slot, key.a_m, key.b_m):
+            self.implausible["pose_jump"] += 1  # faster than the robot drives: no relocalisation (yet)
+            return
+        self._pose = (key.a_m, key.b_m, key.theta_rad)
+        _remember(self._key_poses, key.slot, self._pose)
+        with self._lock:
+            self.planner.record_pose(key.slot, *self._pose)
 
-    def _on_loss(self, msg: Float64MultiArray) -> None:
+    def _on_loss(self, msg: Float64MultiArray, _gid: bytes = b"") -> None:
         try:
-            s = loss_sample_from_msg(msg)
+            sample = loss_sample_from_msg(msg)
         except ValueError:
+            self.implausible["loss_malformed"] += 1
+            return
+        self._take_loss(sample)
+
+    def _take_loss(self, sample: LossSample) -> None:
+        """Observe a plausible loss sample; one whose slot has no ledger row yet waits for it (a few at most)."""
+        x = self._ledger_x.get(sample.slot)
+        reason = self.loss_check.problem(sample, None if x is None else bool(x), self._key_poses.get(sample.slot))
+        if reason == "loss_unledgered" and len(self._waiting_loss) < 16 and sample.slot not in self._waiting_loss:
+            self._waiting_loss[sample.slot] = sample
+            return
+        if reason:
+            self.implausible[reason] += 1
             return
         with self._lock:
-            drift = self.planner.observe(s.slot, s.a_m, s.b_m, s.theta_rad, s.loss)
+            drift = self.planner.observe(sample.slot, sample.a_m, sample.b_m, sample.theta_rad, sample.loss)
         if drift:
             self._request("drift")
+
+    def _expire_waiting_loss(self) -> None:
+        """Loss samples whose ledger row did not come within ``_LOSS_WAIT_SLOTS`` are refused."""
+        if not self._waiting_loss:
+            return
+        now_slot = self.clock.slot_at(self.get_clock().now().nanoseconds)
+        for slot in [k for k in self._waiting_loss if k < now_slot - _LOSS_WAIT_SLOTS]:
+            del self._waiting_loss[slot]
+            self.implausible["loss_unledgered"] += 1
 
     def _request(self, reason: str) -> None:
         with self._lock:
@@ -185,6 +265,7 @@ class SchedulerNode(Node):
                 self._replan_reason = reason
 
     def _tick(self) -> None:
+        self._expire_waiting_loss()
         reason = self._replan_reason
         if reason is not None:
             self.replan(reason)
@@ -241,6 +322,16 @@ class SchedulerNode(Node):
                 f"changed_slots={changed}")
 
     def _on_replan(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        now = time.monotonic()
+        interval = self.params.replan_min_interval_s
+        if self._service_replan_s is not None and now - self._service_replan_s < interval:
+            self.replans_refused += 1
+            response.success = False
+            response.message = (f"rate-limited: one replan per {interval:g} s on this service (the last "
+                                f"{now - self._service_replan_s:.2f} s ago); the schedule is replanned every "
+                                f"{self.params.replan_period_s:g} s anyway")
+            return response
+        self._service_replan_s = now
         previous = self.last
         result, changed = self.replan("service")
         what = f"{changed} slot(s) switched image/key against the previous schedule"
@@ -280,6 +371,11 @@ class SchedulerNode(Node):
             self._pub.publish(schedule_to_msg(sched))
             self.get_logger().info(f"resumed schedule seq {sched.seq} from {state_dir}")
 
+    def on_shutdown(self) -> None:
+        """Log what the input checks refused and the replans the service refused (called by run_node on exit)."""
+        self.inputs.log_summary(self.implausible, replans_refused=self.replans_refused,
+                                relocalisations=self.poses.relocalisations)
+
     def _publish_diagnostics(self) -> None:
         r = self.last
         p = self.planner
@@ -302,9 +398,27 @@ class SchedulerNode(Node):
             values.update({"method": r.method, "horizon": len(r.schedule.x), "images": r.images,
                            "energy_j": r.energy_j, "feasible": r.feasible, "solve_time_s": round(r.solve_time_s, 5),
                            "seq": r.schedule.seq})
+        values.update({k: json.dumps(v) if isinstance(v, dict) else v for k, v in {
+            **self.inputs.gate.diagnostic_values(), "implausible": self.implausible.values_for_diagnostics(),
+            "relocalisations": self.poses.relocalisations, "replans_refused": self.replans_refused,
+            **self.audit.diagnostic_values()}.items()})
+        problems = [] if r is None or r.feasible else ["plan infeasible"]
+        problems += self.inputs.gate.problems()
+        if self.implausible:
+            problems.append("implausible inputs refused: " + ", ".join(
+                f"{k} {n}" for k, n in sorted(self.implausible.items())))
+        if self.replans_refused:
+            problems.append(f"gsrmr/replan calls refused (rate limit): {self.replans_refused}")
         self._pub_diag.publish(diagnostics_msg(
             self, name=f"{self.get_name()}: schedule", hardware_id="gsrmr_server", values=values,
-            problems=[] if r is None or r.feasible else ["plan infeasible"]))
+            problems=problems))
+
+
+def _remember(book: OrderedDict, slot: int, value: object) -> None:
+    """``book[slot] = value``, the oldest slots forgotten past ``_MEMORY_SLOTS``."""
+    book[slot] = value
+    while len(book) > _MEMORY_SLOTS:
+        book.popitem(last=False)
 
 
 def _ratio(value: float | None) -> str:

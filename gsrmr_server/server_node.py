@@ -15,7 +15,15 @@ Publishes: ``mr/image`` (rgb8, frame ``camera_optical_frame``, stamp = slot star
 to rebuild the slot's v and d), ``mr/image/compressed`` (JPEG), ``gsrmr/loss_sample`` (the GS loss L_t of an
 image slot) and ``/diagnostics`` (:class:`~gsrmr_server.server_stats.ServerStats`, written to
 ``server_summary.json`` on shutdown). Records ``slots.csv`` and MCAP into ``record_dir`` when set. Parameters:
-:class:`~gsrmr_server.server_params.ServerParameters` (checked on set, applied after set).
+:class:`~gsrmr_server.server_params.ServerParameters` (checked on set, applied after set; live ones only with
+``live_parameter_changes``).
+
+Nothing on the graph is taken blindly (``docs/security.md``, "Application checks"): every input is admitted by its
+writer (:class:`gsrmr_common.ros_admission.GatedInputs`: ``robot_writers`` for the uplink, the ledger and the
+camera_info, ``schedule_writers``, ``cmd_vel_writers``; each writer endpoint rate-limited); pose keys must move
+within ``max_speed_mps`` (:class:`gsrmr_common.plausibility.PoseTrack`), a ledger row must name a slot near now and
+come once per slot, a schedule must be plausible and newer (``seq``) than the last of its writer endpoint. Refused
+messages are counted by writer and by reason on ``/diagnostics`` and in ``server_summary.json``.
 """
 
 from __future__ import annotations
@@ -35,6 +43,8 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray
 
 from gsrmr_common.interrupts import console_main
+from gsrmr_common.plausibility import Implausible, PoseTrack, ScheduleLimits, ledger_problem, schedule_problem
+from gsrmr_common.ros_admission import GatedInputs, ParameterAudit
 from gsrmr_common.ros_node import (
     declare_camera_mount,
     declare_link_budget,
@@ -60,6 +70,7 @@ from gsrmr_common.ros_wire import (
 from gsrmr_common.slot_clock import ComposeCursor, SlotClock
 from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
 from gsrmr_common.wire import MAX_COMPRESSED_BYTES, MR_SLOT_INFO_TOPIC, UplinkFault
+from gsrmr_common.writer_admission import SeqTracker
 from gsrmr_server.ledger_book import LedgerBook
 from gsrmr_server.recording import TOPIC_CAMERA_INFO, RunRecorder
 from gsrmr_server.render_intrinsics import RenderIntrinsics
@@ -68,6 +79,9 @@ from gsrmr_server.server_stats import ServerStats, diagnostic_report
 from gsrmr_server.slot_core import WARM_UP_INTRINSICS, build_server_core, count_composition_faults
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.uplink import UplinkAssembler
+
+# what a plausible schedule looks like to the server (the transmit power is the robot's radio's to bound)
+_SCHEDULE_LIMITS = ScheduleLimits(max_power_w=float("inf"))
 
 
 class ServerNode(Node):
@@ -88,6 +102,11 @@ class ServerNode(Node):
         self.ledgers = LedgerBook()
         self.stats = ServerStats(p.slot_s)
         self._lock = threading.Lock()
+        self.audit = ParameterAudit(self, p.live_parameter_changes)
+        self.implausible = Implausible()
+        self.poses = PoseTrack(p.max_speed_mps, p.slot_s)
+        self._schedule_seq = SeqTracker()
+        self._composed_slot: int | None = None  # the newest slot composed
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._after_set)
         self._cmd: tuple[float, float] | None = None
@@ -101,14 +120,19 @@ class ServerNode(Node):
         self._pub_mr_c = self.create_publisher(CompressedImage, "mr/image/compressed", 5)
         self._pub_loss = self.create_publisher(Float64MultiArray, "gsrmr/loss_sample", UPLINK_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        for topic, kind, callback, qos in (
-                ("uplink/pose_key", Vector3Stamped, self._on_key, UPLINK_QOS),
-                ("uplink/image_raw/compressed", CompressedImage, self._on_image, IMAGE_UPLOAD_QOS),
-                ("gsrmr/schedule", Float64MultiArray, self._on_schedule, SCHEDULE_QOS),
-                ("gsrmr/ledger", Float64MultiArray, self._on_ledger, UPLINK_QOS),
-                ("cmd_vel", Twist, self._on_cmd, 10),
-                ("uplink/camera_info", CameraInfo, self.use_camera_info, CAMERA_INFO_QOS)):
-            self.create_subscription(kind, topic, callback, qos, callback_group=io)
+        # what is taken from the graph, and from whom (docs/security.md, "Application checks"); per writer endpoint:
+        # a few messages per slot sustained (relay duplicates and reorderings come in bursts)
+        self.inputs = GatedInputs(self, callback_group=io)
+        for topic, kind, callback, qos, writers, rate_hz, burst in (
+                ("uplink/pose_key", Vector3Stamped, self._on_key, UPLINK_QOS, p.robot_writers, 40.0, 60.0),
+                ("uplink/image_raw/compressed", CompressedImage, self._on_image, IMAGE_UPLOAD_QOS, p.robot_writers,
+                 40.0, 30.0),
+                ("gsrmr/schedule", Float64MultiArray, self._on_schedule, SCHEDULE_QOS, p.schedule_writers, 20.0, 20.0),
+                ("gsrmr/ledger", Float64MultiArray, self._on_ledger, UPLINK_QOS, p.robot_writers, 40.0, 60.0),
+                ("cmd_vel", Twist, self._on_cmd, 10, p.cmd_vel_writers, 200.0, 100.0),
+                ("uplink/camera_info", CameraInfo, self.use_camera_info, CAMERA_INFO_QOS, p.robot_writers, 5.0,
+                 10.0)):
+            self.inputs.subscribe(kind, topic, callback, qos, writers, rate_hz=rate_hz, burst=burst)
         self.create_timer(0.01, self._tick)  # 10 ms: a slot is composed ≤ 10 ms after it is complete or due
         self.create_timer(1.0, self._publish_diagnostics)
         content = self.composer.virtual.content
@@ -121,16 +145,20 @@ class ServerNode(Node):
             reason = ServerParameters.change_problem(param.name, param.value)
             if reason:
                 return SetParametersResult(successful=False, reason=reason)
-        return SetParametersResult(successful=True)
+        reason = self.audit.refusal(param.name for param in params)
+        return SetParametersResult(successful=reason is None, reason=reason or "")
 
     def _after_set(self, params: list[Parameter]) -> None:
         """Post-set: the accepted values into ``self.params`` and the slot core (the cursor's from the next tick)."""
         with self._lock:
+            old = self.params
             self.params = self.params.with_values({param.name: param.value for param in params})
+            self.audit.record({param.name: (getattr(old, param.name, None), getattr(self.params, param.name, None))
+                               for param in params})
             self.core.jpeg_quality, self.core.measure_loss = self.params.jpeg_quality, self.params.measure_loss
 
     # ---------------------------------------------------------------- inputs
-    def _on_key(self, msg: Vector3Stamped) -> None:
+    def _on_key(self, msg: Vector3Stamped, _gid: bytes = b"") -> None:
         now_ns = self.get_clock().now().nanoseconds
         with self._lock:
             try:
@@ -138,9 +166,12 @@ class ServerNode(Node):
             except ValueError:  # wrong frame or an invalid stamp: refuse, never raise out of the callback
                 self.uplink.count(UplinkFault.MALFORMED_KEY)
                 return
+            if key.is_valid() and not self.poses.offer(key.slot, key.a_m, key.b_m):
+                self.implausible["pose_jump"] += 1  # faster than the robot drives: no relocalisation (yet)
+                return
             self.uplink.on_key(key, self.clock.slot_at(now_ns), now_ns)
 
-    def _on_image(self, msg: CompressedImage) -> None:
+    def _on_image(self, msg: CompressedImage, _gid: bytes = b"") -> None:
         now_ns = self.get_clock().now().nanoseconds
         data = bytes(msg.data)
         with self._lock:
@@ -154,26 +185,47 @@ class ServerNode(Node):
                 return
             self.uplink.on_image(image_slot, data, self.clock.slot_at(now_ns), now_ns)
 
-    def _on_schedule(self, msg: Float64MultiArray) -> None:
+    def _on_schedule(self, msg: Float64MultiArray, gid: bytes = b"") -> None:
+        """A schedule from an admitted writer: taken when it parses, is plausible (T, slots near now; the power is
+        the robot's to check) and is newer (seq) than the last one of its writer endpoint; else counted."""
         try:
             sched = schedule_from_msg(msg)
         except ValueError as err:
-            self.get_logger().error(f"schedule refused: {err}")
+            self.implausible["schedule_malformed"] += 1
+            self.get_logger().error(f"schedule refused: {err}", throttle_duration_sec=5.0)
             return
+        reason = schedule_problem(sched, self.clock.slot_at(self.get_clock().now().nanoseconds), _SCHEDULE_LIMITS)
+        if reason is None and not self._schedule_seq.accept(gid, sched.seq):
+            reason = "schedule_seq"
         with self._lock:
+            if reason:
+                self.implausible[reason] += 1
+                return
             self.ledgers.schedule = sched
 
-    def _on_ledger(self, msg: Float64MultiArray) -> None:
+    def _on_ledger(self, msg: Float64MultiArray, _gid: bytes = b"") -> None:
         with self._lock:
             try:
-                self.ledgers.add(ledger_from_msg(msg))
+                row = ledger_from_msg(msg)
             except ValueError:  # wrong length, or a NaN/inf slot, x or bit count
                 self.uplink.count(UplinkFault.MALFORMED_LEDGER)
+                return
+            # near the slot being composed (the clock's before the first): a replay driving the node faster than
+            # real time (bench/soak.py --node) stays near it too
+            near = self._composed_slot if self._composed_slot is not None else \
+                self.clock.slot_at(self.get_clock().now().nanoseconds)
+            reason = ledger_problem(row, near)
+            if reason is None and self.ledgers.image_sent(row.slot) is not None:
+                reason = "ledger_repeat"  # one row per slot: the first stands
+            if reason:
+                self.implausible[reason] += 1
+                return
+            self.ledgers.add(row)
 
-    def _on_cmd(self, msg: Twist) -> None:
+    def _on_cmd(self, msg: Twist, _gid: bytes = b"") -> None:
         self._cmd = (float(msg.linear.x), float(msg.angular.z))
 
-    def use_camera_info(self, msg: CameraInfo) -> None:
+    def use_camera_info(self, msg: CameraInfo, _gid: bytes = b"") -> None:
         """The ``uplink/camera_info`` callback: render with the robot's calibration from the next slot on, or
         refuse an unusable one (:class:`~gsrmr_server.render_intrinsics.RenderIntrinsics`)."""
         if self.recorder is not None:
@@ -212,6 +264,7 @@ class ServerNode(Node):
         """Compose, publish and record slot ``slot`` (the work is the slot core's; this publishes)."""
         start_ns = self.clock.start_ns(slot)
         with self._lock:
+            self._composed_slot = slot if self._composed_slot is None else max(slot, self._composed_slot)
             plan = self.ledgers.take(slot)
             uploads = self.uplink.take(slot, image_expected=plan.image_expected)
             best = self.uplink.best_pose(slot)
@@ -230,17 +283,29 @@ class ServerNode(Node):
             self.recorder.write_slot(replace(out.row, latency_ms=latency_ms), compressed, self._cmd,
                                      stamp_ns=start_ns)
 
+    def security_summary(self) -> dict:
+        """What the known-writer and plausibility checks refused, and the live parameter changes (JSON-able)."""
+        return {**self.inputs.gate.diagnostic_values(), "implausible": self.implausible.values_for_diagnostics(),
+                "relocalisations": self.poses.relocalisations, **self.audit.diagnostic_values()}
+
     def _publish_diagnostics(self) -> None:
         with self._lock:
             values, problems = diagnostic_report(self.stats.summary(self.uplink.faults), self.camera)
+            values.update({k: json.dumps(v) if isinstance(v, dict) else v for k, v in self.security_summary().items()})
+            problems += self.inputs.gate.problems()
+            if self.implausible:
+                problems.append("implausible inputs refused: " + ", ".join(
+                    f"{k} {n}" for k, n in sorted(self.implausible.items())))
         self._pub_diag.publish(diagnostics_msg(self, name=f"{self.get_name()}: MR composition",
                                                hardware_id="gsrmr_server", values=values, problems=problems))
 
     def on_shutdown(self) -> None:
-        """Close the recording and write ``server_summary.json`` beside it (called by run_node on exit)."""
+        """Close the recording and write ``server_summary.json`` beside it (called by run_node on exit); log what the
+        input checks refused."""
+        self.inputs.log_summary(self.implausible, relocalisations=self.poses.relocalisations)
         if self.recorder is not None:
             self.recorder.close()
-            summary = self.stats.summary(self.uplink.faults)
+            summary = {**self.stats.summary(self.uplink.faults), **self.security_summary()}
             Path(self.recorder.out_dir, "server_summary.json").write_text(json.dumps(summary, indent=1))
 
 

@@ -4,7 +4,10 @@ Every robot runs the single robot's closed loop (:func:`gsrmr_sim.sim_stack.flee
 ``fleet.launch.py``) in its own namespace ``/robot<k>`` of one ROS domain: mock LIMO on its own pty, LIMO
 driver, mock camera, simulated radio (channel seed + k − 1), route follower, robot node, server and
 scheduler. With ``--hosts 2`` every robot's processes run in the robot namespace and every server and
-scheduler in the server namespace of one :class:`gsrmr_sim.netns.TwoHosts`, all robots sharing the uplink.
+scheduler in the server namespace of one :class:`gsrmr_sim.netns.TwoHosts`, all robots sharing the uplink. Every
+robot's nodes take their inputs only from the nodes of their own namespace: the writer lists of the stack
+(:data:`gsrmr_sim.sim_stack.SIM_WRITERS`, ``docs/security.md``) are relative names, resolved in each node's namespace,
+so a node of ``/robot1`` that publishes on ``/robot2``'s topics is a stranger there.
 
 :func:`run_fleet` runs them with the demo's one stack runner (:func:`gsrmr_sim.stack_runner.run_round`): every
 node but the route followers, all robots set in motion once every server composes, the stop once every robot has

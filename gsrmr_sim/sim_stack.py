@@ -66,6 +66,20 @@ WORLD_NICE = 10
 # demo waits for it afterwards), so it takes only the CPU that the system and the world leave.
 SCORER_NICE = 19
 
+# Who writes each deployment node's inputs in the simulated stack (docs/security.md, "Application checks"): the
+# read-only writer lists, by node name relative to the node's namespace (so a fleet's /robot2 reads its own). The
+# readers of the robot's uplink images whose acknowledgements the hold-back waits for: the server.
+SIM_WRITERS: dict[str, dict[str, list[str]]] = {
+    "gsrmr_robot": {"schedule_writers": ["gsrmr_scheduler"], "channel_writers": ["gsrmr_sim_channel"],
+                    "camera_writers": ["gsrmr_mock_camera"], "odom_writers": ["gsrmr_limo_base"],
+                    "image_readers": ["gsrmr_server"]},
+    "gsrmr_server": {"robot_writers": ["gsrmr_robot"], "schedule_writers": ["gsrmr_scheduler"],
+                     "cmd_vel_writers": ["gsrmr_route_follower"]},
+    "gsrmr_scheduler": {"robot_writers": ["gsrmr_robot"], "loss_writers": ["gsrmr_server"],
+                        "channel_writers": ["gsrmr_sim_channel"]},
+    "gsrmr_limo_base": {"cmd_vel_writers": ["gsrmr_route_follower"]},
+}
+
 
 def robot_jpeg_quality(robot_yaml: str) -> int:
     """The robot's JPEG quality from its parameter file (the scorer's hindsight encodes true frames alike)."""
@@ -148,6 +162,8 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
                      "loss_map_file": loss_map_file, "state_dir": state_dir, "oracle_channel": oracle_channel,
                      "round_slots": int(sc.slots), **seed}),
     ]
+    for spec in specs:
+        spec.params.update({k: list(v) for k, v in SIM_WRITERS.get(spec.name, {}).items()})
     unknown = sorted(set(over) - {spec.name for spec in specs})
     if unknown:
         raise ValueError(f"overrides for no node of the stack: {unknown} (keys are node names: "

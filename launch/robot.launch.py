@@ -8,6 +8,11 @@ loaded by the server), config/robot.yaml — every
 file keyed ``/**``, so the launch arguments below (passed after them) always win, also under
 ``namespace:=…``.
 
+Known writers (docs/security.md, "Application checks"): the robot takes odom only from this launch file's
+gsrmr_limo_base and the base takes cmd_vel only from ``cmd_vel_source`` (a node name, relative to the namespace:
+your planner, or a twist_mux in front of several; ``*`` = any node, as a plain ROS base). Name the camera and
+radio drivers in config/robot.yaml (camera_writers, channel_writers).
+
 SROS2 (docs/security.md): ``keystore:=KS`` runs both nodes enforced — ROS_SECURITY_KEYSTORE=KS,
 ROS_SECURITY_ENABLE=true, ROS_SECURITY_STRATEGY=Enforce, each node in its enclave ``/gsrmr/<node>``
 (``--enclave /gsrmr/robot``, ``/gsrmr/limo_base``; config/security/policy.xml names them).
@@ -40,14 +45,17 @@ def _nodes(context, config: str) -> list[Node]:
     link, base, mount, robot = (os.path.join(config, name)
                                 for name in ("link.yaml", "limo_base.yaml", "camera_mount.yaml", "robot.yaml"))
     namespace = LaunchConfiguration("namespace")
+    cmd_vel_source = LaunchConfiguration("cmd_vel_source").perform(context)
     return [
         Node(package="gsrmr", executable="gsrmr-limo-base", name="gsrmr_limo_base", namespace=namespace,
              output="screen",
-             parameters=[base, {"port": ParameterValue(LaunchConfiguration("port"), value_type=str)}],
+             parameters=[base, {"port": ParameterValue(LaunchConfiguration("port"), value_type=str),
+                                "cmd_vel_writers": [cmd_vel_source]}],
              **_security(context, "gsrmr_limo_base")),
         Node(package="gsrmr", executable="gsrmr-robot", name="gsrmr_robot", namespace=namespace, output="screen",
              parameters=[link, mount, robot, {"jpeg_quality": ParameterValue(LaunchConfiguration("jpeg_quality"),
-                                                                      value_type=int)}],
+                                                                      value_type=int),
+                                              "odom_writers": ["gsrmr_limo_base"]}],
              remappings=[("camera/image_raw", LaunchConfiguration("camera_image_topic")),
                          ("camera/camera_info", LaunchConfiguration("camera_info_topic"))],
              **_security(context, "gsrmr_robot")),
@@ -67,5 +75,7 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("keystore", default_value="",
                               description="SROS2 keystore: run enforced, each node in its enclave /gsrmr/<node> "
                                           "('' = off)"),
+        DeclareLaunchArgument("cmd_vel_source", default_value="*",
+                              description="the node the base takes cmd_vel from (a planner or twist_mux; * = any)"),
         OpaqueFunction(function=_nodes, kwargs={"config": config}),
     ])

@@ -6,6 +6,10 @@ The process list comes from gsrmr_sim.sim_stack, the same definition `make demo`
 launch Node by gsrmr_sim.launch_nodes. Every config file is keyed ``/**`` and the launch arguments come
 after them, so the arguments always win.
 
+Every node takes its inputs only from the stack's own nodes (gsrmr_sim.sim_stack.SIM_WRITERS; docs/security.md);
+the scheduler's live parameters may change while it runs (``ros2 param set /gsrmr_scheduler loss_threshold 0.04``),
+the other nodes' may not.
+
 SROS2 (docs/security.md): ``keystore:=KS`` runs every node enforced in its enclave ``/gsrmr/<node>``
 (gsrmr_sim.launch_nodes.security_arguments; config/security/policy.xml names them).
 """
@@ -24,7 +28,9 @@ def _nodes(context):
                       loss_threshold=float(arg("loss_threshold")), laps=int(arg("laps")), method=arg("method"),
                       link_path=arg("serial_link"),
                       # all processes start at once here: the robot sets off once the server composes
-                      overrides={"gsrmr_route_follower": {"wait_for_server": True}})
+                      overrides={"gsrmr_route_follower": {"wait_for_server": True},
+                                 # the one-machine playground: the operator may retune the plan live
+                                 "gsrmr_scheduler": {"live_parameter_changes": True}})
     # without a keystore the call stays launch_node(spec, namespace): test_launch_files stands in for it so
     keystore = LaunchConfiguration("keystore", default="").perform(context)
     security = {"keystore": keystore} if keystore else {}

@@ -23,7 +23,8 @@ def test_cmd_vel_moves_odom_diagnostics_and_ground_truth_then_clean_sigint(ros_p
     mock = ros_processes.start("gsrmr-mock-limo", "--link", link, "--cmd-timeout-s", "0.3")
     ros_processes.wait_for(mock, "mock LIMO ready", timeout_s=20)
     base = ros_processes.start("gsrmr-limo-base", "--ros-args", "-p", f"port:={link}", "-p",
-                               "heading_source:=gyro_integration")
+                               "heading_source:=gyro_integration",
+                               "-p", "live_parameter_changes:=true")  # issue 28: off unless started on
     ros_processes.wait_for(base, "link up", timeout_s=20)
 
     for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):

@@ -40,7 +40,9 @@ def small_model(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def stack(small_model, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("stack")
-    s = Stack(tmp, small_model, ros_env())
+    # issue 28: this suite retunes the scheduler live and calls gsrmr/replan back to back (both off/limited by default)
+    s = Stack(tmp, small_model, ros_env(), overrides={"gsrmr_scheduler": {"live_parameter_changes": True,
+                                                                           "replan_min_interval_s": 0.0}})
     s.start_all()
     try:
         yield s

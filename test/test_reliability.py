@@ -313,8 +313,15 @@ def relay_stack(tmp_path_factory):
     relay = ProcessSpec("gsrmr-uplink-relay", "gsrmr_uplink_relay", [str(config_dir() / "link.yaml")],
                         {"input_prefix": "/robot", "seed": 0, "summary_path": str(tmp / "relay_summary.json"),
                          **{f"{k}_rate": v for k, v in RELAY_RATES.items()}})
+    # issue 28: the relay writes the server's and the scheduler's uplink, and is the robot's image reader; this
+    # module's test client ("test_reliability") lies to the server with malformed uploads: listed, so that the
+    # checks behind the writer check (malformed, oversized) are what it meets
+    relayed = ["gsrmr_robot", "gsrmr_uplink_relay"]
     s = h.Stack(tmp, model, ros_env(), remappings={"gsrmr_robot": remap}, extra=(relay,),
-                overrides={"gsrmr_scheduler": {"loss_threshold": 0.0, "horizon": 400, "replan_period_s": 1.0}})
+                overrides={"gsrmr_scheduler": {"loss_threshold": 0.0, "horizon": 400, "replan_period_s": 1.0,
+                                               "robot_writers": relayed},
+                           "gsrmr_server": {"robot_writers": [*relayed, "test_reliability"]},
+                           "gsrmr_robot": {"image_readers": ["gsrmr_uplink_relay"]}})
     s.start_all()
     try:
         yield s

@@ -209,7 +209,8 @@ def camera_info_msg(calib: CameraCalibration, stamp) -> CameraInfo:
 def test_robot_node_uploads_the_rectified_frame_at_the_uplink_width(ros_context):
     calib = distorted("plumb_bob")
     raw = raw_frame("plumb_bob")
-    robot = RobotNode(context=ros_context)
+    robot = RobotNode(context=ros_context,  # issue 28: live changes are off unless the node starts with them on
+                      parameter_overrides=[Parameter("live_parameter_changes", value=True)])
     probe = rclpy.create_node("rectify_probe", context=ros_context)
     executor = SingleThreadedExecutor(context=ros_context)
     try:

@@ -70,7 +70,8 @@ def scheduler(monkeypatch):
     rclpy.init(context=ctx, domain_id=int(env["ROS_DOMAIN_ID"]))
     node = None
     try:
-        node = SchedulerNode(context=ctx, parameter_overrides=[Parameter("route_waypoints_m", value=ROUTE)])
+        node = SchedulerNode(context=ctx, parameter_overrides=[Parameter("route_waypoints_m", value=ROUTE),
+                                                               Parameter("live_parameter_changes", value=True)])
         executor = SingleThreadedExecutor(context=ctx)
         executor.add_node(node)
 

@@ -156,7 +156,8 @@ def server_node(tmp_path):
     try:
         node = ServerNode(context=ctx, parameter_overrides=[
             Parameter("model_path", value=str(make_point_model(tmp_path, n=50))),
-            Parameter("record_dir", value=str(tmp_path / "rec"))])
+            Parameter("record_dir", value=str(tmp_path / "rec")),
+            Parameter("live_parameter_changes", value=True)])  # issue 28: live changes are off unless started on
         yield node
         node.destroy_node()
     finally:
@@ -216,5 +217,7 @@ def test_server_node_wires_the_slot_core_and_its_policies(server_node, tmp_path)
     assert "camera_info refused" in status.message and "uplink faults counted" in status.message
     node.on_shutdown()
     summary = json.loads((tmp_path / "rec" / "server_summary.json").read_text())
-    assert summary == json.loads(json.dumps(node.stats.summary(node.uplink.faults)))
+    # the stats and, since issue 28, what the known-writer and plausibility checks refused and the live changes
+    assert summary == json.loads(json.dumps({**node.stats.summary(node.uplink.faults), **node.security_summary()}))
+    assert summary["parameter_changes"] == {"jpeg_quality": 1} and summary["writers_refused"] == {}
     assert summary["slots"] == 2 and summary["sources"] == {"render": 1, "fallback": 1}

@@ -259,7 +259,8 @@ def test_robot_node_sends_static_tf_and_resends_on_map_from_odom_change(fake_tf2
         Parameter("camera_mount.height_m", value=mount.height_m),
         Parameter("camera_mount.pitch_rad", value=mount.pitch_rad),
         Parameter("camera_mount.forward_m", value=mount.forward_m),
-        Parameter("camera_mount.left_m", value=mount.left_m)])
+        Parameter("camera_mount.left_m", value=mount.left_m),
+        Parameter("live_parameter_changes", value=True)])  # issue 28: live changes are off unless started on
     try:
         (static,) = fake_tf2_ros.StaticTransformBroadcaster.instances
         assert not fake_tf2_ros.TransformBroadcaster.instances  # odom → base_link is the base driver's

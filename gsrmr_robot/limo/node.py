@@ -3,7 +3,10 @@
 Topics (relative names, so a namespace applies; QoS reliable, depth 10):
 
 * ``cmd_vel``  ``geometry_msgs/Twist`` in: linear.x [m/s] forward, linear.y [m/s] left (mecanum),
-  angular.z [rad/s] CCW, in ``base_link``. Held for ``cmd_timeout_s``, then the base is stopped.
+  angular.z [rad/s] CCW, in ``base_link``. Held for ``cmd_timeout_s``, then the base is stopped. Taken only from
+  the nodes ``cmd_vel_writers`` names (``*``: any, as a plain ROS base;
+  :class:`gsrmr_common.ros_admission.GatedInputs`), 200 messages/s per writer at most; anything else is ignored,
+  counted and named on ``/diagnostics``.
 * ``odom``  ``nav_msgs/Odometry`` out, one per 0x221 frame (≈50 Hz): ``odom_frame_id`` →
   ``base_frame_id`` (REP-105), pose/twist covariances filled, stamped with the host receive time
   of the frame. With ``publish_tf`` (default false) the same transform goes to ``/tf`` (REP-105
@@ -20,6 +23,7 @@ Topics (relative names, so a namespace applies; QoS reliable, depth 10):
 from __future__ import annotations
 
 from collections.abc import Callable
+import json
 import math
 import time
 from typing import Any
@@ -33,6 +37,7 @@ from rclpy.time import Time
 from sensor_msgs.msg import Imu
 
 from gsrmr_common.interrupts import console_main
+from gsrmr_common.ros_admission import GatedInputs, ParameterAudit
 from gsrmr_common.ros_node import declare_parameters, diagnostics_msg, run_node
 from gsrmr_common.tf_ros import load_tf2_ros, tf_message_type
 from gsrmr_robot.limo import protocol as proto
@@ -60,6 +65,7 @@ class LimoBaseNode(Node):
         p = self.params
         self.odom_frame, self.base_frame, self.imu_frame = p.odom_frame_id, p.base_frame_id, p.imu_frame_id
         self.publish_tf = p.publish_tf
+        self.audit = ParameterAudit(self, p.live_parameter_changes)
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._after_set)
 
@@ -69,7 +75,8 @@ class LimoBaseNode(Node):
         self._send_tf: Callable[[TransformStamped], None] | None = None
         if self.publish_tf:
             self._send_tf = self._tf_sender()
-        self.create_subscription(Twist, "cmd_vel", self._on_cmd_vel, 10)
+        self.inputs = GatedInputs(self)
+        self.inputs.subscribe(Twist, "cmd_vel", self._on_cmd_vel, 10, p.cmd_vel_writers, rate_hz=200.0, burst=100.0)
 
         self.driver = LimoDriver(p.port, p.baud, command_rate_hz=p.command_rate_hz, cmd_timeout_s=p.cmd_timeout_s,
                                  motion_mode=p.motion_mode, heading_source=p.heading_source, limits=p.limits,
@@ -102,12 +109,15 @@ class LimoBaseNode(Node):
             reason = LimoBaseParameters.change_problem(prm.name, prm.value)
             if reason:
                 return SetParametersResult(successful=False, reason=reason)
-        return SetParametersResult(successful=True)
+        reason = self.audit.refusal(prm.name for prm in params)
+        return SetParametersResult(successful=reason is None, reason=reason or "")
 
     def _after_set(self, params: list) -> None:
         """Post-set: take the accepted values and hand a new motion mode or heading source to the driver."""
         old = self.params
         self.params = old.with_values({prm.name: prm.value for prm in params})
+        self.audit.record({prm.name: (getattr(old, prm.name, None), getattr(self.params, prm.name, None))
+                           for prm in params})
         if not hasattr(self, "driver"):  # start-up overrides: the driver is built from self.params
             return
         if self.params.motion_mode != old.motion_mode:
@@ -116,7 +126,7 @@ class LimoBaseNode(Node):
             self.driver.set_heading_source(self.params.heading_source)
 
     # ---------------------------------------------------------------- callbacks
-    def _on_cmd_vel(self, msg: Twist) -> None:
+    def _on_cmd_vel(self, msg: Twist, _gid: bytes = b"") -> None:
         self.driver.set_command(msg.linear.x, msg.angular.z, msg.linear.y)
 
     def _on_event(self, level: str, text: str) -> None:
@@ -201,14 +211,21 @@ class LimoBaseNode(Node):
     def _publish_diagnostics(self) -> None:
         snap = self.driver.snapshot()
         level, problems = diagnose(snap)
+        refused = self.inputs.gate.problems()
+        if refused:  # a stranger's cmd_vel ignored: a warning, however well the base runs
+            level, problems = max(level, DiagnosticStatus.WARN), problems + refused
+        values = dict(diagnostic_values(snap))
+        values.update({k: json.dumps(v) if isinstance(v, dict) else str(v) for k, v in
+                       {**self.inputs.gate.diagnostic_values(), **self.audit.diagnostic_values()}.items()})
         self._diag_pub.publish(diagnostics_msg(self, name="gsrmr_limo_base: LIMO base", hardware_id=snap.link.port,
-                                               values=dict(diagnostic_values(snap)), level=level,
+                                               values=values, level=level,
                                                message="; ".join(problems) if problems else "OK"))
 
     def on_shutdown(self) -> None:
-        """Stop the base and the driver threads (called by run_node before destroy_node)."""
+        """Stop the base and the driver threads (called by run_node before destroy_node); log the refused cmd_vel."""
         self._alive = False
         self.driver.close()
+        self.inputs.log_summary()
 
 
 def _diag3(var: float) -> list[float]:
