@@ -7,7 +7,9 @@ upload-all / ours, the upload-all energy itself (equal across runs with one ``--
 loss, PSNR and SSIM measured on the MR images the server produced, the regret against the hindsight
 optimum (computed after each run) with the images that optimum sends, slot latency p50/p95/p99 (MR image
 published − slot start, scored slots), the scheduler's plan time (median and worst over its replans) and
-the server's median compose time per stage.
+the server's median compose time per stage, and what the nodes' input checks refused (``docs/security.md``,
+"Application checks"; each deployment node logs an ``input checks: {JSON}`` line when it exits): messages from
+unlisted writers, implausible inputs and writer alarms, summed over the nodes — a clean run counts none.
 
 ``--seeds BASE`` gives run k the channel seed BASE + k (else ``-- --channel-seed N`` for all);
 ``--method M`` runs the scheduler with method M; ``--load N`` keeps N busy processes
@@ -29,9 +31,31 @@ from machine import machine_line
 
 COLUMNS = ("slots", "slots_on_time", "images_sent", "energy_ratio_vs_upload_all", "energy_upload_all_j", "mean_loss",
            "psnr_db", "psnr_slot_mean_db", "ssim", "regret", "hindsight_images", "latency_ms_p50", "latency_ms_p95",
-           "latency_ms_p99", "plan_ms_p50", "plan_ms_max", "replans_late")
+           "latency_ms_p99", "plan_ms_p50", "plan_ms_max", "replans_late", "writers_refused", "implausible",
+           "writer_alarms")
 # with gsrmr-demo --hosts 2: what crossed the rate-limited uplink (veth counters) and the limiter's drops
 LINK_COLUMNS = ("link_uplink_mbit_mean", "link_uplink_bytes", "link_uplink_dropped_packets")
+
+
+CHECKS_PREFIX = "input checks: "  # gsrmr_common.ros_admission.SUMMARY_PREFIX (this bench imports no ROS)
+
+
+def input_checks(report_dir: Path) -> dict:
+    """What every node's input checks counted (its ``input checks:`` log line at exit), by node, and the totals of
+    writers refused, implausible inputs and writer alarms (-1 when no node logged the line)."""
+    per_node: dict[str, dict] = {}
+    for log in sorted((report_dir / "logs").glob("*.log")):
+        for line in log.read_text(errors="replace").splitlines():
+            if CHECKS_PREFIX in line:
+                per_node[log.stem] = json.loads(line.split(CHECKS_PREFIX, 1)[1])
+    if not per_node:
+        return {"writers_refused": -1, "implausible": -1, "writer_alarms": -1, "input_checks": {}}
+    return {"writers_refused": sum(n for c in per_node.values() for w in c.get("writers_refused", {}).values()
+                                   for n in w.values()),
+            "implausible": sum(n for c in per_node.values() for n in c.get("implausible", {}).values()),
+            "writer_alarms": sum(n for c in per_node.values() for n in c.get("writer_alarms", {}).values()),
+            "input_checks": {k: v for k, v in per_node.items()
+                             if v.get("writers_refused") or v.get("implausible") or v.get("writer_alarms")}}
 
 
 def run_figures(report_dir: Path) -> dict:
@@ -53,6 +77,7 @@ def run_figures(report_dir: Path) -> dict:
     out["plan_ms_p50"] = 1e3 * float(np.median(times)) if times else float("nan")
     out["plan_ms_max"] = 1e3 * float(np.max(times)) if times else float("nan")
     out["replans_late"] = f"{sum(v < 0 for v in slack)}/{len(slack)}" if slack else "n/a"
+    out.update(input_checks(report_dir))
     return out
 
 
@@ -118,13 +143,17 @@ def _runs(args: argparse.Namespace) -> int:
         print(f"| {k + 1} | " + " | ".join(f"{s[c]:.4g}" if isinstance(s[c], float) else str(s[c])
                                          for c in COLUMNS) + f" | {s['wall_s']:.0f} |", flush=True)
         print(f"|   | compose ms p50 by stage: {json.dumps(s['compose_ms_p50'])} |", flush=True)
+        if s.get("input_checks"):
+            print(f"|   | input checks counted: {json.dumps(s['input_checks'])} |", flush=True)
     lower_is_better = ("images_sent", "mean_loss", "regret", "latency_ms_p50", "latency_ms_p95", "latency_ms_p99",
-                       "plan_ms_p50", "plan_ms_max", *LINK_COLUMNS)
+                       "plan_ms_p50", "plan_ms_max", "writers_refused", "implausible", "writer_alarms", *LINK_COLUMNS)
 
     def summary_cell(c: str, pick) -> str:
         if c == "replans_late":  # all runs together: late / all replans
             late = [tuple(map(int, r[c].split("/"))) for r in rows if "/" in str(r[c])]
             return f"{sum(a for a, _ in late)}/{sum(b for _, b in late)}" if late else "n/a"
+        if c in ("writers_refused", "implausible", "writer_alarms"):  # all runs together
+            return str(sum(r[c] for r in rows)) if all(r[c] >= 0 for r in rows) else "n/a"
         return f"{pick(r[c] for r in rows):.4g}"
 
     print("| **median** | " + " | ".join(summary_cell(c, statistics.median) for c in COLUMNS)
