@@ -17,8 +17,9 @@ writer (:class:`gsrmr_common.ros_admission.GatedInputs`: ``robot_writers`` for t
 ``max_speed_mps``; a ledger row must name a slot near now, once; a loss sample must lie in the metric's range, come
 once per slot, for a slot the ledger says carried an image, at the pose the robot reported for it
 (:class:`gsrmr_common.plausibility.LossSampleCheck`; a sample that comes before its slot's ledger row waits for it,
-20 slots at most). ``gsrmr/replan`` answers at most once per ``replan_min_interval_s``. Refusals are counted by
-writer and by reason on ``/diagnostics``.
+20 slots at most; one for a slot before the first ledger row heard is not used, counted ``loss_samples_unverified``).
+``gsrmr/replan`` answers at most once per ``replan_min_interval_s``. Refusals are counted by writer and by reason on
+``/diagnostics``.
 
 Parameters: :class:`~gsrmr_server.scheduler_params.SchedulerParameters` (``self.params``); a change is
 checked in the on-set callback (read-only ones, values out of range or of the wrong type, an unknown
@@ -119,6 +120,10 @@ class SchedulerNode(Node):
         self._ledger_x: OrderedDict[int, int] = OrderedDict()  # slot → what the robot's ledger row says it did
         self._key_poses: OrderedDict[int, tuple[float, float, float]] = OrderedDict()  # slot → its accepted key
         self._waiting_loss: dict[int, LossSample] = {}  # samples whose slot's ledger row has not come yet
+        self._first_ledger_slot: int | None = None  # the earliest slot of an accepted ledger row
+        # loss samples of slots before the first ledger row heard (start-up: discovery may match the server's loss
+        # writer before the robot's ledger writer, whose rows are not latched): not used, and not implausible either
+        self.loss_samples_unverified = 0
         self._service_replan_s: float | None = None  # monotonic time of the last replan the service ran
         self.replans_refused = 0
         self.inputs = GatedInputs(self)
@@ -155,6 +160,8 @@ class SchedulerNode(Node):
             self.implausible[reason] += 1
             return
         _remember(self._ledger_x, row.slot, row.x)
+        first = self._first_ledger_slot
+        self._first_ledger_slot = row.slot if first is None else min(row.slot, first)
         with self._lock:
             self.planner.record_action(row.slot, row.x, row.held_back, row.uplink_rate_bps, row.upload_all_bits)
         waiting = self._waiting_loss.pop(row.slot, None)
@@ -243,7 +250,7 @@ class SchedulerNode(Node):
             self._waiting_loss[sample.slot] = sample
             return
         if reason:
-            self.implausible[reason] += 1
+            self._refuse_loss(sample, reason)
             return
         with self._lock:
             drift = self.planner.observe(sample.slot, sample.a_m, sample.b_m, sample.theta_rad, sample.loss)
@@ -256,8 +263,17 @@ class SchedulerNode(Node):
             return
         now_slot = self.clock.slot_at(self.get_clock().now().nanoseconds)
         for slot in [k for k in self._waiting_loss if k < now_slot - _LOSS_WAIT_SLOTS]:
-            del self._waiting_loss[slot]
-            self.implausible["loss_unledgered"] += 1
+            self._refuse_loss(self._waiting_loss.pop(slot), "loss_unledgered")
+
+    def _refuse_loss(self, sample: LossSample, reason: str) -> None:
+        """Count a refused loss sample: implausible, or — without a ledger row for a slot before the first one heard —
+        unverified."""
+        if reason == "loss_unledgered" and (self._first_ledger_slot is None or sample.slot < self._first_ledger_slot):
+            self.loss_samples_unverified += 1
+            return
+        self.implausible[reason] += 1
+        self.get_logger().warning(f"loss sample refused ({reason}): slot {sample.slot}, loss {sample.loss:.4g}",
+                                  throttle_duration_sec=5.0)
 
     def _request(self, reason: str) -> None:
         with self._lock:
@@ -374,7 +390,8 @@ class SchedulerNode(Node):
     def on_shutdown(self) -> None:
         """Log what the input checks refused and the replans the service refused (called by run_node on exit)."""
         self.inputs.log_summary(self.implausible, replans_refused=self.replans_refused,
-                                relocalisations=self.poses.relocalisations)
+                                relocalisations=self.poses.relocalisations,
+                                loss_samples_unverified=self.loss_samples_unverified)
 
     def _publish_diagnostics(self) -> None:
         r = self.last
@@ -401,6 +418,7 @@ class SchedulerNode(Node):
         values.update({k: json.dumps(v) if isinstance(v, dict) else v for k, v in {
             **self.inputs.gate.diagnostic_values(), "implausible": self.implausible.values_for_diagnostics(),
             "relocalisations": self.poses.relocalisations, "replans_refused": self.replans_refused,
+            "loss_samples_unverified": self.loss_samples_unverified,
             **self.audit.diagnostic_values()}.items()})
         problems = [] if r is None or r.feasible else ["plan infeasible"]
         problems += self.inputs.gate.problems()

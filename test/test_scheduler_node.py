@@ -111,3 +111,38 @@ def test_a_change_the_planner_refuses_is_refused_on_set(scheduler):
     result, = node.set_parameters([Parameter("oracle_channel", value=True)])
     assert not result.successful and "read-only" in result.reason
     assert node.planner.config is before and node.params.image_bits == before.image_bits
+
+
+# ---------------------------------------------------------------------------- loss samples checked against the ledger
+def test_loss_samples_are_taken_once_per_image_slot_the_ledger_names(scheduler):
+    """Issue 28: a loss sample counts only for a slot whose ledger row says it carried an image, once; one for a slot
+    before the first ledger row heard (start-up) is not used and counted apart, never as implausible."""
+    from gsrmr_common.ros_wire import ledger_to_msg, loss_sample_to_msg
+    from gsrmr_common.wire import LedgerRow, LossSample
+
+    node, spin_until = scheduler
+    assert spin_until(lambda: node.last is not None)
+    now = node.clock.slot_at(node.get_clock().now().nanoseconds)
+
+    def ledger(slot: int, x: int) -> None:
+        node._on_ledger(ledger_to_msg(LedgerRow(slot, x, 1e-3, 64_000 if x else 192, 1e-6, 1e-3, 1e-4, 64_000,
+                                                1e-4)))
+
+    def loss(slot: int, value: float = 0.02) -> None:
+        node._on_loss(loss_sample_to_msg(LossSample(slot, -1.0, -1.1, 0.0, value)))
+
+    loss(now - 30)  # before any ledger row: the robot's rows of that time may not have reached the scheduler
+    assert spin_until(lambda: node.loss_samples_unverified == 1) and not node.implausible
+    ledger(now - 5, 1)
+    ledger(now - 4, 0)
+    samples = node.planner.forecast.samples
+    loss(now - 5)
+    assert node.planner.forecast.samples == samples + 1 and not node.implausible  # an image slot: observed
+    loss(now - 5, 0.5)
+    loss(now - 4)
+    loss(now - 5, 5.0)
+    assert node.implausible == {"loss_repeat": 1, "loss_key_slot": 1, "loss_range": 1}
+    loss(now - 40)  # before the first row heard: unverified
+    loss(now - 3)  # after it, its row never comes: waits 20 slots, then implausible
+    assert spin_until(lambda: node.implausible.get("loss_unledgered") == 1, timeout_s=10.0)
+    assert node.loss_samples_unverified == 2 and node.planner.forecast.samples == samples + 1
