@@ -7,10 +7,12 @@ parallel runs on one machine (or a developer's other ROS graph) never see each o
 from __future__ import annotations
 
 from collections.abc import Iterator
+import faulthandler
 import os
 from pathlib import Path
 import signal
 import subprocess
+import tempfile
 import time
 
 import pytest
@@ -29,6 +31,40 @@ def pytest_sessionfinish(session, exitstatus) -> None:
     """Stop the ros2 CLI daemons that this session's `ros2 service call`/`ros2 topic` started (one per
     domain it used): no process outlives the test run."""
     stop_ros2_daemons(USED_DOMAINS)
+    if _HANG_DUMP["file"] is not None:
+        _HANG_DUMP["file"].close()
+        Path(_HANG_DUMP["file"].name).unlink(missing_ok=True)
+
+
+# A deadlock inside Fast DDS (eProsima/Fast-DDS#6502, open: the UDP receive thread holds the PDP mutex while it waits
+# for the event thread, which waits for that mutex in check_remote_participant_liveliness) can freeze this process's
+# own participant while a remote one goes away; the thread that holds the GIL then waits for ever, so neither
+# pytest-timeout's SIGALRM nor any Python thread can end the test (a clean-clone run hung so, 2026-11-26).
+# faulthandler's watchdog is a C thread that needs no GIL: past the hard deadline it writes every thread's Python stack
+# to the dump file and exits 1, so the run fails with the stacks instead of hanging. tools/run_tests.sh prints the dump.
+# pytest-timeout's 300 s per test (pyproject.toml) plus room for its own report
+HARD_DEADLINE_S = float(os.environ.get("GSRMR_HARD_DEADLINE_S", "420"))
+_HANG_DUMP: dict = {"file": None}
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """Arm the hard deadline for one test's setup, call and teardown (module fixtures end in the last one's)."""
+    if _HANG_DUMP["file"] is None:
+        path = os.environ.get("GSRMR_HANG_DUMP") or os.path.join(tempfile.gettempdir(),
+                                                                 f"gsrmr-pytest-hang-{os.getpid()}.txt")
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        _HANG_DUMP["file"] = open(path, "w")  # noqa: SIM115 (kept open: faulthandler writes to its descriptor)
+    dump = _HANG_DUMP["file"]
+    dump.seek(0)
+    dump.truncate()
+    dump.write(f"{item.nodeid}: no end within {HARD_DEADLINE_S:.0f} s (started {time.strftime('%H:%M:%S')})\n")
+    dump.flush()
+    faulthandler.dump_traceback_later(HARD_DEADLINE_S, exit=True, file=dump)
+    try:
+        yield
+    finally:
+        faulthandler.cancel_dump_traceback_later()
 
 
 def ros_env(domain_id: int | None = None) -> dict[str, str]:

@@ -12,6 +12,16 @@ VENV=${VENV:-.venv}
 # shellcheck disable=SC1091
 source "$VENV/bin/activate"
 read -r -a pytest_args <<< "${PYTEST_ARGS:-}"
+# test/conftest.py's hard deadline writes every thread's stack here when a test hangs past it (then exits 1)
+export GSRMR_HANG_DUMP="$PWD/log/pytest_hang_dump.txt"
+rm -f "$GSRMR_HANG_DUMP"
+print_hang_dump() {
+  if [ -f "$GSRMR_HANG_DUMP" ] && grep -q "^Timeout (" "$GSRMR_HANG_DUMP"; then
+    echo "run_tests: a test hung past the hard deadline; its threads' Python stacks:" >&2
+    cat "$GSRMR_HANG_DUMP" >&2
+    return 1
+  fi
+}
 
 if command -v colcon >/dev/null && python -c "import launch_testing, launch_ros, ros2cli" 2>/dev/null; then
   echo "run_tests: colcon build + colcon test (ROS_DOMAIN_ID=${ROS_DOMAIN_ID:-0})"
@@ -30,7 +40,11 @@ if command -v colcon >/dev/null && python -c "import launch_testing, launch_ros,
   status=0
   colcon --log-base log test "${args[@]}" || status=$?
   colcon --log-base log test-result --verbose --test-result-base build/gsrmr || status=$?
+  print_hang_dump || status=1
   exit $status
 fi
 echo "run_tests: no ROS 2 launch tooling (no system ROS 2, no ../shared/ros-tooling): plain pytest"
-exec python -m pytest "${pytest_args[@]}"
+status=0
+python -m pytest "${pytest_args[@]}" || status=$?
+print_hang_dump || status=1
+exit $status
