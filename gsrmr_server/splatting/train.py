@@ -24,6 +24,12 @@
   recorded poses without any exposure model (what the live server does at the robot's pose keys).
 * Checkpoints (torch.save) hold parameters, Adam moments, statistics, iteration and RNG state (and the
   corrections when they are on).
+* Two engines compute a step (``TrainConfig.engine``): ``fused`` (the default; :mod:`~gsrmr_server.splatting.fused`)
+  runs projection, SH, rasterizer, loss, their backward passes and Adam in numba kernels without autograd, several
+  times faster on the CPU; ``torch`` runs autograd through :func:`~gsrmr_server.splatting.diffrender.render_torch`
+  and is the reference the fused engine is tested against. Same maths (float rounding apart: the fused rasterizer
+  and SSIM are float32, its projection float64), the same state, checkpoints and density control; both support the
+  pose and exposure corrections. The fused engine's result does not depend on the numba thread count.
 
 The pieces live beside this module, split as gsplat splits its strategy from its ops:
 :mod:`~gsrmr_server.splatting.losses`, :mod:`~gsrmr_server.splatting.initialise`,
@@ -62,6 +68,7 @@ from gsrmr_server.splatting.camera_opt import (
 )
 from gsrmr_server.splatting.contribution import max_blend_weight
 from gsrmr_server.splatting.diffrender import render_torch
+from gsrmr_server.splatting.fused import FusedEngine
 from gsrmr_server.splatting.initialise import (
     INIT_METHODS,
     has_depth,
@@ -75,7 +82,7 @@ from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.splatting.optim import PARAM_NAMES, TrainState, adam_step, reset_opacity, select_rows
 from gsrmr_server.splatting.render import render
 from gsrmr_server.splatting.strategy import densify_and_prune
-from gsrmr_server.splatting.train_config import TrainConfig
+from gsrmr_server.splatting.train_config import ENGINES, TrainConfig
 
 __all__ = ["PARAM_NAMES", "HistoryRow", "TrainConfig", "TrainState", "Trainer", "max_blend_weight", "ssim_torch",
            "train_loss"]
@@ -137,6 +144,10 @@ class Trainer:
         self._recorded_w2c = [torch.as_tensor(f.camera.world_to_camera, dtype=torch.float64)
                               for f in self.frames] if cfg.pose_opt else []
         self._perm: list[int] = []
+        if cfg.engine not in ENGINES:
+            raise ValueError(f"Trainer: engine must be one of {', '.join(ENGINES)}, got {cfg.engine!r}")
+        self._fused = FusedEngine()
+        self._target_arrays = [t.numpy() for t in self.targets]
 
     @classmethod
     def from_dataset(cls, path: str | Path, config: TrainConfig | None = None,
@@ -207,10 +218,47 @@ class Trainer:
 
         With ``pose_opt`` the view is rendered at its recorded pose corrected by its learned δ, with
         ``exposure_opt`` its render passes through its learned gain and bias before the loss; the loss returned
-        is the photometric one (without the corrections' L2 penalties)."""
+        is the photometric one (without the corrections' L2 penalties). ``TrainConfig.engine`` picks the fused
+        numba step (:mod:`~gsrmr_server.splatting.fused`) or the torch autograd one; density control, the SH
+        schedule and the opacity reset follow either."""
         cfg, st = self.config, self.state
         it = st.step + 1
         view = self._next_view()
+        if cfg.engine == "fused":
+            loss, mse = self._step_fused(it, view)
+        else:
+            loss, mse = self._step_torch(it, view)
+        st.step = it
+        if it % cfg.sh_increase_interval == 0 and st.sh_active < cfg.sh_degree:
+            st.sh_active += 1
+        if cfg.densify_from <= it <= cfg.densify_until and it % cfg.densify_interval == 0:
+            self.densify_and_prune(it)
+        if it % cfg.opacity_reset_interval == 0 and it <= cfg.densify_until:
+            self.reset_opacity()
+        return loss, -10.0 * math.log10(max(mse, 1e-10))
+
+    def _step_fused(self, it: int, view: int) -> tuple[float, float]:
+        """The fused engine's step (:class:`~gsrmr_server.splatting.fused.FusedEngine`); (loss, MSE)."""
+        cfg, st = self.config, self.state
+        frame = self.frames[view]
+        pose_row = None if st.pose is None else st.pose.row(view)
+        exposure_row = None if st.exposure is None else st.exposure.values[view].clone()
+        w2c = None if pose_row is None else corrected_world_to_camera(self._recorded_w2c[view], pose_row)
+        res = self._fused.step(st, frame.camera, self._target_arrays[view], it, self.lr,
+                               background=cfg.background, near_m=cfg.near_m, sh_degree=st.sh_active,
+                               world_to_camera=w2c, pose_row=pose_row, pose_reg=cfg.pose_reg,
+                               exposure_row=exposure_row, exposure_reg=cfg.exposure_reg)
+        if pose_row is not None:
+            pose_row.grad = res.pose_grad
+        if exposure_row is not None:
+            exposure_row.grad = res.exposure_grad
+        self._update_corrections(it, view, pose_row, exposure_row)
+        return res.loss, res.mse
+
+    def _step_torch(self, it: int, view: int) -> tuple[float, float]:
+        """The torch engine's step (autograd through :func:`~gsrmr_server.splatting.diffrender.render_torch`);
+        (loss, MSE)."""
+        cfg, st = self.config, self.state
         frame, target = self.frames[view], self.targets[view]
         p = st.params
         for v in p.values():
@@ -243,14 +291,7 @@ class Trainer:
             self._adam(it)
             self._update_corrections(it, view, pose_row, exposure_row)
             mse = float(((rgb.clamp(0, 1) - target) ** 2).mean())
-        st.step = it
-        if it % cfg.sh_increase_interval == 0 and st.sh_active < cfg.sh_degree:
-            st.sh_active += 1
-        if cfg.densify_from <= it <= cfg.densify_until and it % cfg.densify_interval == 0:
-            self.densify_and_prune(it)
-        if it % cfg.opacity_reset_interval == 0 and it <= cfg.densify_until:
-            self.reset_opacity()
-        return float(loss.detach()), -10.0 * math.log10(max(mse, 1e-10))
+        return float(loss.detach()), mse
 
     def _adam(self, it: int) -> None:
         adam_step(self.state, self.lr, it)

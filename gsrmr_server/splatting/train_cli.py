@@ -23,7 +23,7 @@ from gsrmr_server.splatting.compact import CompactConfig, Compactor
 from gsrmr_server.splatting.initialise import INIT_METHODS
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.splatting.train import Trainer
-from gsrmr_server.splatting.train_config import TrainConfig
+from gsrmr_server.splatting.train_config import ENGINES, TrainConfig
 
 #: The record ``gsrmr-train`` writes beside its .ply (the name ``gsrmr-survey`` looks for).
 TRAIN_RECORD = "train.json"
@@ -103,6 +103,8 @@ def train_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-psnr-drop-db", type=float, default=None,
                     help="compact at the end (gsrmr-compact): the smallest model within this many dB of the "
                          "held-out PSNR (needs --holdout-every)")
+    ap.add_argument("--engine", choices=ENGINES, default=d.engine,
+                    help="training step: fused (numba kernels, no autograd) or torch (autograd; the reference)")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
     if args.max_psnr_drop_db is not None and args.holdout_every <= 0:
@@ -114,7 +116,7 @@ def train_main(argv: list[str] | None = None) -> int:
                       densify_until=densify_until, seed=args.seed, init=args.init, pose_opt=args.pose_opt,
                       lr_pose=args.lr_pose, lr_pose_final=args.lr_pose_final, pose_reg=args.pose_reg,
                       exposure_opt=args.exposure_opt, lr_exposure=args.lr_exposure,
-                      lr_exposure_final=args.lr_exposure_final, exposure_reg=args.exposure_reg)
+                      lr_exposure_final=args.lr_exposure_final, exposure_reg=args.exposure_reg, engine=args.engine)
     ckpt = Path(args.checkpoint) if args.checkpoint else Path(str(args.out) + ".ckpt")
     try:
         trainer = Trainer.from_dataset(args.dataset, cfg, holdout_every=args.holdout_every)

@@ -7,6 +7,10 @@ from dataclasses import asdict, dataclass
 
 from gsrmr_server.splatting.project import NEAR_M
 
+#: Training engines (``TrainConfig.engine``): ``fused`` = the numba step without autograd
+#: (:mod:`~gsrmr_server.splatting.fused`), ``torch`` = torch autograd through the numba rasterizer.
+ENGINES = ("fused", "torch")
+
 
 @dataclass
 class TrainConfig:
@@ -57,6 +61,9 @@ class TrainConfig:
     lr_exposure: float = 2e-2
     lr_exposure_final: float = 5e-3
     exposure_reg: float = 1e-3
+    # The step's engine (ENGINES): "fused" (numba kernels, no autograd; same maths, several times faster on the
+    # CPU) or "torch" (autograd through the numba rasterizer: the reference the fused engine's tests compare to).
+    engine: str = "fused"
 
     def to_dict(self) -> dict:
         """JSON-friendly dict."""
