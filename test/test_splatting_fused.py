@@ -25,7 +25,7 @@ import torch
 from gsrmr_common.camera import Intrinsics
 from gsrmr_server.splatting import fused
 from gsrmr_server.splatting.camera_opt import apply_exposure, corrected_world_to_camera
-from gsrmr_server.splatting.datasets import orbit_cameras, render_views
+from gsrmr_server.splatting.datasets import look_at, orbit_cameras, render_views
 from gsrmr_server.splatting.diffrender import render_torch
 from gsrmr_server.splatting.fused import FusedEngine
 from gsrmr_server.splatting.fused_kernels import GEOM_WIDTH, adam_kernel, gather_kernel, project_forward_kernel
@@ -92,11 +92,9 @@ def test_gradients_equal_torch_autograd(degree, pose, exposure):
     objective.backward()
     # fused, on the float32 parameters training uses (the model's values: the same numbers as the reference's)
     st = state_of(model, torch.float32)
-    row2 = delta.clone().requires_grad_(True)
     res = FusedEngine().gradients(st, frame.camera, frame.image, 1, background=background, near_m=0.2,
-                                  sh_degree=degree, world_to_camera=corrected_world_to_camera(recorded, row2)
-                                  if pose else None, pose_row=row2 if pose else None, pose_reg=0.01,
-                                  exposure_row=gain_bias if exposure else None, exposure_reg=0.001)
+                                  sh_degree=degree, pose=delta.numpy() if pose else None, pose_reg=0.01,
+                                  exposure=gain_bias.numpy() if exposure else None, exposure_reg=0.001)
     assert res.loss == pytest.approx(float(loss.detach()), rel=1e-6)
     np.testing.assert_array_equal(res.order, out.index)
     for name, v in params.items():
@@ -105,16 +103,35 @@ def test_gradients_equal_torch_autograd(degree, pose, exposure):
             np.testing.assert_allclose(res.grads[name], want, rtol=0, atol=GRAD_RTOL * np.abs(want).max(),
                                        err_msg=name)
     if pose:
-        np.testing.assert_allclose(res.pose_grad.numpy(), row.grad.numpy(), rtol=0,
+        np.testing.assert_allclose(res.pose_grad, row.grad.numpy(), rtol=0,
                                    atol=GRAD_RTOL * float(row.grad.abs().max()))
     if exposure:
-        np.testing.assert_allclose(res.exposure_grad.numpy(), erow.grad.numpy(), rtol=2e-5)
+        np.testing.assert_allclose(res.exposure_grad, erow.grad.numpy(), rtol=2e-5)
     # the density statistics the torch trainer records
     g2d = out.means2d.grad.numpy() * np.array([0.5 * frame.camera.width, 0.5 * frame.camera.height])
     np.testing.assert_allclose(st.grad_accum.numpy()[out.index], np.linalg.norm(g2d, axis=1), rtol=0,
                                atol=GRAD_RTOL * np.abs(g2d).max())
     assert np.all(st.grad_count.numpy()[out.index] == 1) and np.all(st.last_seen.numpy()[out.index] == 1)
     np.testing.assert_array_equal(st.max_radius.numpy()[out.index], out.radius_px.astype(np.float32))
+
+
+@pytest.mark.parametrize("scale", [0.3, 1e-5, 0.0])
+def test_pose_chain_rule_equals_torch_autograd(scale):
+    """fused.pose_gradient (closed form) against autograd through camera_opt.corrected_world_to_camera, also in the
+    small-angle branch; fused.corrected_world_to_camera against camera_opt's."""
+    rng = np.random.default_rng(4)
+    recorded = look_at(rng.normal(size=3) * 2.0, rng.normal(size=3))
+    delta = rng.normal(size=6) * scale
+    g_rot, g_trans, g_center = rng.normal(size=(3, 3)), rng.normal(size=3), rng.normal(size=3)
+    row = torch.tensor(delta, requires_grad=True)
+    w2c = corrected_world_to_camera(torch.tensor(recorded), row)
+    rot, trans = w2c[:3, :3], w2c[:3, 3]
+    want = torch.autograd.grad([rot, trans, -rot.T @ trans], row,
+                               [torch.tensor(g_rot), torch.tensor(g_trans), torch.tensor(g_center)])[0].numpy()
+    np.testing.assert_allclose(fused.pose_gradient(recorded, delta, g_rot, g_trans, g_center), want, rtol=0,
+                               atol=1e-12)
+    np.testing.assert_allclose(fused.corrected_world_to_camera(recorded, delta), w2c.detach().numpy(), rtol=0,
+                               atol=1e-14)
 
 
 def test_culling_and_boxes_equal_the_projection_kernel():

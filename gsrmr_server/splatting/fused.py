@@ -18,14 +18,15 @@ forward about half, the projection and its backward a third, loss, sorting, binn
 docs/splatting.md, "Training speed", and ``bench/train.py --profile``.
 
 Pose refinement and exposure compensation are supported: the kernels return dL/d(world→camera) and dL/d(camera
-centre); torch autograd carries them through the 4×4 :func:`~gsrmr_server.splatting.camera_opt.
-corrected_world_to_camera` graph (a few dozen scalar operations) to the frame's correction; the exposure's
-gain and bias act on the rendered image before the loss, their gradient summed in numpy.
+centre), which :func:`pose_gradient` carries in closed form (numpy) through
+:func:`~gsrmr_server.splatting.camera_opt.corrected_world_to_camera` to the frame's correction δ = (ω, τ); the
+exposure's gain and bias act on the rendered image before the loss, their gradient summed in numpy.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 import time
 
 import numba
@@ -54,6 +55,7 @@ SMALL_STEP_GAUSSIANS = 20_000
 LOSS_LAMBDA = 0.2  # weight of the (1 − SSIM) term, train_loss's λ
 ADAM_BETAS = (0.9, 0.999)
 ADAM_EPS = 1e-15
+_SMALL_ANGLE_RAD2 = 1e-8  # camera_opt's: below this θ² the series of Rodrigues' coefficients
 
 
 @dataclass
@@ -65,10 +67,67 @@ class FusedStepResult:
 
     loss: float
     mse: float
-    pose_grad: torch.Tensor | None
-    exposure_grad: torch.Tensor | None
+    pose_grad: np.ndarray | None
+    exposure_grad: np.ndarray | None
     order: np.ndarray
     grads: dict[str, np.ndarray]
+
+
+def _hat(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def so3_exp(omega: np.ndarray) -> np.ndarray:
+    """:func:`~gsrmr_server.splatting.camera_opt.so3_exp` in numpy (Rodrigues; the same small-angle series)."""
+    theta2 = float(omega @ omega)
+    if theta2 < _SMALL_ANGLE_RAD2:
+        a, b = 1.0 - theta2 / 6.0, 0.5 - theta2 / 24.0
+    else:
+        theta = math.sqrt(theta2)
+        a, b = math.sin(theta) / theta, (1.0 - math.cos(theta)) / theta2
+    k = _hat(omega)
+    return np.eye(3) + a * k + b * (k @ k)
+
+
+def so3_right_jacobian(v: np.ndarray) -> np.ndarray:
+    """J_r(v) = I − (1 − cos θ)/θ²·[v]× + (θ − sin θ)/θ³·[v]×², with ∂Exp(v)/∂v_k = Exp(v)·[J_r(v)·e_k]×."""
+    theta2 = float(v @ v)
+    if theta2 < _SMALL_ANGLE_RAD2:
+        b, c = 0.5 - theta2 / 24.0, 1.0 / 6.0 - theta2 / 120.0
+    else:
+        theta = math.sqrt(theta2)
+        b, c = (1.0 - math.cos(theta)) / theta2, (theta - math.sin(theta)) / (theta2 * theta)
+    k = _hat(v)
+    return np.eye(3) - b * k + c * (k @ k)
+
+
+def corrected_world_to_camera(world_to_camera: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """:func:`~gsrmr_server.splatting.camera_opt.corrected_world_to_camera` in numpy float64: camera→world rotation
+    Exp(ω)·Rᵀ, optical centre c + τ."""
+    w2c = np.asarray(world_to_camera, np.float64)
+    d = np.asarray(delta, np.float64)
+    rot = w2c[:3, :3] @ so3_exp(d[:3]).T
+    out = np.eye(4)
+    out[:3, :3] = rot
+    out[:3, 3] = -rot @ (-w2c[:3, :3].T @ w2c[:3, 3] + d[3:])
+    return out
+
+
+def pose_gradient(world_to_camera: np.ndarray, delta: np.ndarray, g_rot: np.ndarray, g_trans: np.ndarray,
+                  g_center: np.ndarray) -> np.ndarray:
+    """dL/dδ from dL/dR' (``g_rot``), dL/dt' (``g_trans``) and dL/dc' (``g_center``, the camera centre the SH
+    directions start from) of the corrected pose [R' | t'] = :func:`corrected_world_to_camera`: with c' = c + τ,
+    t' = −R'c' and R' = R·Exp(−ω), dL/dτ = g_c − R'ᵀ g_t and, with G = g_R − g_t c'ᵀ and A = Exp(−ω)ᵀ Rᵀ G,
+    dL/dω = −J_r(−ω)ᵀ (A₃₂ − A₂₃, A₁₃ − A₃₁, A₂₁ − A₁₂)."""
+    w2c = np.asarray(world_to_camera, np.float64)
+    d = np.asarray(delta, np.float64)
+    rot, trans = w2c[:3, :3], w2c[:3, 3]
+    center = -rot.T @ trans + d[3:]
+    e = so3_exp(-d[:3])
+    g = g_rot - np.outer(g_trans, center)
+    a = e.T @ rot.T @ g
+    w = np.array([a[2, 1] - a[1, 2], a[0, 2] - a[2, 0], a[1, 0] - a[0, 1]])
+    return np.concatenate([-so3_right_jacobian(-d[:3]).T @ w, g_center - (rot @ e).T @ g_trans])
 
 
 def _flat(t: torch.Tensor) -> np.ndarray:
@@ -158,15 +217,14 @@ class FusedEngine:
         return res
 
     def gradients(self, state: TrainState, camera: Camera, target: np.ndarray, it: int, *,
-                  background=(0.0, 0.0, 0.0), near_m: float, sh_degree: int,
-                  world_to_camera: torch.Tensor | None = None, pose_row: torch.Tensor | None = None,
-                  pose_reg: float = 0.0, exposure_row: torch.Tensor | None = None,
+                  background=(0.0, 0.0, 0.0), near_m: float, sh_degree: int, pose: np.ndarray | None = None,
+                  pose_reg: float = 0.0, exposure: np.ndarray | None = None,
                   exposure_reg: float = 0.0) -> FusedStepResult:
-        """Render ``state``'s parameters from ``camera``, the loss against ``target`` and its gradients: per
-        rendered Gaussian (``order``, depth order) in ``grads`` and, with ``world_to_camera`` (a 4×4 float64
-        tensor computed from ``pose_row``, replacing the camera's pose) or ``exposure_row`` (gain and bias on the
-        render before the loss), of those rows (L2 penalties ``pose_reg`` / ``exposure_reg`` included). Adds the
-        view to the density statistics of ``state`` (last seen at ``it``)."""
+        """Render ``state``'s parameters from ``camera``, the loss against ``target`` and its gradients: of every
+        parameter in ``grads`` and, with ``pose`` (the frame's correction δ = (ω rad, τ m): the camera's pose
+        corrected by it, :func:`corrected_world_to_camera`) or ``exposure`` (gain and bias rows on the render
+        before the loss), of those rows (L2 penalties ``pose_reg`` / ``exposure_reg`` included). Adds the view to
+        the density statistics of ``state`` (last seen at ``it``)."""
         self._phase(None)
         p = state.params
         means, quats = _rows(p["means"]), _rows(p["quats"])
@@ -177,11 +235,11 @@ class FusedEngine:
         k = camera.intrinsics
         intr = np.array([k.fx, k.fy, k.cx, k.cy], np.float64)
         lims = np.asarray(fov_limits(k.fx, k.fy, k.cx, k.cy, width, height), np.float64)
-        if world_to_camera is None:
+        if pose is None:
             w2c = np.ascontiguousarray(camera.world_to_camera, np.float64)
             center = np.ascontiguousarray(camera.center_world, np.float64)  # one kernel specialisation for both
         else:
-            w2c = np.ascontiguousarray(world_to_camera.detach().numpy(), np.float64)
+            w2c = corrected_world_to_camera(camera.world_to_camera, pose)
             center = np.ascontiguousarray(-w2c[:3, :3].T @ w2c[:3, 3])
         degree = min(sh_degree, round((1 + sh_rest.shape[1]) ** 0.5) - 1)
         # projection, culling, depth order (the torch path's project_numpy + depth_order)
@@ -214,20 +272,19 @@ class FusedEngine:
         self._phase("raster forward")
         # exposure, loss and its gradient
         shown = rgb
-        if exposure_row is not None:
-            e = exposure_row.detach().numpy().astype(np.float64)
+        if exposure is not None:
+            e = np.asarray(exposure, np.float64)
             gain = np.exp(e[:3])
             shown = (rgb * gain + e[3:]).astype(np.float32)
         g_shown = np.empty((height, width, 3), np.float32)
         loss, _, mse = self._loss(shown, target, g_shown)
         exposure_grad = None
         g_rgb = g_shown
-        if exposure_row is not None:
+        if exposure is not None:
             g64 = g_shown.astype(np.float64)
             g_gain = (g64 * rgb).sum(axis=(0, 1)) * gain
             g_bias = g64.sum(axis=(0, 1))
-            exposure_grad = torch.from_numpy(np.concatenate([g_gain, g_bias])) \
-                + 2.0 * exposure_reg * exposure_row.detach()
+            exposure_grad = np.concatenate([g_gain, g_bias]) + 2.0 * exposure_reg * e
             g_rgb = g_shown * gain
         self._phase("loss")
         # rasterizer backward
@@ -241,7 +298,7 @@ class FusedEngine:
                 arr.fill(0.0)
         self._dirty = True
         pose_grads = np.zeros((N_REDUCE, 15))
-        want_pose = world_to_camera is not None
+        want_pose = pose is not None
         rank = np.empty_like(perm)
         rank[perm] = np.arange(m_rows)
         project_backward_kernel(visible, rank, entry_grads, row_start, entry_pos, geom, means, quats, log_scales,
@@ -253,12 +310,9 @@ class FusedEngine:
         self._phase("project backward")
         pose_grad = None
         if want_pose:
-            pg = torch.from_numpy(pose_grads.sum(axis=0))
-            rot, trans = world_to_camera[:3, :3], world_to_camera[:3, 3]
-            cam_center = -rot.T @ trans
-            outputs = [rot, trans, cam_center, pose_reg * (pose_row * pose_row).sum()]
-            grads = [pg[:9].reshape(3, 3), pg[9:12], pg[12:15], torch.ones((), dtype=torch.float64)]
-            pose_grad = torch.autograd.grad(outputs, pose_row, grads)[0]
+            pg = pose_grads.sum(axis=0)
+            pose_grad = pose_gradient(camera.world_to_camera, pose, pg[:9].reshape(3, 3), pg[9:12], pg[12:15]) \
+                + 2.0 * pose_reg * np.asarray(pose, np.float64)
         self._phase("pose")
         return FusedStepResult(float(loss), float(mse), pose_grad, exposure_grad, order, g)
 

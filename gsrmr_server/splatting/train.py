@@ -241,18 +241,13 @@ class Trainer:
         """The fused engine's step (:class:`~gsrmr_server.splatting.fused.FusedEngine`); (loss, MSE)."""
         cfg, st = self.config, self.state
         frame = self.frames[view]
-        pose_row = None if st.pose is None else st.pose.row(view)
-        exposure_row = None if st.exposure is None else st.exposure.values[view].clone()
-        w2c = None if pose_row is None else corrected_world_to_camera(self._recorded_w2c[view], pose_row)
         res = self._fused.step(st, frame.camera, self._target_arrays[view], it, self.lr,
                                background=cfg.background, near_m=cfg.near_m, sh_degree=st.sh_active,
-                               world_to_camera=w2c, pose_row=pose_row, pose_reg=cfg.pose_reg,
-                               exposure_row=exposure_row, exposure_reg=cfg.exposure_reg)
-        if pose_row is not None:
-            pose_row.grad = res.pose_grad
-        if exposure_row is not None:
-            exposure_row.grad = res.exposure_grad
-        self._update_corrections(it, view, pose_row, exposure_row)
+                               pose=None if st.pose is None else st.pose.values[view].numpy(), pose_reg=cfg.pose_reg,
+                               exposure=None if st.exposure is None else st.exposure.values[view].numpy(),
+                               exposure_reg=cfg.exposure_reg)
+        self._update_corrections(it, view, None if res.pose_grad is None else torch.from_numpy(res.pose_grad),
+                                 None if res.exposure_grad is None else torch.from_numpy(res.exposure_grad))
         return res.loss, res.mse
 
     def _step_torch(self, it: int, view: int) -> tuple[float, float]:
@@ -289,21 +284,23 @@ class Trainer:
                                                    torch.from_numpy(out.radius_px.astype(np.float32)))
             st.last_seen[idx] = it
             self._adam(it)
-            self._update_corrections(it, view, pose_row, exposure_row)
+            self._update_corrections(it, view, None if pose_row is None else pose_row.grad,
+                                     None if exposure_row is None else exposure_row.grad)
             mse = float(((rgb.clamp(0, 1) - target) ** 2).mean())
         return float(loss.detach()), mse
 
     def _adam(self, it: int) -> None:
         adam_step(self.state, self.lr, it)
 
-    def _update_corrections(self, it: int, view: int, pose_row: torch.Tensor | None,
-                            exposure_row: torch.Tensor | None) -> None:
-        """Adam step of the view's pose and exposure rows, then the gauge rule (the rows' mean is zero)."""
+    def _update_corrections(self, it: int, view: int, pose_grad: torch.Tensor | None,
+                            exposure_grad: torch.Tensor | None) -> None:
+        """Adam step of the view's pose and exposure rows from their gradients, then the gauge rule (the rows' mean
+        is zero)."""
         st = self.state
-        for name, table, row in (("pose", st.pose, pose_row), ("exposure", st.exposure, exposure_row)):
-            if table is None or row is None or row.grad is None:
+        for name, table, grad in (("pose", st.pose, pose_grad), ("exposure", st.exposure, exposure_grad)):
+            if table is None or grad is None:
                 continue
-            table.adam_update(view, row.grad, self.lr(name, it))
+            table.adam_update(view, grad, self.lr(name, it))
             table.remove_mean()
 
     # ------------------------------------------------------------------ per-frame corrections
