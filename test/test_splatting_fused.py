@@ -168,7 +168,8 @@ def test_float32_rasterizer_matches_the_float64_one():
                            np.ascontiguousarray(cam.world_to_camera), np.array(intr),
                            np.array(fov_limits(*intr, cam.width, cam.height)), cam.width, cam.height, 0.2, geom, box)
     visible = np.flatnonzero((box[:, 0] <= box[:, 1]) & (box[:, 2] <= box[:, 3]))
-    order = visible[depth_order(geom[visible, 6])]
+    perm = depth_order(geom[visible, 6])
+    order = visible[perm]
     packed = np.empty((len(order), PACK_WIDTH), np.float32)
     pbox = np.empty((len(order), 4), np.int64)
     gather_kernel(geom, box, order, model.means, model.sh[:, :1], model.sh[:, 1:], np.zeros(3), 0, packed, pbox)
@@ -176,7 +177,7 @@ def test_float32_rasterizer_matches_the_float64_one():
     w, h = cam.width, cam.height
     rgb64, _, _, t64, last64, (bbox, offsets, lst, tiles_x, tile) = rasterize_packed(packed.astype(np.float64),
                                                                                       pbox, w, h, bg, TILE, np.float64)
-    offsets2, lst2, row_start, entry_pos = bin_entries_kernel(pbox, tiles_x, (h + TILE - 1) // TILE)
+    offsets2, lst2, entry_start, entry_of = bin_entries_kernel(pbox, tiles_x, (h + TILE - 1) // TILE, perm)
     np.testing.assert_array_equal(offsets, offsets2)
     np.testing.assert_array_equal(lst, lst2)
     rgb, t, last = np.empty((h, w, 3), np.float32), np.empty((h, w), np.float32), np.empty((h, w), np.int64)
@@ -188,9 +189,11 @@ def test_float32_rasterizer_matches_the_float64_one():
     backward_kernel(packed.astype(np.float64), bbox, offsets, lst, w, h, tile, tiles_x, bg, t64, last64, g_rgb,
                     np.zeros((h, w)), 1, want)
     entries = np.empty((len(lst2), 9), np.float32)
-    backward_kernel32(packed, pbox, offsets2, lst2, w, h, tiles_x, bg, t, last, g_rgb.astype(np.float32), entries)
-    got = np.array([entries[entry_pos[row_start[j]:row_start[j + 1]]].astype(np.float64).sum(axis=0)
-                    for j in range(len(order))])
+    backward_kernel32(packed, pbox, offsets2, lst2, w, h, tiles_x, bg, t, last, g_rgb.astype(np.float32), entry_of,
+                      entries)
+    got = np.empty((len(order), 9))
+    got[np.argsort(perm)] = [entries[entry_start[q]:entry_start[q + 1]].astype(np.float64).sum(axis=0)
+                             for q in range(len(order))]
     np.testing.assert_allclose(got, want[0], rtol=0, atol=2e-5 * np.abs(want).max(axis=1, initial=0.0).max())
 
 

@@ -262,7 +262,7 @@ class FusedEngine:
         self._phase("gather+sh")
         # rasterizer forward (float32, vectorised: fused_raster)
         tiles_x, tiles_y = (width + TILE - 1) // TILE, (height + TILE - 1) // TILE
-        offsets, lst, row_start, entry_pos = bin_entries_kernel(pbox, tiles_x, tiles_y)
+        offsets, lst, entry_start, entry_of = bin_entries_kernel(pbox, tiles_x, tiles_y, perm)
         self._phase("bin")
         bg = np.asarray(background, np.float64)
         rgb = np.empty((height, width, 3), np.float32)
@@ -289,7 +289,8 @@ class FusedEngine:
         self._phase("loss")
         # rasterizer backward
         entry_grads = self._entry_buffer(lst.shape[0])
-        backward_kernel32(packed, pbox, offsets, lst, width, height, tiles_x, bg, final_t, last, g_rgb, entry_grads)
+        backward_kernel32(packed, pbox, offsets, lst, width, height, tiles_x, bg, final_t, last, g_rgb, entry_of,
+                          entry_grads)
         self._phase("raster backward")
         # chain rule to the parameters, density statistics
         g = self._grad_arrays(p)
@@ -301,7 +302,7 @@ class FusedEngine:
         want_pose = pose is not None
         rank = np.empty_like(perm)
         rank[perm] = np.arange(m_rows)
-        project_backward_kernel(visible, rank, entry_grads, row_start, entry_pos, geom, means, quats, log_scales,
+        project_backward_kernel(visible, rank, entry_grads, entry_start, geom, means, quats, log_scales,
                                 logits, sh_dc, sh_rest, w2c, intr, lims, center, degree, g["means"], g["quats"],
                                 g["log_scales"],
                                 g["opacity_logits"], g["sh_dc"], g["sh_rest"], pose_grads, want_pose,

@@ -232,14 +232,14 @@ def gather_kernel(geom, box, order, means, sh_dc, sh_rest, center, degree, out, 
 
 
 @nb.njit(parallel=True, cache=True, fastmath=True)
-def project_backward_kernel(visible, rank, entry_grads, row_start, entry_pos, geom, means, quats, log_scales,
+def project_backward_kernel(visible, rank, entry_grads, entry_start, geom, means, quats, log_scales,
                             opacity_logits, sh_dc, sh_rest, w2c, intr, lims, center, degree, g_means, g_quats,
                             g_log_scales, g_opacity, g_sh_dc, g_sh_rest, pose_grads, want_pose, half_w, half_h, radius,
                             grad_accum, grad_count, max_radius, last_seen, it):
     """Chain rule from the rasterizer's gradients to the parameters. Gaussian i = ``visible[q]`` (ascending, so that
     the parameter rows are visited in memory order) is packed row j = ``rank[q]``; its rasterizer gradient is the
-    sum of ``entry_grads`` rows ``entry_pos[row_start[j] : row_start[j + 1]]`` (its tile-list entries, in a fixed
-    order: the result does not depend on the thread count). Parameters' gradients: row i of ``g_means`` (3),
+    sum of ``entry_grads`` rows entry_start[q] … entry_start[q + 1] − 1 (its tile-list entries, in a fixed order:
+    the result does not depend on the thread count). Parameters' gradients: row i of ``g_means`` (3),
     ``g_quats`` (4), ``g_log_scales`` (3), ``g_opacity`` (1), ``g_sh_dc`` (1×3), ``g_sh_rest`` (K−1×3) (N rows;
     the others are not written). The forward is recomputed from the parameters in float64 (the torch path's
     :func:`~gsrmr_server.splatting.diffrender.project_torch`, activations and SH, no clamp at the near plane since
@@ -273,8 +273,7 @@ def project_backward_kernel(visible, rank, entry_grads, row_start, entry_pos, ge
             g_r = 0.0
             g_g = 0.0
             g_b = 0.0
-            for e in range(row_start[j], row_start[j + 1]):
-                r = entry_pos[e]
+            for r in range(entry_start[q], entry_start[q + 1]):
                 g_mx += entry_grads[r, 0]
                 g_my += entry_grads[r, 1]
                 g_A += entry_grads[r, 2]

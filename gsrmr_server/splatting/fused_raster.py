@@ -174,45 +174,48 @@ def _grad_row(state, base, du, u_lo, u_hi, jl, mx, half_a, half_c_dy2, b_dy, dy,
 
 
 @nb.njit(cache=True)
-def bin_entries_kernel(box, tiles_x, tiles_y):
-    """Tile lists of depth-ordered rows (:func:`~gsrmr_server.splatting.rasterize.bin_kernel`, :data:`TILE`) and,
-    per row, where its entries are: returns (offsets, lst, row_start, entry_pos) with row k's entries at list
-    positions entry_pos[row_start[k] : row_start[k + 1]] (tiles in row-major order). The backward writes one
-    gradient row per list entry; summing a Gaussian's entries in this fixed order makes its gradient independent
-    of the thread count."""
+def bin_entries_kernel(box, tiles_x, tiles_y, perm):
+    """Tile lists of depth-ordered rows (:func:`~gsrmr_server.splatting.rasterize.bin_kernel`, :data:`TILE`) and
+    where each list entry's gradient goes: returns (offsets, lst, entry_start, entry_of). Row j (depth order) is
+    Gaussian number ``perm[j]`` in index order (``order = visible[perm]``); the gradients of the entries of the
+    Gaussian q-th in index order are rows entry_start[q] … entry_start[q + 1] − 1 (its tiles in row-major order),
+    and list position p writes row entry_of[p]. So the chain rule reads them in memory order, and summing a
+    Gaussian's rows in that fixed order makes its gradient independent of the thread count."""
     n_tiles = tiles_x * tiles_y
     counts = np.zeros(n_tiles + 1, np.int64)
     m = box.shape[0]
-    row_start = np.zeros(m + 1, np.int64)
+    entry_start = np.zeros(m + 1, np.int64)
     for k in range(m):
         n_k = 0
         for ty in range(box[k, 2] // TILE, box[k, 3] // TILE + 1):
             for tx in range(box[k, 0] // TILE, box[k, 1] // TILE + 1):
                 counts[ty * tiles_x + tx + 1] += 1
                 n_k += 1
-        row_start[k + 1] = row_start[k] + n_k
+        entry_start[perm[k] + 1] = n_k
+    for q in range(m):
+        entry_start[q + 1] += entry_start[q]
     offsets = np.cumsum(counts)
     fill = offsets[:-1].copy()
     lst = np.empty(offsets[-1], np.int32)
-    entry_pos = np.empty(offsets[-1], np.int64)
-    e = 0
+    entry_of = np.empty(offsets[-1], np.int64)
     for k in range(m):
+        e = entry_start[perm[k]]
         for ty in range(box[k, 2] // TILE, box[k, 3] // TILE + 1):
             for tx in range(box[k, 0] // TILE, box[k, 1] // TILE + 1):
                 t = ty * tiles_x + tx
                 lst[fill[t]] = k
-                entry_pos[e] = fill[t]
+                entry_of[fill[t]] = e
                 e += 1
                 fill[t] += 1
-    return offsets, lst, row_start, entry_pos
+    return offsets, lst, entry_start, entry_of
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def backward_kernel32(packed, box, offsets, lst, width, height, tiles_x, bg, final_t, last_pos, g_rgb,
-                      entry_grads):
-    """Gradients given dL/d rgb (H×W×3): ``entry_grads`` (≥ list length, 9) float32 receives, per tile-list entry
-    (one Gaussian in one tile), d/d (mx, my, conic a, b, c, opacity, r, g, b) summed over that tile's pixels
-    (zero for the entries behind the tile's last blend). Each tile is written by one thread only."""
+                      entry_of, entry_grads):
+    """Gradients given dL/d rgb (H×W×3): row entry_of[p] of ``entry_grads`` (≥ list length, 9; float32) receives,
+    for tile-list position p (one Gaussian in one tile), d/d (mx, my, conic a, b, c, opacity, r, g, b) summed over
+    that tile's pixels (zero for the entries behind the tile's last blend). Each tile is written by one thread."""
     n_tiles = offsets.shape[0] - 1
     for ch in nb.prange(N_CHUNKS):
         state = np.empty(8 * _PLANE, np.float32)
@@ -249,8 +252,9 @@ def backward_kernel32(packed, box, offsets, lst, width, height, tiles_x, bg, fin
             for i in range(TILE):
                 du[i] = np.float32(x0 + i) + _FH
             for j in range(start + jmax, offsets[t + 1]):
+                e = entry_of[j]
                 for c in range(9):
-                    entry_grads[j, c] = _F0
+                    entry_grads[e, c] = _F0
             for j in range(start + jmax - 1, start - 1, -1):
                 k = lst[j]
                 mx, my = packed[k, 0], packed[k, 1]
@@ -272,9 +276,10 @@ def backward_kernel32(packed, box, offsets, lst, width, height, tiles_x, bg, fin
                     touched = True
                     _grad_row(state, np.uint64(r) * _U_TILE, du, u_lo, u_hi, jl, mx, half_a, half_c * dy * dy, cb * dy,
                               dy, ca, cb, cc, opacity, radius, red, green, blue, acc)
+                e = entry_of[j]
                 for c in range(9):
                     total = _F0
                     if touched:
                         for i in range(TILE):
                             total += acc[c * TILE + i]
-                    entry_grads[j, c] = total
+                    entry_grads[e, c] = total
