@@ -16,7 +16,8 @@ on two datasets; and (``--profile``) where one step's time goes in each engine.
 
 **Rows**: dataset × width (``--widths``) × numba threads (``--threads``) × engine (``--engines``), and the sandbox with
 pose refinement on (``pose_opt``, at ``--pose-opt-threads``) for both engines. torch runs on 1 thread in every row
-(``TrainConfig.torch_threads``). The engines of one configuration run one after the other (alternating which goes
+(``TrainConfig.torch_threads``); the fused engine's adaptive thread count is off (``adaptive_threads``): every step
+uses the row's count. The engines of one configuration run one after the other (alternating which goes
 first from run to run), so that both see the same machine load; the load average is printed before each pair.
 
 **Each run** trains (seed = run index, ``final_prune`` off) until the last of ``--stages-min`` CPU-minutes of
@@ -110,7 +111,7 @@ def config(dataset: str, width: int, iterations: int, seed: int, engine: str, po
     else:
         cfg = TrainConfig(iterations=iterations, sh_degree=0, densify_until=(2 * iterations) // 3,
                           opacity_reset_interval=max(3000, iterations + 1))
-    cfg = replace(cfg, seed=seed, final_prune=False, engine=engine, pose_opt=pose_opt)
+    cfg = replace(cfg, seed=seed, final_prune=False, engine=engine, pose_opt=pose_opt, adaptive_threads=False)
     if quick:
         cfg = replace(cfg, init_points=1500, budget=6000, densify_from=20, densify_interval=20)
     return cfg

@@ -250,7 +250,7 @@ def test_training_is_identical_with_one_and_two_threads(monkeypatch):
     monkeypatch.setattr(fused, "SMALL_STEP_PIXELS", 0)  # this small run would otherwise always use one thread
     frames = views(8)
     cfg = TrainConfig(iterations=40, densify_from=10, densify_until=30, densify_interval=10, init_points=1500,
-                      sh_degree=1, sh_increase_interval=20, final_prune=False)
+                      sh_degree=1, sh_increase_interval=20, final_prune=False, adaptive_threads=False)
     params = []
     threads = numba.get_num_threads()
     try:
@@ -264,6 +264,19 @@ def test_training_is_identical_with_one_and_two_threads(monkeypatch):
         numba.set_num_threads(threads)
     for name, v in params[0].items():
         torch.testing.assert_close(params[1][name], v, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize(("one_s", "two_s", "choice"), [(0.030, 0.010, 2), (0.010, 0.030, 1)])
+def test_thread_chooser_runs_the_faster_count(one_s, two_s, choice):
+    chooser = fused.ThreadChooser(period=20, probe=3)
+    seen = []
+    for _ in range(40):
+        n = chooser.threads(2)
+        seen.append(n)
+        chooser.record(n, one_s if n == 1 else two_s)
+    assert seen[:6] == [1, 1, 1, 2, 2, 2] and seen[20:26] == [1, 1, 1, 2, 2, 2]  # each period probes both
+    assert set(seen[6:20]) == {choice} and set(seen[26:]) == {choice} and chooser.choice == choice
+    assert fused.ThreadChooser().threads(1) == 1
 
 
 def test_fused_training_reaches_the_torch_engines_psnr():

@@ -141,11 +141,54 @@ def _rows(t: torch.Tensor) -> np.ndarray:
     return a.reshape(a.shape[0], -1)
 
 
+class ThreadChooser:
+    """One thread or all of them, by measurement: of every :attr:`period` steps, the first :attr:`probe` run on
+    one thread and the next :attr:`probe` on all; the rest on whichever had the lower median step time. The
+    choice follows the machine's load within a period and never changes a result (the fused step does not
+    depend on the thread count)."""
+
+    def __init__(self, period: int = 300, probe: int = 8) -> None:
+        self.period, self.probe = period, probe
+        self._n = 0
+        self._times: dict[int, list[float]] = {}
+        self._best: int | None = None
+
+    def threads(self, most: int) -> int:
+        """The thread count of the next step (``most``: numba's current count)."""
+        if most <= 1:
+            return 1
+        phase = self._n % self.period
+        if phase == 0:
+            self._times = {}
+        if phase < self.probe:
+            return 1
+        if phase < 2 * self.probe:
+            return most
+        if self._best is None or phase == 2 * self.probe:
+            one, many = self._times.get(1, []), [t for n, ts in self._times.items() if n > 1 for t in ts]
+            self._best = 1 if one and many and float(np.median(one)) < float(np.median(many)) else most
+        return min(self._best, most)
+
+    def record(self, threads: int, seconds: float) -> None:
+        """The wall time of the step just run on ``threads``."""
+        if self._n % self.period < 2 * self.probe:
+            self._times.setdefault(threads, []).append(seconds)
+        self._n += 1
+
+    @property
+    def choice(self) -> int | None:
+        """The thread count chosen at the last probe (None before the first)."""
+        return self._best
+
+
 class FusedEngine:
     """Runs :meth:`step` on a :class:`~gsrmr_server.splatting.optim.TrainState`; holds the rasterizer's
     gradient buffer between steps."""
 
-    def __init__(self) -> None:
+    def __init__(self, adaptive_threads: bool = True) -> None:
+        #: choose between one thread and numba's count by timing (:meth:`step`); off: always numba's count
+        self.adaptive_threads = adaptive_threads
+        self._chooser = ThreadChooser()
         self._loss = FusedLoss(LOSS_LAMBDA)
         self._entry_grads = np.zeros((0, RASTER_GRADS), np.float32)
         self._geom = np.zeros((0, GEOM_WIDTH))
@@ -188,19 +231,28 @@ class FusedEngine:
         ``it`` (Adam's step count; ``lr(name, it)`` the learning rate of each group): :meth:`gradients`, then Adam
         over every row of every parameter (rows no Gaussian gradient reached: gradient zero, as torch's). Updates
         the parameters, Adam moments and density statistics in place; the correction rows are left to the caller
-        (their gradients are returned). A small step (at most :data:`SMALL_STEP_PIXELS` pixels and
-        :data:`SMALL_STEP_GAUSSIANS` Gaussians) runs on one numba thread: its kernels are too short to gain from a
-        second thread, and on a busy machine every parallel region waits for its threads to be scheduled. The
-        result does not depend on the thread count."""
+        (their gradients are returned).
+
+        Threads: numba's current count is the most a step uses. A small step (at most :data:`SMALL_STEP_PIXELS`
+        pixels and :data:`SMALL_STEP_GAUSSIANS` Gaussians) runs on one: its kernels are too short to gain from
+        more. Otherwise, with :attr:`adaptive_threads`, :class:`ThreadChooser` times steps on one thread and on
+        all of them now and then and runs the faster: on a machine whose cores are busy with other work, each of a
+        step's parallel regions waits for its threads to be scheduled, and one thread is then several times faster.
+        The result does not depend on the thread count."""
         threads = numba.get_num_threads()
         small = camera.width * camera.height <= SMALL_STEP_PIXELS and state.params["means"].shape[0] <= \
             SMALL_STEP_GAUSSIANS
-        if small and threads > 1:
-            numba.set_num_threads(1)
+        use = 1 if small else (self._chooser.threads(threads) if self.adaptive_threads else threads)
+        if use != threads:
+            numba.set_num_threads(use)
         try:
-            return self._step(state, camera, target, it, lr, **options)
+            t0 = time.perf_counter()
+            res = self._step(state, camera, target, it, lr, **options)
+            if self.adaptive_threads and not small:
+                self._chooser.record(use, time.perf_counter() - t0)
+            return res
         finally:
-            if small and threads > 1:
+            if use != threads:
                 numba.set_num_threads(threads)
 
     def _step(self, state: TrainState, camera: Camera, target: np.ndarray, it: int, lr, **options) -> FusedStepResult:

@@ -146,7 +146,7 @@ class Trainer:
         self._perm: list[int] = []
         if cfg.engine not in ENGINES:
             raise ValueError(f"Trainer: engine must be one of {', '.join(ENGINES)}, got {cfg.engine!r}")
-        self._fused = FusedEngine()
+        self._fused = FusedEngine(adaptive_threads=cfg.adaptive_threads)
         self._target_arrays = [t.numpy() for t in self.targets]
 
     @classmethod

@@ -64,6 +64,10 @@ class TrainConfig:
     # The step's engine (ENGINES): "fused" (numba kernels, no autograd; same maths, several times faster on the
     # CPU) or "torch" (autograd through the numba rasterizer: the reference the fused engine's tests compare to).
     engine: str = "fused"
+    # The fused engine runs each step on one numba thread or on numba's count, whichever its timing probes found
+    # faster (fused.ThreadChooser; on a busy machine one thread is several times faster); False: numba's count.
+    # Never changes a result.
+    adaptive_threads: bool = True
 
     def to_dict(self) -> dict:
         """JSON-friendly dict."""
