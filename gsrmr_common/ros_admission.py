@@ -7,7 +7,8 @@ deserializes and delivers only what is admitted — a refused message costs a di
 deserialization. The gate learns the endpoints from the graph (``Node.get_publishers_info_by_topic``: node name,
 namespace, endpoint GID): every :data:`REFRESH_S` (1 s) for every gated topic, and at once for the topic of a
 message whose GID it does not know yet (at most every 20 ms per topic). A held message is re-checked every 50 ms
-while any is held, for ``hold_s`` (2 s) at most; at most ``hold_max`` (64) are held. The look-up costs about 17 µs
+while any is held, for ``hold_s`` (2 s) at most; at most ``hold_max`` (64) are held; a writer's later message never
+overtakes its held ones (it is held behind them, or delivered after them). The look-up costs about 17 µs
 per topic on a small graph (measured here, rmw_fastrtps_cpp): ≈ 0.1 ms/s for a node with six gated topics.
 
 :class:`ParameterAudit` is the other half of a node's guard: its live parameters change only when the node was
@@ -95,6 +96,13 @@ class GatedInputs:
         gid_info = info.get("publisher_gid") or {}
         gid = bytes(gid_info.get("data", b""))
         now = time.monotonic()
+        if self.gate.holding(topic, gid):  # this writer's earlier messages wait for its name: none may overtake them
+            if now - self._refreshed_s.get(topic, 0.0) >= PROMPT_REFRESH_S:
+                self._refresh_topic(topic, now)
+            self._recheck()
+            if self.gate.holding(topic, gid):
+                self.gate.hold(topic, gid, (gid, payload), now)
+                return
         verdict = self.gate.check(topic, gid, now)
         if verdict is Verdict.HOLD and now - self._refreshed_s.get(topic, 0.0) >= PROMPT_REFRESH_S:
             self._refresh_topic(topic, now)  # a writer the graph may know by now

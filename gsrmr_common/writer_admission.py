@@ -229,6 +229,11 @@ class WriterGate:
             old = self._held.popleft()
             self.refused[(old.topic, gid_label(old.gid), "held_over")] += 1
 
+    def holding(self, topic: str, gid: bytes | None) -> bool:
+        """Whether a message of ``topic`` from ``gid`` is held (a later one must not overtake it)."""
+        key = bytes(gid or b"")
+        return any(h.topic == topic and h.gid == key for h in self._held)
+
     @property
     def held(self) -> int:
         """Messages waiting for their writer to appear in the graph."""
@@ -287,12 +292,18 @@ class SeqTracker:
     def accept(self, gid: bytes | None, seq: int) -> bool:
         """True (and remembered) when ``seq`` is above the last one accepted from ``gid``; False for a repeat or an
         older one (a replay)."""
+        return self.check(gid, seq) == "new"
+
+    def check(self, gid: bytes | None, seq: int) -> str:
+        """``"new"`` (remembered) when ``seq`` is above the last one accepted from ``gid``; ``"repeat"`` for the
+        same ``seq`` again from the same endpoint (a latched sample DDS delivers once more: nothing new, no lie);
+        ``"older"`` for one below it (a replay)."""
         key = bytes(gid or b"")
         last = self._last.get(key)
         if last is not None and seq <= last:
-            return False
+            return "repeat" if seq == last else "older"
         self._last.pop(key, None)
         self._last[key] = int(seq)
         while len(self._last) > self.keep:  # forget the writers not heard from longest
             del self._last[next(iter(self._last))]
-        return True
+        return "new"

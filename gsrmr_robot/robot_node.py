@@ -339,8 +339,11 @@ class RobotNode(Node):
             return
         reason = schedule_problem(sched, self.clock.slot_at(self.get_clock().now().nanoseconds),
                                   self._schedule_limits)
-        if reason is None and not self._schedule_seq.accept(gid, sched.seq):
-            reason = "schedule_seq"
+        if reason is None:
+            seq = self._schedule_seq.check(gid, sched.seq)
+            if seq == "repeat":  # the same schedule delivered again (latched): nothing new
+                return
+            reason = "schedule_seq" if seq == "older" else None
         if reason:
             self.implausible[reason] += 1
             self.get_logger().warning(f"schedule seq {sched.seq} refused ({reason}) from "

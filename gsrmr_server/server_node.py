@@ -195,8 +195,11 @@ class ServerNode(Node):
             self.get_logger().error(f"schedule refused: {err}", throttle_duration_sec=5.0)
             return
         reason = schedule_problem(sched, self.clock.slot_at(self.get_clock().now().nanoseconds), _SCHEDULE_LIMITS)
-        if reason is None and not self._schedule_seq.accept(gid, sched.seq):
-            reason = "schedule_seq"
+        if reason is None:
+            seq = self._schedule_seq.check(gid, sched.seq)
+            if seq == "repeat":  # the same schedule delivered again (latched): nothing new
+                return
+            reason = "schedule_seq" if seq == "older" else None
         with self._lock:
             if reason:
                 self.implausible[reason] += 1

@@ -78,6 +78,9 @@ SIM_WRITERS: dict[str, dict[str, list[str]]] = {
     "gsrmr_scheduler": {"robot_writers": ["gsrmr_robot"], "loss_writers": ["gsrmr_server"],
                         "channel_writers": ["gsrmr_sim_channel"]},
     "gsrmr_limo_base": {"cmd_vel_writers": ["gsrmr_route_follower"]},
+    # the measuring instrument: a rogue's ledger or camera_info must not bend the scores either
+    "gsrmr_sim_scorer": {"robot_writers": ["gsrmr_robot"], "server_writers": ["gsrmr_server"],
+                         "camera_writers": ["gsrmr_mock_camera"]},
 }
 
 

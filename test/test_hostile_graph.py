@@ -64,6 +64,78 @@ def test_gated_inputs_admit_by_writer_gid_and_name_the_stranger():
         rclpy.shutdown(context=ctx)
 
 
+class _FakeTimer:
+    def __init__(self) -> None:
+        self.canceled = False
+
+    def cancel(self) -> None:
+        self.canceled = True
+
+    def reset(self) -> None:
+        self.canceled = False
+
+    def is_canceled(self) -> bool:
+        return self.canceled
+
+
+class _FakeNode:
+    """What GatedInputs uses of a node: the graph is a list the test sets, the raw callback is called by hand."""
+
+    def __init__(self) -> None:
+        self.graph: list = []
+        self.callback = None
+
+    def get_namespace(self) -> str:
+        return "/"
+
+    def create_timer(self, _period, _callback, callback_group=None) -> _FakeTimer:
+        return _FakeTimer()
+
+    def create_subscription(self, _kind, topic, callback, _qos, callback_group=None, raw=False):
+        assert raw
+        self.callback = callback
+        return type("Sub", (), {"topic_name": "/" + topic})()
+
+    def get_publishers_info_by_topic(self, _name) -> list:
+        return list(self.graph)
+
+
+@pytest.mark.ros
+def test_a_held_writers_later_message_never_overtakes_its_earlier_ones():
+    """A schedule that arrives before its writer's name is known is held; the next one (the graph names the writer by
+    then) is delivered after it, not before — else the first would then look like a replayed older seq."""
+    from types import SimpleNamespace
+
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import Float64MultiArray
+
+    from gsrmr_common.ros_admission import PROMPT_REFRESH_S, GatedInputs
+
+    node = _FakeNode()
+    got: list[float] = []
+    inputs = GatedInputs(node)
+    inputs.subscribe(Float64MultiArray, "gsrmr/schedule", lambda m, _gid: got.append(m.data[0]), 1,
+                     ["gsrmr_scheduler"], rate_hz=0.0, burst=1.0)
+    gid = b"\x07" * 16
+
+    def endpoint(name: str):
+        return SimpleNamespace(endpoint_gid=gid, node_namespace="/", node_name=name)
+
+    def arrive(seq: float) -> None:
+        time.sleep(1.5 * PROMPT_REFRESH_S)  # past the refresh throttle: each arrival may re-read the graph
+        node.callback(serialize_message(Float64MultiArray(data=[seq])), {"publisher_gid": {"data": gid}})
+
+    node.graph = [endpoint("_NODE_NAME_UNKNOWN_")]  # discovery has the endpoint, not yet its node's name
+    arrive(3.0)
+    arrive(4.0)
+    assert got == [] and inputs.gate.held == 2  # both wait, in order
+    node.graph = [endpoint("gsrmr_scheduler")]
+    arrive(5.0)
+    assert got == [3.0, 4.0, 5.0] and inputs.gate.held == 0
+    arrive(6.0)
+    assert got == [3.0, 4.0, 5.0, 6.0] and not inputs.gate.refused
+
+
 @pytest.mark.ros
 def test_a_node_started_without_live_changes_refuses_every_change_and_says_why():
     """The robot node as deployed (``live_parameter_changes`` false): a live parameter is refused with the reason, a
@@ -304,3 +376,7 @@ def test_the_stack_exits_cleanly_after_the_lies(stack):
     assert checks["gsrmr_scheduler"]["implausible"]["loss_range"] >= 40  # the impostor's
     assert checks["gsrmr_scheduler"]["replans_refused"] > 20
     assert checks["gsrmr_limo_base"]["writers_refused"][f"/{ROGUE_NAME}"]["cmd_vel unlisted"] >= 40
+    # the simulation's measuring instrument took neither the foreign ledger nor the rogue camera_info
+    (line,) = [line for line in stack.log("gsrmr_sim_scorer").splitlines() if SUMMARY_PREFIX in line]
+    scorer = json.loads(line.split(SUMMARY_PREFIX, 1)[1])["writers_refused"][f"/{ROGUE_NAME}"]
+    assert scorer.get("gsrmr/ledger unlisted", 0) >= 10 and scorer.get("uplink/camera_info unlisted", 0) >= 1, scorer

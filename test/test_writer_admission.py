@@ -148,6 +148,14 @@ def test_a_restarted_writer_is_readmitted_two_live_endpoints_are_an_alarm():
     assert gate.check(TOPIC, ROBOT, 0.0) is Verdict.HOLD  # the dead GID is no longer known
 
 
+def test_a_writers_later_message_is_known_to_wait_behind_its_held_ones():
+    gate = _gate("gsrmr_robot")
+    gate.hold(TOPIC, ROBOT, "seq 3", 0.0)
+    assert gate.holding(TOPIC, ROBOT) and not gate.holding(TOPIC, ROGUE) and not gate.holding("other", ROBOT)
+    gate.update(TOPIC, [Endpoint(ROBOT, "/gsrmr_robot")])
+    assert gate.release(0.1) == [(TOPIC, "seq 3")] and not gate.holding(TOPIC, ROBOT)
+
+
 def test_every_writer_endpoint_is_rate_limited():
     gate = WriterGate("/")
     gate.add_topic(TOPIC, ["gsrmr_robot", "gsrmr_uplink_relay"], rate_hz=40.0, burst=10.0)
@@ -165,6 +173,7 @@ def test_seq_must_grow_per_writer_endpoint():
     seq = SeqTracker(keep=2)
     assert seq.accept(ROBOT, 5) and seq.accept(ROBOT, 6)
     assert not seq.accept(ROBOT, 6) and not seq.accept(ROBOT, 3)  # a repeat, a replayed older schedule
+    assert seq.check(ROBOT, 6) == "repeat" and seq.check(ROBOT, 3) == "older" and seq.check(ROBOT, 7) == "new"
     assert seq.accept(SERVER, 1)  # a restarted scheduler (new endpoint) starts afresh
     assert seq.accept(ROGUE, 100) and seq.accept(ROBOT, 1)  # keep=2: ROBOT forgotten behind SERVER and ROGUE
 

@@ -28,6 +28,7 @@ from gsrmr_common.link_model import SLOT_S
 from gsrmr_common.node_params import NodeParameters, ros_parameter
 from gsrmr_common.slot_clock import SlotClock
 from gsrmr_common.wire import LedgerRow, MRSlotInfo
+from gsrmr_common.writer_admission import writer_list_problem
 from gsrmr_server.server_params import ServerParameters
 from gsrmr_sim.truth_frames import match_frame
 
@@ -66,11 +67,23 @@ class ScorerParameters(NodeParameters):
         "images come", min_value=0.0, max_value=600.0, read_only=True)
     render_threads: int = ros_parameter(1, "CPU threads of the GS render (0 = every core)", min_value=0,
                                         max_value=256, read_only=True)
+    # Who may write what the scorer reads (docs/security.md, "Application checks"): it is the simulation's measuring
+    # instrument, so a rogue's lie must not reach it either (* = any writer; gsrmr_sim.sim_stack.SIM_WRITERS names
+    # the stack's nodes)
+    robot_writers: tuple[str, ...] = ros_parameter(
+        ("*",), "Nodes whose gsrmr/ledger and uplink/camera_info are scored against (the robot)", read_only=True)
+    server_writers: tuple[str, ...] = ros_parameter(
+        ("*",), "Nodes whose mr/image and mr/slot_info are scored (the server)", read_only=True)
+    camera_writers: tuple[str, ...] = ros_parameter(
+        ("*",), "Nodes whose camera/image_raw is the truth (the simulated camera)", read_only=True)
     camera_mount: CameraMount = field(default_factory=CameraMount)  # gsrmr_common.ros_node.declare_camera_mount
 
     @classmethod
     def rule(cls, name: str, value: Any) -> str | None:
-        """The server's rules for the parameters they share (``model_path`` required, the background in [0, 1])."""
+        """The server's rules for the parameters they share (``model_path`` required, the background in [0, 1]); a
+        writer list names nodes."""
+        if name in ("robot_writers", "server_writers", "camera_writers"):
+            return writer_list_problem(name, value)
         return ServerParameters.rule(name, value)
 
 

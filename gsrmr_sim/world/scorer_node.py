@@ -34,6 +34,7 @@ from std_msgs.msg import Float64MultiArray
 
 from gsrmr_common.camera import Intrinsics
 from gsrmr_common.interrupts import console_main
+from gsrmr_common.ros_admission import GatedInputs
 from gsrmr_common.ros_node import declare_camera_mount, declare_parameters, run_node
 from gsrmr_common.ros_wire import (
     CAMERA_INFO_QOS,
@@ -89,12 +90,17 @@ class ScorerNode(Node):
         self._stop = threading.Event()
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._after_set)
-        self.create_subscription(Image, "mr/image", self.on_mr_image, UPLINK_QOS)
-        self.create_subscription(Float64MultiArray, MR_SLOT_INFO_TOPIC, self.on_slot_info, UPLINK_QOS)
-        self.create_subscription(Float64MultiArray, "gsrmr/ledger", self.on_ledger, UPLINK_QOS)
-        self.create_subscription(CameraInfo, "uplink/camera_info", self.use_camera_info, CAMERA_INFO_QOS)
-        if self.truth_files is None:
-            self.create_subscription(Image, "camera/image_raw", self.on_camera, CAMERA_QOS)
+        # only from the stack's own nodes (the writer lists): a rogue's ledger or camera_info must not bend the scores
+        self.inputs = GatedInputs(self)
+        for kind, topic, callback, qos, writers in (
+                (Image, "mr/image", self.on_mr_image, UPLINK_QOS, p.server_writers),
+                (Float64MultiArray, MR_SLOT_INFO_TOPIC, self.on_slot_info, UPLINK_QOS, p.server_writers),
+                (Float64MultiArray, "gsrmr/ledger", self.on_ledger, UPLINK_QOS, p.robot_writers),
+                (CameraInfo, "uplink/camera_info", self.use_camera_info, CAMERA_INFO_QOS, p.robot_writers),
+                *([(Image, "camera/image_raw", self.on_camera, CAMERA_QOS, p.camera_writers)]
+                  if self.truth_files is None else [])):
+            self.inputs.subscribe(kind, topic, lambda msg, _gid, cb=callback: cb(msg), qos, writers, rate_hz=0.0,
+                                  burst=1.0)
         self._thread = threading.Thread(target=self._work, name="scorer", daemon=True) if worker else None
         if self._thread is not None:
             self._thread.start()
@@ -253,6 +259,7 @@ class ScorerNode(Node):
             self._thread.join(timeout=30)
         if self.writer is not None:
             self.writer.close()
+        self.inputs.log_summary()
         print(f"gsrmr_sim_scorer: {self.report()}", flush=True)  # the context may be down: no rosout
 
 
