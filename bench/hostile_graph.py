@@ -10,10 +10,13 @@ Per run it prints: images sent, mean MR loss (the scorer's, against the simulato
 ratio against upload-all **on the simulator's true channel** — each slot's energies (the run's, upload-all's and the
 hindsight optimum's) rescaled from the gain the robot's ledger booked to the gain the simulated radio published
 (power ∝ 1/g for fixed bits; the bench records the radio's samples by writer name, so a lie the robot took cannot
-lower them) —, slots on time, the messages each deployment node refused (by writer) and found implausible, and the
-nodes that named the rogue on ``/diagnostics``. Then, per case, the median and the worst run.
+lower them) —, slots on time, the messages each deployment node refused (by writer) and found implausible, the
+nodes that named the rogue on ``/diagnostics``, and how loaded the machine was (the load average at the round's end;
+the server's render wall time over its CPU time, about 2 when it has a core). Then, per case, the median and the
+worst run.
 
-``--quick``: one short case (``schedule``, one run of 100 slots) to check the bench itself.
+``--quick``: one short case (``schedule``, one run of 100 slots) to check the bench itself. ``--reader-shm``: the
+``reader`` case's stopped child on the default transport (shared memory too) instead of UDP.
 """
 
 from __future__ import annotations
@@ -129,7 +132,7 @@ def true_channel_figures(rows: list[dict], true_gain: dict[int, float], loss_thr
             "true_regret": hindsight_summary(fixed, loss_threshold)["regret"], "slots_without_true_gain": missing}
 
 
-def run_case(case: str, demo_args: list[str], out_root: Path) -> dict:
+def run_case(case: str, demo_args: list[str], out_root: Path, rogue_args: tuple[str, ...] = ()) -> dict:
     """One demo round with the rogue of ``case`` (none: no rogue): the demo's summary, the true-channel figures,
     what the nodes counted and who named the rogue."""
     from gsrmr_server.recording import read_slots_csv
@@ -163,8 +166,8 @@ def run_case(case: str, demo_args: list[str], out_root: Path) -> dict:
                     with open(out_root / f"{out.name}-rogue.log", "w") as rogue_log:
                         rogue = subprocess.Popen(["nice", "-n", str(ROGUE_NICE), sys.executable,
                                                   str(REPO / "test" / "hostile.py"), case, "--duration-s",
-                                                  f"{lie_s:.1f}", "--out", str(rogue_out)], env=env, stdout=rogue_log,
-                                                 stderr=subprocess.STDOUT)
+                                                  f"{lie_s:.1f}", "--out", str(rogue_out), *rogue_args], env=env,
+                                                 stdout=rogue_log, stderr=subprocess.STDOUT)
             if "round 2: " in line and progress == 2 and monitor is not None and "graph_lookup_us" not in extra:
                 extra["graph_lookup_us"] = round(monitor.graph_lookup_us(), 1)
             if "gsrmr demo — " in line and rogue is not None:  # the round is over: the rogue stops lying
@@ -197,6 +200,13 @@ def run_case(case: str, demo_args: list[str], out_root: Path) -> dict:
         monitor.close()
     fig["rogue"] = json.loads(rogue_out.read_text()) if rogue_out.exists() else {}
     fig.update(extra)
+    # how loaded the machine was: the load average at the round's end, and how starved the server's render was
+    # (its wall time over its CPU time, medians per slot: about 2 when it has a core, 4-5 when others take them)
+    fig["load_1min"] = round(os.getloadavg()[0], 1)
+    server = out / "recording" / "server_summary.json"
+    stages = json.loads(server.read_text()).get("compose_ms_p50", {}) if server.exists() else {}
+    if stages.get("render") and stages.get("render_cpu"):
+        fig["render_wall_per_cpu"] = round(stages["render"] / stages["render_cpu"], 1)
     return fig
 
 
@@ -230,6 +240,8 @@ def main() -> int:
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--cases", nargs="*", default=list(ALL_CASES), choices=list(ALL_CASES))
     ap.add_argument("--quick", action="store_true", help="one short case (schedule, 1 run of 100 slots)")
+    ap.add_argument("--reader-shm", action="store_true",
+                    help="the reader case's child on the default transport (shared memory included), not UDP")
     ap.add_argument("demo_args", nargs="*", help="passed to gsrmr-demo (after --)")
     args = ap.parse_args()
     if args.quick:
@@ -244,7 +256,7 @@ def main() -> int:
     for case in args.cases:
         runs = []
         for k in range(args.runs):
-            fig = run_case(case, args.demo_args, out_root)
+            fig = run_case(case, args.demo_args, out_root, ("--reader-shm",) if args.reader_shm else ())
             runs.append(fig)
             refused, implausible = counted_cells(fig)
             named = ", ".join(SHORT.get(n, n) for n in fig.get("named_by", [])) or "—"
@@ -253,7 +265,8 @@ def main() -> int:
                   f"{named} | {fig['rogue'].get('sent', 0)} |", flush=True)
             notes = {k: v for k, v in fig["rogue"].items() if k in ("set_parameters", "replan_answers", "flood_hz",
                                                                    "flood_topic", "reader_ready", "recorded_image")}
-            notes.update({k: fig[k] for k in ("graph_lookup_us", "slots_without_true_gain") if k in fig})
+            notes.update({k: fig[k] for k in ("graph_lookup_us", "slots_without_true_gain", "load_1min",
+                                              "render_wall_per_cpu") if k in fig})
             if notes:
                 print(f"|   | rogue: {json.dumps(notes)} |", flush=True)
         if len(runs) > 1:

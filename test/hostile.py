@@ -15,9 +15,10 @@ Cases (:data:`CASES`; the issue's list, each at the rate the issue names where i
 ``image_replay``  the robot's first uploaded image again, stamped with the current slot, every slot;
 ``ledger``  a foreign ledger: every slot "image held back, link at 1 kbit/s";
 ``camera_info``  a rogue ``uplink/camera_info`` (twice the focal length), latched;
-``reader``  a reliable subscriber of the uploaded images that never acknowledges (a child process, stopped with
-    SIGSTOP: its DDS threads send no acknowledgement; continued for 0.5 s every 15 s, so its participant stays
-    alive and matched);
+``reader``  a reliable subscriber of the uploaded images that never acknowledges (a child process over UDP, stopped
+    with SIGSTOP once the robot has matched it: its DDS threads send no acknowledgement; continued for 0.5 s every
+    15 s, so its participant stays alive and matched; ``--reader-shm``: over the default transport, shared memory
+    included);
 ``flood``  10 kHz on one topic (``--flood-topic``, default ``gsrmr/loss_sample``) for ``--flood-s`` (3 s);
 ``params``  ``set_parameters`` from a stranger — admitting itself to a writer list, a live parameter of every
     deployment node — then ``gsrmr/replan`` 20 times a second;
@@ -111,6 +112,7 @@ class Rogue:
     def __init__(self, node: Any, ex: Any, *, stop: Callable[[], bool] = lambda: False,
                  watch: DiagnosticsWatch | None = None) -> None:
         self.node, self.ex, self.stop, self.watch = node, ex, stop, watch
+        self.reader_udp = True  # the reader case's child over UDP (False: the default transport, shared memory too)
         self.rng = np.random.default_rng(28)
         self.sent = 0
         self.notes: dict[str, Any] = {}
@@ -285,25 +287,39 @@ class Rogue:
         self._loop(duration_s, 1.0, step)
 
     def case_reader(self, duration_s: float) -> None:
-        child = subprocess.Popen([sys.executable, __file__, "--reader-child"], env=os.environ.copy(),
+        # the reader talks UDP, as a participant on another machine does: a stopped process on this machine's shared
+        # memory would freeze the Fast DDS transport of every writer that sends to it (its port no longer drains; the
+        # dead-port case of docs/reliability.md) — a local attack no application check can answer (docs/security.md)
+        env = {**os.environ, "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"} if self.reader_udp else os.environ.copy()
+        child = subprocess.Popen([sys.executable, __file__, "--reader-child"], env=env,
                                  stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         try:
             ready = child.stdout.readline().strip() if child.stdout else ""
             self.notes["reader_ready"] = ready == "ready"
             # stopped before discovery has finished, the reader would never be matched with the robot's image writer
-            # (endpoint discovery is itself a reliable exchange): wait until the robot names it on /diagnostics (a
-            # watch) or, without one, until this node's graph shows it and discovery has had a few seconds
-            if self.watch is not None:
-                seen = lambda: READER_NAME in self.watch.latest.get("gsrmr_robot", {}).get(  # noqa: E731
-                    "image_readers_unknown", "")
-            else:
-                seen = lambda: any(i.node_name == READER_NAME for i in  # noqa: E731
-                                   self.node.get_subscriptions_info_by_topic("uplink/image_raw/compressed"))
+            # (endpoint discovery is itself a reliable exchange): wait until this node's graph shows it, then until the
+            # robot names it on /diagnostics (a watch; a robot without that check — before issue 28 — gets 3 s)
+            def in_graph() -> bool:
+                return any(i.node_name == READER_NAME for i in
+                           self.node.get_subscriptions_info_by_topic("uplink/image_raw/compressed"))
+
+            def robot_named() -> bool | None:
+                status = self.watch.latest.get("gsrmr_robot") if self.watch is not None else None
+                if status is None or "image_readers_unknown" not in status:
+                    return None
+                return READER_NAME in status["image_readers_unknown"]
+
             end = time.monotonic() + 30.0
-            while not seen() and time.monotonic() < end and not self.stop():
+            while not in_graph() and time.monotonic() < end and not self.stop():
                 self.ex.spin_once(timeout_sec=0.1)
-            self.notes["reader_matched"] = seen()
-            self._loop(1.0 if self.watch is not None else 3.0, 0.5, lambda: None)
+            settle = time.monotonic() + 3.0
+            while time.monotonic() < end and not self.stop():
+                named = robot_named()
+                if named or (named is None and time.monotonic() >= settle):
+                    break
+                self.ex.spin_once(timeout_sec=0.1)
+            self.notes["reader_matched"] = in_graph() and robot_named() is not False
+            self.notes["reader_named_by_robot"] = bool(robot_named())
             end = time.monotonic() + duration_s
             stops = 0
             while time.monotonic() < end and not self.stop():
@@ -435,6 +451,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration-s", type=float, default=20.0)
     ap.add_argument("--out", default="")
     ap.add_argument("--flood-topic", default="gsrmr/loss_sample")
+    ap.add_argument("--reader-shm", action="store_true", help="reader case: the child on the default transport")
     ap.add_argument("--reader-child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.reader_child:
@@ -461,6 +478,7 @@ def main(argv: list[str] | None = None) -> int:
     marker = named_marker(name, args.case)
     watch.look_for(marker)
     rogue = Rogue(node, ex, stop=lambda: stopped["flag"], watch=watch)
+    rogue.reader_udp = not args.reader_shm
     options = {"flood_topic": args.flood_topic} if args.case == "flood" else {}
     t0 = time.monotonic()
     result = rogue.run(args.case, args.duration_s, **options)
