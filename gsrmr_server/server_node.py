@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 import json
+import math
 from pathlib import Path
 import threading
 
@@ -166,8 +167,15 @@ class ServerNode(Node):
             except ValueError:  # wrong frame or an invalid stamp: refuse, never raise out of the callback
                 self.uplink.count(UplinkFault.MALFORMED_KEY)
                 return
+            last = self.poses.last
             if key.is_valid() and not self.poses.offer(key.slot, key.a_m, key.b_m):
                 self.implausible["pose_jump"] += 1  # faster than the robot drives: no relocalisation (yet)
+                if last is not None:  # what jumped, for a false alarm's diagnosis
+                    self.get_logger().warning(
+                        f"pose key refused (pose_jump): slot {key.slot} at ({key.a_m:.3f}, {key.b_m:.3f}) m, "
+                        f"{math.hypot(key.a_m - last[1], key.b_m - last[2]):.3f} m from the track's slot {last[0]} "
+                        f"({key.slot - last[0]} slots; reach {self.poses.reach_m(key.slot - last[0]):.3f} m)",
+                        throttle_duration_sec=1.0)
                 return
             self.uplink.on_key(key, self.clock.slot_at(now_ns), now_ns)
 
