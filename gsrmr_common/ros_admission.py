@@ -8,7 +8,10 @@ deserialization. The gate learns the endpoints from the graph (``Node.get_publis
 namespace, endpoint GID): every :data:`REFRESH_S` (1 s) for every gated topic, and at once for the topic of a
 message whose GID it does not know yet (at most every 20 ms per topic). A held message is re-checked every 50 ms
 while any is held, for ``hold_s`` (2 s) at most; at most ``hold_max`` (64) are held; a writer's later message never
-overtakes its held ones (it is held behind them, or delivered after them). The look-up costs about 17 µs
+overtakes its held ones (it is held behind them, or delivered after them). A flooded topic
+(:class:`~gsrmr_common.writer_admission.FloodBreaker`: 200 refusals within 1 s) loses its subscription for 1 s — the
+flood then reaches no reader here — and comes back; each pause is counted by topic and writer (``floods``) and
+warned about on ``/diagnostics``. The look-up costs about 17 µs
 per topic on a small graph (measured here, rmw_fastrtps_cpp): ≈ 0.1 ms/s for a node with six gated topics.
 
 :class:`ParameterAudit` is the other half of a node's guard: its live parameters change only when the node was
@@ -29,7 +32,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message
 
-from gsrmr_common.writer_admission import Endpoint, Verdict, WriterGate, join_node_name
+from gsrmr_common.writer_admission import Endpoint, FloodBreaker, Verdict, WriterGate, join_node_name
 
 #: How the shutdown line of :meth:`GatedInputs.log_summary` starts (a JSON object follows).
 SUMMARY_PREFIX = "input checks: "
@@ -50,8 +53,12 @@ class GatedInputs:
         self.node = node
         self.gate = WriterGate(node.get_namespace(), hold_s=hold_s, hold_max=hold_max)
         self._group = callback_group
-        self._subs: dict[str, tuple[Any, type, Deliver]] = {}  # gate key → (subscription, type, deliver)
+        self._subs: dict[str, tuple[Any, type, Deliver]] = {}  # gate key → (subscription or None, type, deliver)
+        self._qos: dict[str, QoSProfile | int] = {}
+        self._names: dict[str, str] = {}  # gate key → the resolved topic name
         self._refreshed_s: dict[str, float] = {}
+        self.breaker = FloodBreaker()
+        self._paused: dict[str, Any] = {}  # flooded topic → the timer that resubscribes it
         node.create_timer(REFRESH_S, self.refresh, callback_group=callback_group)
         self._hold_timer = node.create_timer(HOLD_RECHECK_S, self._recheck, callback_group=callback_group)
         self._hold_timer.cancel()
@@ -60,12 +67,40 @@ class GatedInputs:
                   rate_hz: float, burst: float) -> Any:
         """Subscribe ``topic`` (type ``kind``): ``deliver(msg, gid)`` gets each message a listed writer sent, within
         its rate limit (``rate_hz`` sustained per writer endpoint, ``burst`` at once)."""
-        sub = self.node.create_subscription(kind, topic, lambda raw, info, key=topic: self._on_raw(key, raw, info),
-                                            qos, callback_group=self._group, raw=True)
         self.gate.add_topic(topic, writers, rate_hz=rate_hz, burst=burst)
+        self._qos[topic] = qos
+        sub = self._create(topic, kind)
         self._subs[topic] = (sub, kind, deliver)
+        self._names[topic] = sub.topic_name
         self._refresh_topic(topic, time.monotonic())
         return sub
+
+    def _create(self, topic: str, kind: type) -> Any:
+        return self.node.create_subscription(kind, topic, lambda raw, info, key=topic: self._on_raw(key, raw, info),
+                                             self._qos[topic], callback_group=self._group, raw=True)
+
+    # ------------------------------------------------------------------ floods
+    def _pause(self, topic: str, writer: str) -> None:
+        """A flooded topic: drop its subscription (DDS then sends it nothing) and resubscribe after the pause."""
+        sub, kind, deliver = self._subs[topic]
+        if sub is None:
+            return
+        self.node.destroy_subscription(sub)
+        self._subs[topic] = (None, kind, deliver)
+        self._paused[topic] = self.node.create_timer(self.breaker.pause_s, lambda key=topic: self._resume(key),
+                                                     callback_group=self._group)
+        self.node.get_logger().warning(
+            f"{topic} flooded ({self.breaker.refusals} refused messages within {self.breaker.window_s:g} s, the last "
+            f"from {writer}): not reading it for {self.breaker.pause_s:g} s", throttle_duration_sec=5.0)
+
+    def _resume(self, topic: str) -> None:
+        timer = self._paused.pop(topic, None)
+        if timer is not None:
+            timer.cancel()
+            self.node.destroy_timer(timer)
+        _none, kind, deliver = self._subs[topic]
+        self._subs[topic] = (self._create(topic, kind), kind, deliver)
+        self._refresh_topic(topic, time.monotonic())
 
     # ------------------------------------------------------------------ graph
     def refresh(self) -> None:
@@ -76,8 +111,7 @@ class GatedInputs:
         self._recheck()
 
     def _refresh_topic(self, topic: str, now_s: float) -> None:
-        sub = self._subs[topic][0]
-        infos = self.node.get_publishers_info_by_topic(sub.topic_name)
+        infos = self.node.get_publishers_info_by_topic(self._names[topic])
         self.gate.update(topic, [Endpoint(bytes(i.endpoint_gid), join_node_name(i.node_namespace, i.node_name))
                                  for i in infos])
         self._refreshed_s[topic] = now_s
@@ -114,12 +148,29 @@ class GatedInputs:
             self.gate.hold(topic, gid, (gid, payload), now)
             if self._hold_timer.is_canceled():
                 self._hold_timer.reset()
+        else:
+            writer = self.writer_of(topic, gid)
+            if self.breaker.refused(topic, writer, now):
+                self._pause(topic, writer)
+
+    # ------------------------------------------------------------------ reporting
+    def diagnostic_values(self) -> dict[str, Any]:
+        """The gate's counters (:meth:`WriterGate.diagnostic_values`) and the floods: ``{"<topic> by <writer>":
+        pauses}``."""
+        trips = sorted(list(self.breaker.trips.items()))
+        return {**self.gate.diagnostic_values(), "floods": {f"{topic} by {writer}": n for (topic, writer), n in trips}}
+
+    def problems(self) -> list[str]:
+        """What ``/diagnostics`` warns about: the gate's problems and every flooded topic."""
+        return self.gate.problems() + [
+            f"{topic} flooded by {writer}: not read for {self.breaker.pause_s:g} s ({n} times)"
+            for (topic, writer), n in sorted(list(self.breaker.trips.items()))]
 
     def log_summary(self, implausible: dict[str, int] | None = None, **extra: Any) -> None:
         """One INFO line at shutdown, ``input checks: {JSON}`` (:data:`SUMMARY_PREFIX`): the writers refused by
         name, the implausible inputs by reason, the writer alarms and ``extra`` counters (a run's log then shows that
         a clean run refused nothing; ``bench/demo.py`` sums these lines)."""
-        values = self.gate.diagnostic_values()
+        values = self.diagnostic_values()
         values.pop("writers_held", None)
         values["implausible"] = dict(sorted((implausible or {}).items()))
         self.node.get_logger().info(SUMMARY_PREFIX + json.dumps({**values, **extra}, sort_keys=True))

@@ -18,6 +18,10 @@ message carries its writer's GID (``MessageInfo["publisher_gid"]``). :class:`Wri
   burst); what exceeds it is refused and counted ``rate``.
 
 :class:`SeqTracker` keeps a sequence number monotonic per writer endpoint (the schedule's ``seq``).
+:class:`FloodBreaker` tells when a topic is flooded — :data:`FLOOD_REFUSALS` refused messages within
+:data:`FLOOD_WINDOW_S` —: the node then stops reading it for :data:`FLOOD_PAUSE_S` (a refused message still costs the
+node's executor its dispatch, tens of microseconds: a 10 kHz flood would take a core; with the reader gone the
+writer has no one to send to).
 
 Times are seconds of any monotonic clock; GIDs are the bytes of ``rmw_gid_t`` (16 with Fast DDS).
 """
@@ -36,6 +40,12 @@ ANY_WRITER = "*"
 UNKNOWN_NODE_NAMES = frozenset({"", "_NODE_NAME_UNKNOWN_"})
 #: Why a message was refused (the counters' last key).
 REFUSAL_REASONS = ("unlisted", "unknown", "rate", "held_over")
+#: A topic is flooded when this many of its messages were refused within FLOOD_WINDOW_S (legitimate topics carry
+#: 10–20 messages/s; a listed writer is refused only beyond its rate limit, 40/s for the per-slot topics) …
+FLOOD_REFUSALS = 200
+FLOOD_WINDOW_S = 1.0
+#: … and then the node stops reading it for this long [s] (what legitimate writers send meanwhile is lost too).
+FLOOD_PAUSE_S = 1.0
 
 
 def join_node_name(namespace: str, name: str) -> str:
@@ -307,3 +317,29 @@ class SeqTracker:
         while len(self._last) > self.keep:  # forget the writers not heard from longest
             del self._last[next(iter(self._last))]
         return "new"
+
+
+class FloodBreaker:
+    """When a topic's refusals say it is flooded (:data:`FLOOD_REFUSALS` within :data:`FLOOD_WINDOW_S`); counts the
+    trips by topic and the writer whose refusal tripped it."""
+
+    def __init__(self, refusals: int = FLOOD_REFUSALS, window_s: float = FLOOD_WINDOW_S,
+                 pause_s: float = FLOOD_PAUSE_S) -> None:
+        if refusals < 1 or not window_s > 0 or not pause_s > 0:
+            raise ValueError("flood breaker: refusals >= 1, window_s and pause_s > 0")
+        self.refusals, self.window_s, self.pause_s = int(refusals), float(window_s), float(pause_s)
+        self._times: dict[str, deque[float]] = {}
+        self.trips: Counter[tuple[str, str]] = Counter()  # (topic, writer) → times the topic was paused
+
+    def refused(self, topic: str, writer: str, now_s: float) -> bool:
+        """One refused message of ``topic`` (from ``writer``) at ``now_s``: True when the topic is flooded now (the
+        caller pauses it; the window starts afresh)."""
+        times = self._times.setdefault(topic, deque())
+        times.append(now_s)
+        while times and now_s - times[0] > self.window_s:
+            times.popleft()
+        if len(times) < self.refusals:
+            return False
+        times.clear()
+        self.trips[(topic, writer)] += 1
+        return True

@@ -450,7 +450,7 @@ class RobotNode(Node):
                  "images_delivered_by_model": self.backlog.model_deliveries,
                  "implausible": json.dumps(self.implausible.values_for_diagnostics()),
                  **{k: json.dumps(v) if isinstance(v, dict) else v
-                    for k, v in {**self.inputs.gate.diagnostic_values(), **self.audit.diagnostic_values()}.items()}}
+                    for k, v in {**self.inputs.diagnostic_values(), **self.audit.diagnostic_values()}.items()}}
         self._pub_diag.publish(diagnostics_msg(
             self, name=f"{self.get_name()}: uplink energy ledger", hardware_id="gsrmr_robot",
             values={**totals, **extra}, problems=self._problems()))
@@ -463,7 +463,7 @@ class RobotNode(Node):
     def _problems(self) -> list[str]:
         """What ``/diagnostics`` warns about: missing frames or pose, no calibration yet, a refused calibration."""
         out = ["missing frames or pose"] if self.no_frame or self.no_pose else []
-        out += self.inputs.gate.problems()
+        out += self.inputs.problems()
         if self.implausible:
             out.append("implausible inputs refused: " + ", ".join(f"{k} {n}" for k, n in
                                                                   sorted(self.implausible.items())))

@@ -416,12 +416,12 @@ class SchedulerNode(Node):
                            "energy_j": r.energy_j, "feasible": r.feasible, "solve_time_s": round(r.solve_time_s, 5),
                            "seq": r.schedule.seq})
         values.update({k: json.dumps(v) if isinstance(v, dict) else v for k, v in {
-            **self.inputs.gate.diagnostic_values(), "implausible": self.implausible.values_for_diagnostics(),
+            **self.inputs.diagnostic_values(), "implausible": self.implausible.values_for_diagnostics(),
             "relocalisations": self.poses.relocalisations, "replans_refused": self.replans_refused,
             "loss_samples_unverified": self.loss_samples_unverified,
             **self.audit.diagnostic_values()}.items()})
         problems = [] if r is None or r.feasible else ["plan infeasible"]
-        problems += self.inputs.gate.problems()
+        problems += self.inputs.problems()
         if self.implausible:
             problems.append("implausible inputs refused: " + ", ".join(
                 f"{k} {n}" for k, n in sorted(self.implausible.items())))

@@ -296,14 +296,14 @@ class ServerNode(Node):
 
     def security_summary(self) -> dict:
         """What the known-writer and plausibility checks refused, and the live parameter changes (JSON-able)."""
-        return {**self.inputs.gate.diagnostic_values(), "implausible": self.implausible.values_for_diagnostics(),
+        return {**self.inputs.diagnostic_values(), "implausible": self.implausible.values_for_diagnostics(),
                 "relocalisations": self.poses.relocalisations, **self.audit.diagnostic_values()}
 
     def _publish_diagnostics(self) -> None:
         with self._lock:
             values, problems = diagnostic_report(self.stats.summary(self.uplink.faults), self.camera)
             values.update({k: json.dumps(v) if isinstance(v, dict) else v for k, v in self.security_summary().items()})
-            problems += self.inputs.gate.problems()
+            problems += self.inputs.problems()
             if self.implausible:
                 problems.append("implausible inputs refused: " + ", ".join(
                     f"{k} {n}" for k, n in sorted(self.implausible.items())))

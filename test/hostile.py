@@ -97,7 +97,7 @@ class DiagnosticsWatch:
         out = {}
         for key in ("writers_refused", "implausible", "writer_alarms", "parameter_changes",
                     "parameter_changes_refused", "replans_refused", "image_readers_unknown",
-                    "images_delivered_by_model", "schedule_seq"):
+                    "images_delivered_by_model", "schedule_seq", "floods", "loss_samples_unverified"):
             if key in values:
                 with contextlib.suppress(ValueError):
                     out[key] = json.loads(values[key])

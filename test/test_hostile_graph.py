@@ -84,17 +84,32 @@ class _FakeNode:
     def __init__(self) -> None:
         self.graph: list = []
         self.callback = None
+        self.subscriptions = 0  # live ones
+        self.timers: list = []  # (period, callback) of every timer created
 
     def get_namespace(self) -> str:
         return "/"
 
-    def create_timer(self, _period, _callback, callback_group=None) -> _FakeTimer:
+    def get_logger(self):
+        import logging
+
+        return type("Logger", (), {"warning": lambda _self, msg, **_kw: logging.getLogger("fake").warning(msg)})()
+
+    def create_timer(self, period, callback, callback_group=None) -> _FakeTimer:
+        self.timers.append((period, callback))
         return _FakeTimer()
+
+    def destroy_timer(self, _timer) -> None:
+        pass
 
     def create_subscription(self, _kind, topic, callback, _qos, callback_group=None, raw=False):
         assert raw
         self.callback = callback
+        self.subscriptions += 1
         return type("Sub", (), {"topic_name": "/" + topic})()
+
+    def destroy_subscription(self, _sub) -> None:
+        self.subscriptions -= 1
 
     def get_publishers_info_by_topic(self, _name) -> list:
         return list(self.graph)
@@ -134,6 +149,44 @@ def test_a_held_writers_later_message_never_overtakes_its_earlier_ones():
     assert got == [3.0, 4.0, 5.0] and inputs.gate.held == 0
     arrive(6.0)
     assert got == [3.0, 4.0, 5.0, 6.0] and not inputs.gate.refused
+
+
+@pytest.mark.ros
+def test_a_flooded_topic_is_not_read_for_a_while_then_read_again():
+    """200 refused messages within 1 s: the subscription goes (the flood then reaches no reader of this node), a
+    timer brings it back after 1 s; the pause is counted by topic and writer and warned about."""
+    from types import SimpleNamespace
+
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import Float64MultiArray
+
+    from gsrmr_common.ros_admission import GatedInputs
+
+    node = _FakeNode()
+    got: list[float] = []
+    inputs = GatedInputs(node)
+    inputs.subscribe(Float64MultiArray, "gsrmr/loss_sample", lambda m, _gid: got.append(m.data[0]), 50,
+                     ["gsrmr_server"], rate_hz=40.0, burst=60.0)
+    rogue, server = b"\x03" * 16, b"\x02" * 16
+    node.graph = [SimpleNamespace(endpoint_gid=rogue, node_namespace="/", node_name=ROGUE_NAME),
+                  SimpleNamespace(endpoint_gid=server, node_namespace="/", node_name="gsrmr_server")]
+    inputs.refresh()
+    payload = serialize_message(Float64MultiArray(data=[0.5]))
+    callback = node.callback
+    for _ in range(199):
+        callback(payload, {"publisher_gid": {"data": rogue}})
+    assert node.subscriptions == 1 and not inputs.breaker.trips
+    callback(payload, {"publisher_gid": {"data": server}})  # the listed writer still gets through
+    callback(payload, {"publisher_gid": {"data": rogue}})  # the 200th refusal within the second
+    assert node.subscriptions == 0 and got == [0.5]
+    assert inputs.diagnostic_values()["floods"] == {f"gsrmr/loss_sample by /{ROGUE_NAME}": 1}
+    assert any("flooded" in p for p in inputs.problems())
+    period, resume = node.timers[-1]
+    assert period == 1.0
+    resume()
+    assert node.subscriptions == 1
+    node.callback(payload, {"publisher_gid": {"data": server}})
+    assert got == [0.5, 0.5]
 
 
 @pytest.mark.ros
@@ -275,6 +328,9 @@ def test_a_flood_from_a_stranger_is_refused_and_the_node_keeps_planning(stack, r
     assert _eventually(ex, lambda: _refused(watch, "gsrmr_scheduler").get("gsrmr/loss_sample unlisted", 0) >= 100), \
         (_refused(watch, "gsrmr_scheduler"), result)
     assert watch.counters("gsrmr_scheduler").get("implausible", {}) == implausible
+    # the flood paused the scheduler's reader of the topic (it then reaches no one there), at least once
+    assert _eventually(ex, lambda: watch.counters("gsrmr_scheduler").get("floods", {}).get(
+        f"gsrmr/loss_sample by /{ROGUE_NAME}", 0) >= 1), watch.counters("gsrmr_scheduler")
     assert _eventually(ex, lambda: sum(json.loads(watch.latest["gsrmr_scheduler"]["replans"]).values())
                        > sum(replans.values()))  # it still plans
     _alive(stack)

@@ -33,6 +33,7 @@ from gsrmr_common.plausibility import (
 from gsrmr_common.wire import LedgerRow, LossSample, ScheduleMsg
 from gsrmr_common.writer_admission import (
     Endpoint,
+    FloodBreaker,
     RateLimit,
     SeqTracker,
     Verdict,
@@ -167,6 +168,17 @@ def test_every_writer_endpoint_is_rate_limited():
     bucket = RateLimit(10.0, 2.0)
     assert [bucket.take(t) for t in (0.0, 0.0, 0.0, 0.1, 0.15, 0.2)] == [True, True, False, True, False, True]
     assert all(RateLimit(0.0, 1.0).take(0.0) for _ in range(100))
+
+
+def test_a_flood_trips_the_breaker_a_legit_rate_does_not():
+    breaker = FloodBreaker(refusals=200, window_s=1.0, pause_s=1.0)
+    assert not any(breaker.refused(TOPIC, "/w", 0.1 * i) for i in range(1000))  # 10 refused per second: no flood
+    trips = [breaker.refused(TOPIC, "/rogue", 200 + 1e-4 * i) for i in range(1000)]  # 10 kHz for 0.1 s
+    assert trips.count(True) == 5 and trips.index(True) == 199  # every 200th refusal
+    assert breaker.trips == {(TOPIC, "/rogue"): 5}
+    assert not breaker.refused("other", "/rogue", 200.1)  # per topic
+    with pytest.raises(ValueError):
+        FloodBreaker(refusals=0)
 
 
 def test_seq_must_grow_per_writer_endpoint():

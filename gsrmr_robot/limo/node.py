@@ -211,12 +211,12 @@ class LimoBaseNode(Node):
     def _publish_diagnostics(self) -> None:
         snap = self.driver.snapshot()
         level, problems = diagnose(snap)
-        refused = self.inputs.gate.problems()
+        refused = self.inputs.problems()
         if refused:  # a stranger's cmd_vel ignored: a warning, however well the base runs
             level, problems = max(level, DiagnosticStatus.WARN), problems + refused
         values = dict(diagnostic_values(snap))
         values.update({k: json.dumps(v) if isinstance(v, dict) else str(v) for k, v in
-                       {**self.inputs.gate.diagnostic_values(), **self.audit.diagnostic_values()}.items()})
+                       {**self.inputs.diagnostic_values(), **self.audit.diagnostic_values()}.items()})
         self._diag_pub.publish(diagnostics_msg(self, name="gsrmr_limo_base: LIMO base", hardware_id=snap.link.port,
                                                values=values, level=level,
                                                message="; ".join(problems) if problems else "OK"))
