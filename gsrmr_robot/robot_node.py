@@ -49,7 +49,8 @@ What to send in a slot and its energy are decided by the pure slot core
 :mod:`gsrmr_common.link_model`); the node publishes each slot's ledger row on ``gsrmr/ledger``
 (``std_msgs/Float64MultiArray``, fields :data:`gsrmr_common.wire.LEDGER_FIELDS`) and totals on
 ``/diagnostics`` once a second. Its parameters (:class:`gsrmr_robot.robot_params.RobotParameters`: ``slot_s``,
-``jpeg_quality``, ``uplink_width_px``, ``default_upload_image``, ``max_frame_age_s``, ``map_from_odom``,
+``jpeg_quality``, ``uplink_width_px``, ``default_upload_image``, ``max_frame_age_s``, ``max_pose_age_s``,
+``map_from_odom``,
 ``camera_frame_id``, ``hold_images_while_queued``, ``uplink_ack_stale_s``, ``odom_frame_id``,
 ``base_frame_id``; ``camera_mount.*`` and the link budget of ``config/link.yaml``) are checked in the on-set
 callback and applied in the post-set callback (a new ``uplink_width_px`` rebuilds the maps and re-publishes
@@ -300,7 +301,7 @@ class RobotNode(Node):
             return
         with self._lock:
             self._poses.add(stamp_ns, odom_to_map(self.params.map_from_odom, p.position.x, p.position.y,
-                                                  yaw_of(p.orientation)))
+                                                  yaw_of(p.orientation)), self.get_clock().now().nanoseconds)
 
     def _on_channel(self, msg: Float64MultiArray) -> None:
         try:
@@ -370,7 +371,7 @@ class RobotNode(Node):
             raw = self._frame if fresh else None
             frame = self._uplink_frame(raw) if raw is not None else None
             frame_stamp_ns = self._frame_stamp_ns if frame is not None else None
-            pose = self._poses.at(frame_stamp_ns)
+            pose = self._poses.at(frame_stamp_ns, now_ns, round(self.params.max_pose_age_s * 1e9))
             sched = self._schedule
             frame_id = self.params.camera_frame_id
             gain, round_slot = self._gains.get(slot, (None, -1))

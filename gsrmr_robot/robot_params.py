@@ -20,7 +20,8 @@ from gsrmr_common.tf_tree import BASE_FRAME, CAMERA_OPTICAL_FRAME, ODOM_FRAME
 from gsrmr_common.writer_admission import writer_list_problem
 
 LIVE_PARAMETERS = frozenset({"jpeg_quality", "uplink_width_px", "default_upload_image", "max_frame_age_s",
-                             "map_from_odom", "camera_frame_id", "hold_images_while_queued", "uplink_ack_stale_s"})
+                             "max_pose_age_s", "map_from_odom", "camera_frame_id", "hold_images_while_queued",
+                             "uplink_ack_stale_s"})
 #: The read-only lists of node names (relative: in the robot's namespace; ``*``: any) allowed to write an input
 #: topic, or — ``image_readers`` — whose acknowledgements the hold-back waits for.
 WRITER_LISTS = ("schedule_writers", "channel_writers", "camera_writers", "odom_writers", "image_readers")
@@ -40,6 +41,9 @@ class RobotParameters(NodeParameters):
     default_upload_image: bool = ros_parameter(True, "Upload the image in slots no schedule covers")
     max_frame_age_s: float = ros_parameter(0.5, "Older camera frames are not uploaded [s]", min_value=0.0,
                                            max_value=10.0)
+    max_pose_age_s: float = ros_parameter(
+        0.5, "No pose key is sent when the newest odometry pose arrived longer ago than this [s] (odometry or this "
+        "node stalled: the server renders at its extrapolated pose instead)", min_value=0.02, max_value=10.0)
     map_from_odom: tuple[float, ...] = ros_parameter((0.0, 0.0, 0.0),
                                                      "Pose of the odom frame in map: [a_m, b_m, theta_rad]")
     camera_frame_id: str = ros_parameter(CAMERA_OPTICAL_FRAME, "Frame of uploaded images: the camera's optical "

@@ -36,22 +36,37 @@ def odom_to_map(map_from_odom: Pose, x_m: float, y_m: float, yaw_rad: float) -> 
 
 
 class PoseHistory:
-    """Recent odometry poses in ``map`` by stamp: the key of a slot is the pose when its frame was taken."""
+    """Recent odometry poses in ``map`` by stamp: the key of a slot is the pose when its frame was taken.
+
+    Each pose also keeps when it arrived (the node's clock, ns): :meth:`at` with ``max_age_ns`` names no pose when
+    the newest one arrived longer ago than that. A node that stalled (a starved process, a blocked executor) would
+    otherwise key the slots after the stall with the pose from before it — up to the stall's length of driving
+    behind the robot, which the server's pose-continuity rule then sees jump ahead at the next fresh key (clean-clone
+    run 38: a pose_jump counted on a clean stack at load 12)."""
 
     def __init__(self, maxlen: int = 100) -> None:
         self._poses: deque[tuple[int, Pose]] = deque(maxlen=maxlen)
         self.latest: Pose | None = None
+        self.latest_arrival_ns: int | None = None
 
-    def add(self, stamp_ns: int, pose: Pose) -> bool:
-        """Keep a pose; a non-finite one is refused (returns False)."""
+    def add(self, stamp_ns: int, pose: Pose, arrival_ns: int | None = None) -> bool:
+        """Keep a pose (``arrival_ns``: when it arrived, default its stamp); a non-finite one is refused (returns
+        False)."""
         if not all(math.isfinite(v) for v in pose):
             return False
         self.latest = pose
+        self.latest_arrival_ns = int(stamp_ns if arrival_ns is None else arrival_ns)
         self._poses.append((int(stamp_ns), pose))
         return True
 
-    def at(self, stamp_ns: int | None) -> Pose | None:
-        """The pose nearest in time to ``stamp_ns`` (the latest one when ``stamp_ns`` is None)."""
+    def at(self, stamp_ns: int | None, now_ns: int | None = None, max_age_ns: int | None = None) -> Pose | None:
+        """The pose nearest in time to ``stamp_ns`` (the latest one when ``stamp_ns`` is None); None when there is none
+        or — given ``now_ns`` and ``max_age_ns`` — the newest pose arrived more than ``max_age_ns`` before ``now_ns``
+        (the odometry, or this node, stalled: no pose is known for now)."""
+        if self.latest is None:
+            return None
+        if now_ns is not None and max_age_ns is not None and now_ns - self.latest_arrival_ns > max_age_ns:
+            return None
         if stamp_ns is None or not self._poses:
             return self.latest
         return min(self._poses, key=lambda item: abs(item[0] - stamp_ns))[1]

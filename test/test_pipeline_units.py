@@ -122,6 +122,42 @@ def test_uplink_core_decides_each_slot_and_books_it():
     assert (a, b) == pytest.approx((1.0, 3.0)) and t == pytest.approx(-math.pi / 2)
 
 
+def _keys_across_a_stall(max_age_ns: int | None) -> list[tuple[int, tuple[float, float, float] | None]]:
+    """The robot's no-frame keys (slot, pose) with odometry at 50 Hz, 0.3 m/s along x, and the node stalled from
+    2.0 s to 4.0 s: its executor then runs the slot timer first, the queued odometry after it."""
+    history, keys, ms = PoseHistory(), [], 1_000_000
+    for t_ms in range(0, 6000, 20):
+        stalled = 2000 <= t_ms < 4000
+        if not stalled:
+            if t_ms == 4000:  # back: the timer's slot runs before the odometry queued meanwhile is taken
+                keys.append((40, history.at(None, 4000 * ms, max_age_ns)))
+                for queued_ms in range(2000, 4000, 20):
+                    history.add(queued_ms * ms, (0.3 * queued_ms / 1000, 0.0, 0.0), 4000 * ms)
+            history.add(t_ms * ms, (0.3 * t_ms / 1000, 0.0, 0.0), t_ms * ms)
+            if t_ms % 100 == 0 and t_ms != 4000:
+                keys.append((t_ms // 100, history.at(None, t_ms * ms, max_age_ns)))
+    return keys
+
+
+def test_a_stalled_robot_sends_no_key_from_before_the_stall():
+    """After a 2 s stall the newest pose is 2 s old: keyed with it, the slot puts the robot 0.6 m behind, and the next
+    fresh key jumps 0.6 m in one slot — the server's pose-continuity rule (1.5 m/s top speed: 0.45 m) refuses it.
+    With ``max_pose_age_s`` the stale slot has no key (the server renders at its extrapolation) and no key jumps."""
+    from gsrmr_common.plausibility import PoseTrack
+
+    def refused(keys) -> list[int]:
+        track = PoseTrack(max_speed_mps=1.5, slot_s=0.1)
+        return [slot for slot, pose in keys if pose is not None and not track.offer(slot, pose[0], pose[1])]
+
+    stale = _keys_across_a_stall(None)
+    assert dict(stale)[40] == pytest.approx((0.3 * 1.98, 0.0, 0.0))  # the pose from before the stall
+    assert refused(stale)[:1] == [41]  # and the next one or two, until the reach grows past the gap
+    fresh = _keys_across_a_stall(500_000_000)
+    assert dict(fresh)[40] is None and dict(fresh)[41] == pytest.approx((0.3 * 4.1, 0.0, 0.0))
+    assert refused(fresh) == []
+    assert PoseHistory().at(None, 0, 1) is None
+
+
 def test_route_predictor_follows_the_loop():
     scene = load_scene("sandbox")
     pred = RoutePredictor(scene.route.waypoints, scene.route.speed_mps)

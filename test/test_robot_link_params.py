@@ -34,6 +34,9 @@ ROBOT_DECLARED = {
                         "uplink/camera_info describes the result"),
     "default_upload_image": (True, None, False, "Upload the image in slots no schedule covers"),
     "max_frame_age_s": (0.5, (0.0, 10.0), False, "Older camera frames are not uploaded [s]"),
+    "max_pose_age_s": (0.5, (0.02, 10.0), False, "No pose key is sent when the newest odometry pose arrived longer "
+                       "ago than this [s] (odometry or this node stalled: the server renders at its extrapolated "
+                       "pose instead)"),
     "map_from_odom": ([0.0, 0.0, 0.0], None, False, "Pose of the odom frame in map: [a_m, b_m, theta_rad]"),
     "camera_frame_id": ("camera_optical_frame", None, False,
                         "Frame of uploaded images: the camera's optical frame (x right, y down, z forward)"),
