@@ -65,15 +65,16 @@ from gsrmr_common.ros_wire import (
     loss_sample_to_msg,
     mr_slot_info_to_msg,
     pose_key_from_msg,
+    pose_key_to_msg,
     schedule_from_msg,
     stamp_to_ns,
 )
 from gsrmr_common.slot_clock import ComposeCursor, SlotClock
 from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
-from gsrmr_common.wire import MAX_COMPRESSED_BYTES, MR_SLOT_INFO_TOPIC, UplinkFault
+from gsrmr_common.wire import MAX_COMPRESSED_BYTES, MR_SLOT_INFO_TOPIC, RealSource, UplinkFault
 from gsrmr_common.writer_admission import SeqTracker
 from gsrmr_server.ledger_book import LedgerBook
-from gsrmr_server.recording import TOPIC_CAMERA_INFO, RunRecorder
+from gsrmr_server.recording import TOPIC_CAMERA_INFO, TOPIC_RECEIVED_IMAGE, TOPIC_RECEIVED_KEY, RunRecorder
 from gsrmr_server.render_intrinsics import RenderIntrinsics
 from gsrmr_server.server_params import ServerParameters
 from gsrmr_server.server_stats import ServerStats, diagnostic_report
@@ -291,6 +292,11 @@ class ServerNode(Node):
         if out.loss_sample is not None:
             self._pub_loss.publish(loss_sample_to_msg(out.loss_sample))
         if self.recorder is not None:
+            if out.composed.source == RealSource.IMAGE and uploads.key is not None and uploads.jpeg is not None:
+                # what the robot paid to send: training data for a model update (issue 27)
+                self.recorder.write_message(TOPIC_RECEIVED_IMAGE,
+                                            compressed_to_msg(uploads.jpeg, start_ns, CAMERA_OPTICAL_FRAME), start_ns)
+                self.recorder.write_message(TOPIC_RECEIVED_KEY, pose_key_to_msg(uploads.key, self.clock), start_ns)
             self.recorder.write_slot(replace(out.row, latency_ms=latency_ms), compressed, self._cmd,
                                      stamp_ns=start_ns)
 

@@ -221,3 +221,40 @@ def test_server_node_wires_the_slot_core_and_its_policies(server_node, tmp_path)
     assert summary == json.loads(json.dumps({**node.stats.summary(node.uplink.faults), **node.security_summary()}))
     assert summary["parameter_changes"] == {"jpeg_quality": 1} and summary["writers_refused"] == {}
     assert summary["slots"] == 2 and summary["sources"] == {"render": 1, "fallback": 1}
+
+
+@pytest.mark.ros
+def test_server_node_records_the_images_it_received_with_their_keys(server_node, tmp_path):
+    """Issue 27's training data: a slot composed with the robot's image records that JPEG byte for byte and its pose
+    key (stamped at the slot start, frame map); a key-only slot and a slot whose image did not decode record
+    neither."""
+    from gsrmr_common.jpeg import encode_jpeg
+    from gsrmr_server.recording import TOPIC_RECEIVED_IMAGE, TOPIC_RECEIVED_KEY, read_mcap
+
+    node = server_node
+    node._pub_mr.publish = node._pub_info.publish = node._pub_mr_c.publish = lambda _msg: None
+    now = {"ns": 1_000_000 * node.clock.slot_len_ns}
+    node.get_clock = lambda: SimpleNamespace(now=lambda: SimpleNamespace(nanoseconds=now["ns"]))
+    node.use_camera_info(camera_info_from_intrinsics(Intrinsics.from_fov(32, 24, 1.2), 0, CAMERA_OPTICAL_FRAME))
+    node._tick()
+    first = node.cursor.next
+    jpeg = encode_jpeg(np.random.default_rng(0).integers(0, 256, (24, 32, 3), dtype=np.uint8), 90)
+    uploads = {first: (1, jpeg), first + 1: (0, None), first + 2: (1, b"\xff\xd8 not a jpeg")}
+    for slot, (x, data) in uploads.items():
+        node._on_ledger(ledger_to_msg(_ledger(slot, x)))
+        node.uplink.on_key(PoseKey(slot, 0.5 + 0.01 * (slot - first), -1.0, 0.25), slot, now["ns"])
+        if data is not None:
+            node.uplink.on_image(slot, data, slot, now["ns"])
+        now["ns"] = node.clock.start_ns(slot) + 1_000_000
+        node._tick()
+    node.on_shutdown()
+    got = [(topic, msg) for topic, _, msg in read_mcap(tmp_path / "rec" / "run.mcap")
+           if topic in (TOPIC_RECEIVED_IMAGE, TOPIC_RECEIVED_KEY)]
+    assert [topic for topic, _ in got] == [TOPIC_RECEIVED_IMAGE, TOPIC_RECEIVED_KEY]
+    image, key = got[0][1], got[1][1]
+    stamp_ns = node.clock.start_ns(first)
+    assert bytes(image.data) == jpeg and image.format == "rgb8; jpeg compressed bgr8"  # image_transport's
+    assert image.header.frame_id == CAMERA_OPTICAL_FRAME
+    assert image.header.stamp.sec * 10**9 + image.header.stamp.nanosec == stamp_ns
+    assert key.header.frame_id == "map" and (key.vector.x, key.vector.y, key.vector.z) == (0.5, -1.0, 0.25)
+    assert key.header.stamp.sec * 10**9 + key.header.stamp.nanosec == stamp_ns

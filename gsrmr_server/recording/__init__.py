@@ -23,7 +23,11 @@ Output directory layout
     ``base_link``, m/s and rad/s) and :data:`TOPIC_SLOT_LOG` (``std_msgs/msg/String``: the CSV row as
     JSON). Every message's ``log_time``/``publish_time`` and header stamp is the slot start. Other
     topics come through :meth:`RunRecorder.write_message`, e.g. :data:`TOPIC_CAMERA_INFO`
-    (``sensor_msgs/msg/CameraInfo``, the robot's calibration, logged when it arrives). Opens in
+    (``sensor_msgs/msg/CameraInfo``, the robot's calibration, logged when it arrives) and, in every slot composed
+    with the robot's image, what arrived for it: :data:`TOPIC_RECEIVED_IMAGE` (``sensor_msgs/msg/CompressedImage``,
+    the robot's JPEG byte for byte, frame ``camera_optical_frame``) and :data:`TOPIC_RECEIVED_KEY`
+    (``geometry_msgs/msg/Vector3Stamped``, frame ``map``: x = a_m, y = b_m, z = θ_rad of ``base_link``), both
+    stamped at the slot start — a model update's training data. Opens in
     Foxglove and ``ros2 bag info/play`` (MCAP storage plugin); channels carry
     ``offered_qos_profiles = "[]"`` (the player then uses its default QoS).
 
@@ -47,6 +51,8 @@ from gsrmr_server.recording.mcap_log import (
     TOPIC_CAMERA_INFO,
     TOPIC_CMD_VEL,
     TOPIC_MR_IMAGE,
+    TOPIC_RECEIVED_IMAGE,
+    TOPIC_RECEIVED_KEY,
     TOPIC_SLOT_LOG,
     TOPIC_TYPES,
     merge_segments,
@@ -58,5 +64,5 @@ from gsrmr_server.recording.recorder import RunRecorder
 from gsrmr_server.recording.slots_csv import CSV_COLUMNS, CSV_NAME, SOURCES, read_slots_csv, write_slots_csv
 
 __all__ = ["CSV_COLUMNS", "CSV_NAME", "MCAP_NAME", "SOURCES", "TOPIC_CAMERA_INFO", "TOPIC_CMD_VEL", "TOPIC_MR_IMAGE",
-           "TOPIC_SLOT_LOG", "TOPIC_TYPES", "RunRecorder", "main", "merge_segments", "message_definition", "read_mcap",
-           "read_slots_csv", "recover_run", "write_slots_csv"]
+           "TOPIC_RECEIVED_IMAGE", "TOPIC_RECEIVED_KEY", "TOPIC_SLOT_LOG", "TOPIC_TYPES", "RunRecorder", "main",
+           "merge_segments", "message_definition", "read_mcap", "read_slots_csv", "recover_run", "write_slots_csv"]
