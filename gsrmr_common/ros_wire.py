@@ -28,7 +28,7 @@ on an inconsistent message; nothing here logs or swallows errors.
 from __future__ import annotations
 
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Vector3Stamped
+from geometry_msgs.msg import PoseStamped, Vector3Stamped
 import numpy as np
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
@@ -40,6 +40,7 @@ from gsrmr_common.image_bridge import imgmsg_to_numpy, numpy_to_imgmsg
 from gsrmr_common.image_decode import IMAGE_TYPE, ImageDecodeError, decode_colour
 from gsrmr_common.jpeg import ImageRejected, decode_jpeg
 from gsrmr_common.slot_clock import SlotClock
+from gsrmr_common.tf_tree import yaw_quaternion
 
 NS_PER_S = 1_000_000_000
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
@@ -88,6 +89,18 @@ def pose_key_to_msg(key: wire.PoseKey, clock: SlotClock) -> Vector3Stamped:
     msg.header.stamp = ns_to_stamp(clock.start_ns(key.slot))
     msg.header.frame_id = wire.MAP_FRAME
     msg.vector.x, msg.vector.y, msg.vector.z = float(key.a_m), float(key.b_m), float(key.theta_rad)
+    return msg
+
+
+def pose_key_pose_msg(key: wire.PoseKey, stamp_ns: int) -> PoseStamped:
+    """A pose key as the standard ``PoseStamped`` of ``base_link`` in ``map`` (position (a_m, b_m, 0), yaw θ about
+    +z) stamped ``stamp_ns`` — what a bag tool reads as a pose topic."""
+    msg = PoseStamped()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.header.frame_id = wire.MAP_FRAME
+    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = float(key.a_m), float(key.b_m), 0.0
+    q = msg.pose.orientation
+    q.x, q.y, q.z, q.w = yaw_quaternion(float(key.theta_rad))
     return msg
 
 

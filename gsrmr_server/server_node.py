@@ -65,7 +65,7 @@ from gsrmr_common.ros_wire import (
     loss_sample_to_msg,
     mr_slot_info_to_msg,
     pose_key_from_msg,
-    pose_key_to_msg,
+    pose_key_pose_msg,
     schedule_from_msg,
     stamp_to_ns,
 )
@@ -74,7 +74,7 @@ from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
 from gsrmr_common.wire import MAX_COMPRESSED_BYTES, MR_SLOT_INFO_TOPIC, RealSource, UplinkFault
 from gsrmr_common.writer_admission import SeqTracker
 from gsrmr_server.ledger_book import LedgerBook
-from gsrmr_server.recording import TOPIC_CAMERA_INFO, TOPIC_RECEIVED_IMAGE, TOPIC_RECEIVED_KEY, RunRecorder
+from gsrmr_server.recording import TOPIC_CAMERA_INFO, TOPIC_RECEIVED_IMAGE, TOPIC_RECEIVED_POSE, RunRecorder
 from gsrmr_server.render_intrinsics import RenderIntrinsics
 from gsrmr_server.server_params import ServerParameters
 from gsrmr_server.server_stats import ServerStats, diagnostic_report
@@ -296,7 +296,7 @@ class ServerNode(Node):
                 # what the robot paid to send: training data for a model update (issue 27)
                 self.recorder.write_message(TOPIC_RECEIVED_IMAGE,
                                             compressed_to_msg(uploads.jpeg, start_ns, CAMERA_OPTICAL_FRAME), start_ns)
-                self.recorder.write_message(TOPIC_RECEIVED_KEY, pose_key_to_msg(uploads.key, self.clock), start_ns)
+                self.recorder.write_message(TOPIC_RECEIVED_POSE, pose_key_pose_msg(uploads.key, start_ns), start_ns)
             self.recorder.write_slot(replace(out.row, latency_ms=latency_ms), compressed, self._cmd,
                                      stamp_ns=start_ns)
 

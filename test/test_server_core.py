@@ -5,6 +5,7 @@ server_summary.json) and a thin test of the node that wires them."""
 from dataclasses import replace
 import json
 import math
+from pathlib import Path
 from types import SimpleNamespace
 
 from conftest import ros_env
@@ -226,35 +227,59 @@ def test_server_node_wires_the_slot_core_and_its_policies(server_node, tmp_path)
 @pytest.mark.ros
 def test_server_node_records_the_images_it_received_with_their_keys(server_node, tmp_path):
     """Issue 27's training data: a slot composed with the robot's image records that JPEG byte for byte and its pose
-    key (stamped at the slot start, frame map); a key-only slot and a slot whose image did not decode record
-    neither."""
+    key (a PoseStamped of base_link in map; both stamped at the slot start); a key-only slot and a slot whose image
+    did not decode record neither. ``gsrmr-dataset`` turns the run into a dataset: one frame per received image, its
+    camera where the key and the camera mount put it."""
+    from gsrmr_common.bag_dataset import BagDatasetOptions, build_dataset
+    from gsrmr_common.bag_poses import read_camera_mount
+    from gsrmr_common.camera import camera_from_pose
     from gsrmr_common.jpeg import encode_jpeg
-    from gsrmr_server.recording import TOPIC_RECEIVED_IMAGE, TOPIC_RECEIVED_KEY, read_mcap
+    from gsrmr_common.nerfstudio import read_dataset
+    from gsrmr_server.recording import TOPIC_CAMERA_INFO, TOPIC_RECEIVED_IMAGE, TOPIC_RECEIVED_POSE, read_mcap
 
     node = server_node
     node._pub_mr.publish = node._pub_info.publish = node._pub_mr_c.publish = lambda _msg: None
     now = {"ns": 1_000_000 * node.clock.slot_len_ns}
     node.get_clock = lambda: SimpleNamespace(now=lambda: SimpleNamespace(nanoseconds=now["ns"]))
-    node.use_camera_info(camera_info_from_intrinsics(Intrinsics.from_fov(32, 24, 1.2), 0, CAMERA_OPTICAL_FRAME))
+    k = Intrinsics.from_fov(32, 24, 1.2)
+    node.use_camera_info(camera_info_from_intrinsics(k, 0, CAMERA_OPTICAL_FRAME))
     node._tick()
     first = node.cursor.next
-    jpeg = encode_jpeg(np.random.default_rng(0).integers(0, 256, (24, 32, 3), dtype=np.uint8), 90)
-    uploads = {first: (1, jpeg), first + 1: (0, None), first + 2: (1, b"\xff\xd8 not a jpeg")}
+    rng = np.random.default_rng(0)
+    jpegs = [encode_jpeg(rng.integers(0, 256, (24, 32, 3), dtype=np.uint8), 90) for _ in range(2)]
+    uploads = {first: (1, jpegs[0]), first + 1: (0, None), first + 2: (1, b"\xff\xd8 not a jpeg"),
+               first + 3: (1, jpegs[1])}
+    keys = {slot: PoseKey(slot, 0.5 + 0.3 * (slot - first), -1.0, 0.25 + 0.2 * (slot - first)) for slot in uploads}
     for slot, (x, data) in uploads.items():
         node._on_ledger(ledger_to_msg(_ledger(slot, x)))
-        node.uplink.on_key(PoseKey(slot, 0.5 + 0.01 * (slot - first), -1.0, 0.25), slot, now["ns"])
+        node.uplink.on_key(keys[slot], slot, now["ns"])
         if data is not None:
             node.uplink.on_image(slot, data, slot, now["ns"])
         now["ns"] = node.clock.start_ns(slot) + 1_000_000
         node._tick()
     node.on_shutdown()
-    got = [(topic, msg) for topic, _, msg in read_mcap(tmp_path / "rec" / "run.mcap")
-           if topic in (TOPIC_RECEIVED_IMAGE, TOPIC_RECEIVED_KEY)]
-    assert [topic for topic, _ in got] == [TOPIC_RECEIVED_IMAGE, TOPIC_RECEIVED_KEY]
-    image, key = got[0][1], got[1][1]
-    stamp_ns = node.clock.start_ns(first)
-    assert bytes(image.data) == jpeg and image.format == "rgb8; jpeg compressed bgr8"  # image_transport's
-    assert image.header.frame_id == CAMERA_OPTICAL_FRAME
-    assert image.header.stamp.sec * 10**9 + image.header.stamp.nanosec == stamp_ns
-    assert key.header.frame_id == "map" and (key.vector.x, key.vector.y, key.vector.z) == (0.5, -1.0, 0.25)
-    assert key.header.stamp.sec * 10**9 + key.header.stamp.nanosec == stamp_ns
+    run = tmp_path / "rec" / "run.mcap"
+    got = [(topic, msg) for topic, _, msg in read_mcap(run) if topic in (TOPIC_RECEIVED_IMAGE, TOPIC_RECEIVED_POSE)]
+    assert [topic for topic, _ in got] == [TOPIC_RECEIVED_IMAGE, TOPIC_RECEIVED_POSE] * 2
+    for (_, image), (_, pose), slot, jpeg in zip(got[::2], got[1::2], (first, first + 3), jpegs, strict=True):
+        stamp_ns = node.clock.start_ns(slot)
+        assert bytes(image.data) == jpeg and image.format == "rgb8; jpeg compressed bgr8"  # image_transport's
+        assert image.header.frame_id == CAMERA_OPTICAL_FRAME and pose.header.frame_id == "map"
+        for msg in (image, pose):
+            assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == stamp_ns
+        position, q = pose.pose.position, pose.pose.orientation
+        assert (position.x, position.y, position.z) == (keys[slot].a_m, keys[slot].b_m, 0.0)
+        assert 2 * math.atan2(q.z, q.w) == pytest.approx(keys[slot].theta_rad) and q.x == q.y == 0.0
+    # the run as a dataset, as an operator would make it (every received frame kept: no blur or spacing rule)
+    mount_file = Path(__file__).resolve().parents[1] / "config" / "camera_mount.yaml"
+    build_dataset(BagDatasetOptions(run, tmp_path / "ds", image_topic=TOPIC_RECEIVED_IMAGE,
+                                    camera_info_topic=TOPIC_CAMERA_INFO, pose_topic=TOPIC_RECEIVED_POSE,
+                                    camera_mount_file=mount_file, blur_ratio=0.0, min_translation_m=0.0,
+                                    min_rotation_deg=0.0))
+    frames = read_dataset(tmp_path / "ds")
+    assert len(frames) == 2
+    mount = read_camera_mount(mount_file)
+    for frame, slot in zip(frames, (first, first + 3), strict=True):
+        want = camera_from_pose(keys[slot].a_m, keys[slot].b_m, keys[slot].theta_rad, mount, k)
+        assert np.allclose(frame.camera.camera_to_world, want.camera_to_world, atol=1e-6)
+        assert frame.pose == pytest.approx((keys[slot].a_m, keys[slot].b_m, keys[slot].theta_rad))

@@ -25,10 +25,11 @@ Output directory layout
     topics come through :meth:`RunRecorder.write_message`, e.g. :data:`TOPIC_CAMERA_INFO`
     (``sensor_msgs/msg/CameraInfo``, the robot's calibration, logged when it arrives) and, in every slot composed
     with the robot's image, what arrived for it: :data:`TOPIC_RECEIVED_IMAGE` (``sensor_msgs/msg/CompressedImage``,
-    the robot's JPEG byte for byte, frame ``camera_optical_frame``) and :data:`TOPIC_RECEIVED_KEY`
-    (``geometry_msgs/msg/Vector3Stamped``, frame ``map``: x = a_m, y = b_m, z = θ_rad of ``base_link``), both
-    stamped at the slot start — a model update's training data. Opens in
-    Foxglove and ``ros2 bag info/play`` (MCAP storage plugin); channels carry
+    the robot's JPEG byte for byte, frame ``camera_optical_frame``) and :data:`TOPIC_RECEIVED_POSE`
+    (``geometry_msgs/msg/PoseStamped``, frame ``map``: the slot's pose key, ``base_link`` at (a_m, b_m, 0) with yaw
+    θ), both stamped at the slot start — a model update's training data (``gsrmr-dataset run.mcap --image-topic
+    /gsrmr/received/image/compressed --camera-info-topic /gsrmr/camera_info --pose-topic /gsrmr/received/pose``).
+    Opens in Foxglove and ``ros2 bag info/play`` (MCAP storage plugin); channels carry
     ``offered_qos_profiles = "[]"`` (the player then uses its default QoS).
 
 Crash safety of the MCAP
@@ -52,7 +53,7 @@ from gsrmr_server.recording.mcap_log import (
     TOPIC_CMD_VEL,
     TOPIC_MR_IMAGE,
     TOPIC_RECEIVED_IMAGE,
-    TOPIC_RECEIVED_KEY,
+    TOPIC_RECEIVED_POSE,
     TOPIC_SLOT_LOG,
     TOPIC_TYPES,
     merge_segments,
@@ -64,5 +65,5 @@ from gsrmr_server.recording.recorder import RunRecorder
 from gsrmr_server.recording.slots_csv import CSV_COLUMNS, CSV_NAME, SOURCES, read_slots_csv, write_slots_csv
 
 __all__ = ["CSV_COLUMNS", "CSV_NAME", "MCAP_NAME", "SOURCES", "TOPIC_CAMERA_INFO", "TOPIC_CMD_VEL", "TOPIC_MR_IMAGE",
-           "TOPIC_RECEIVED_IMAGE", "TOPIC_RECEIVED_KEY", "TOPIC_SLOT_LOG", "TOPIC_TYPES", "RunRecorder", "main",
+           "TOPIC_RECEIVED_IMAGE", "TOPIC_RECEIVED_POSE", "TOPIC_SLOT_LOG", "TOPIC_TYPES", "RunRecorder", "main",
            "merge_segments", "message_definition", "read_mcap", "read_slots_csv", "recover_run", "write_slots_csv"]

@@ -26,10 +26,11 @@ TOPIC_SLOT_LOG = "/gsrmr/slot_log"
 # Written by the server through write_message when the robot's calibration arrives (not per slot).
 TOPIC_CAMERA_INFO = "/gsrmr/camera_info"
 # Written by the server in each slot composed with the robot's image: that image as it arrived (the robot's JPEG, the
-# header's stamp the slot start) and the slot's pose key as it arrived (frame map: x = a_m, y = b_m, z = θ_rad) —
-# training data for an update of the model (issue 27).
+# header's stamp the slot start) and the slot's pose key as a geometry_msgs/PoseStamped of base_link in map (x = a_m,
+# y = b_m, z = 0, yaw θ) at the same stamp — training data for an update of the model (issue 27), which
+# gsrmr-dataset reads as a bag (--pose-topic, with the camera mount).
 TOPIC_RECEIVED_IMAGE = "/gsrmr/received/image/compressed"
-TOPIC_RECEIVED_KEY = "/gsrmr/received/pose_key"
+TOPIC_RECEIVED_POSE = "/gsrmr/received/pose"
 TOPIC_TYPES = {
     TOPIC_MR_IMAGE: "sensor_msgs/msg/CompressedImage",
     TOPIC_CMD_VEL: "geometry_msgs/msg/TwistStamped",
