@@ -5,7 +5,7 @@ namespace) or :func:`gsrmr_sim.sim_stack.fleet_stack` (robot k in ``/robot<k>``)
 
 1. starts every process but the route followers under one :class:`~gsrmr_sim.supervisor.ProcessStack` (with
    ``hosts`` = 2 the robots' processes in the robot namespace and the servers' in the server namespace of one
-   :class:`~gsrmr_sim.netns.TwoHosts`), and waits until every server composes;
+   :class:`~gsrmr_sim.netns.TwoHosts`), and waits until every server composes and every scheduler has planned;
 2. sets the robots in motion (starts the route followers): round 2 then begins with every node up and warm, as
    a run on the real system would; the mock camera starts its round clock when its robot moves;
 3. follows each robot's ``slots.csv`` until every robot has composed ``slots`` slots of its round (its start:
@@ -42,6 +42,7 @@ from gsrmr_sim.supervisor import ProcessStack
 
 ROUTE_FOLLOWER = "gsrmr-route-follower"  # started last: it sets its robot in motion
 SERVER, SCORER, RADIO = "gsrmr-server", "gsrmr-sim-scorer", "gsrmr-sim-channel"
+SCHEDULER = "gsrmr-scheduler"
 WARM_ROWS = 10  # composed slots every server has logged before the robots set off
 WARM_TIMEOUT_S = 60.0  # how long to wait for that (one robot) …
 WARM_TIMEOUT_PER_ROBOT_S = 30.0  # … and per further robot
@@ -79,6 +80,12 @@ class RobotRun:
     first_moving: int = 0  # row of slots.csv where its round starts
     round_start: str = ""  # where first_moving came from: "slots.csv" or "radio log"
     cpu: dict = field(default_factory=dict)
+    scheduler_state: Path | None = None  # its scheduler's state_dir (schedule.json after every plan), if any
+
+    @property
+    def planned(self) -> bool:
+        """Its scheduler has planned (its ``schedule.json`` exists), or it has no scheduler state to tell."""
+        return self.scheduler_state is None or (self.scheduler_state / "schedule.json").exists()
 
     @property
     def report_dir(self) -> Path:
@@ -110,6 +117,8 @@ def robot_runs(specs: Sequence[ProcessSpec]) -> dict[str, RobotRun]:
             run.record_dir = Path(spec.params["record_dir"])
         elif spec.executable == RADIO and "channel_seed" in spec.params:
             run.channel_seed = int(spec.params["channel_seed"])
+        elif spec.executable == SCHEDULER and spec.params.get("state_dir"):
+            run.scheduler_state = Path(spec.params["state_dir"])
     missing = [run.label for run in runs.values() if SERVER not in run.processes]
     if missing:
         raise ValueError(f"no {SERVER} for {', '.join(missing)}")
@@ -196,13 +205,17 @@ def run_round(specs: Sequence[ProcessSpec], *, run_dir: Path, slots: int, timeou
 def _start_and_set_off(stack: ProcessStack, specs: Sequence[ProcessSpec], runs: Mapping[str, RobotRun],
                        placement: Mapping[str, dict], warm_s: float) -> None:
     """Start every process but the route followers (each mock LIMO's pty before its driver opens it), wait until
-    every server has composed :data:`WARM_ROWS` slots (at most ``warm_s``), then start the route followers."""
+    every server has composed :data:`WARM_ROWS` slots and every scheduler has planned (at most ``warm_s``), then
+    start the route followers. Without the plan, the round's first slots go by the robot's default (an image at the
+    power its channel asks for, however deep the fade): on 2026-11-26 a scheduler whose kernels compiled afresh
+    planned 0.7 s into the round, and two such images at 18 mW doubled the round's energy (regret 3.2 against 1.6)."""
     for spec in specs:
         if spec.executable != ROUTE_FOLLOWER:
             name = process_name(spec)
             stack.start(name, spec, wait_for_path=mock_limo_link(spec), **placement.get(name, {}))
     warm = time.monotonic() + warm_s
-    while time.monotonic() < warm and min(len(run.rows_so_far()) for run in runs.values()) < WARM_ROWS:
+    while time.monotonic() < warm and not all(len(run.rows_so_far()) >= WARM_ROWS and run.planned
+                                              for run in runs.values()):
         stack.check()
         time.sleep(0.2)
     for spec in specs:

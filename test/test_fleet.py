@@ -187,6 +187,22 @@ def test_runner_finds_each_robot_in_the_process_list():
         robot_runs(_fleet(2))  # no record_dir: the round's slots.csv is nowhere to follow
 
 
+def test_a_robot_sets_off_only_once_its_scheduler_has_planned(tmp_path):
+    """The runner waits for each scheduler's first plan (schedule.json in its state_dir) before the round starts;
+    a scheduler without a state_dir gives no such sign (then only the server's composing counts)."""
+    (run,) = robot_runs(sim_stack(model_path="/m.ply", config=REPO / "config", record_dir=str(tmp_path / "rec"),
+                                  state_dir=str(tmp_path / "state"))).values()
+    assert run.scheduler_state == tmp_path / "state" and not run.planned
+    (tmp_path / "state").mkdir()
+    (tmp_path / "state" / "schedule.json").write_text("{}")
+    assert run.planned
+    (stateless,) = robot_runs(sim_stack(model_path="/m.ply", config=REPO / "config",
+                                        record_dir="/out/recording")).values()
+    assert stateless.scheduler_state is None and stateless.planned
+    fleet = robot_runs(_fleet(2, record_dir="/out/{robot}/recording", state_dir="/out/{robot}/state"))
+    assert [r.scheduler_state for r in fleet.values()] == [Path(f"/out/robot{k}/state") for k in (1, 2)]
+
+
 def test_cpu_meter_counts_from_the_last_snapshot_before_the_round_to_the_last_one():
     meter = CpuMeter([11, 12])
     meter.snapshots += [CpuSnapshot(100.0, {11: 1.0, 12: 2.0}, 50.0), CpuSnapshot(101.0, {11: 1.5, 12: 2.0}, 51.0),
