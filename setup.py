@@ -46,6 +46,7 @@ CONSOLE_SCRIPTS = [
     "gsrmr-server = gsrmr_server.server_node:main",
     "gsrmr-scheduler = gsrmr_server.scheduler_node:main",
     "gsrmr-survey = gsrmr_server.survey_cli:main",
+    "gsrmr-update = gsrmr_server.update_cli:main",
     "gsrmr-experiments = gsrmr_sim.experiments.cli:main",
     "gsrmr-demo = gsrmr_sim.demo:main",
     "gsrmr-uplink-relay = gsrmr_sim.fault_relay_node:main",

@@ -23,6 +23,7 @@ import yaml
 
 from gsrmr_common.camera import CameraMount
 from gsrmr_common.config_files import resolve_config
+from gsrmr_server.compose import MRComposer
 from gsrmr_server.deployment_survey import (
     TRAINING,
     Selection,
@@ -97,10 +98,40 @@ def route_from_file(path: str | Path) -> RoutePredictor:
     return RoutePredictor(route_waypoints(params["route_waypoints_m"]), speed)
 
 
+def add_composition_arguments(ap: argparse.ArgumentParser) -> None:
+    """The "composition, as the server and the robot do it" options (MR content, background, JPEG quality, width,
+    route, camera mount, render threads), their defaults from the package's parameter files."""
+    server, robot = config_parameters("server"), config_parameters("robot")
+    s = ServerParameters()
+    comp = ap.add_argument_group("composition, as the server and the robot do it")
+    comp.add_argument("--mr-content", default=str(server.get("mr_content", s.mr_content)),
+                      help="MR content: a name in config/mr or a YAML path (the server's mr_content)")
+    comp.add_argument("--background", type=rgb_arg, default=tuple(server.get("background_rgb", s.background_rgb)),
+                      help="r,g,b in [0, 1] where the model has no density (the server's background_rgb)")
+    comp.add_argument("--jpeg-quality", type=int, default=int(robot.get("jpeg_quality", ROBOT_JPEG_QUALITY)),
+                      help="the robot's JPEG quality (image_loss)")
+    comp.add_argument("--width", type=int, default=int(robot.get("uplink_width_px", ROBOT_UPLINK_WIDTH_PX)),
+                      help="render width [px]: the robot's uplink width (aspect kept, never enlarged)")
+    comp.add_argument("--route-file", default=default_config_path("sandbox", "routes"),
+                      help="the route the content time follows (the scheduler's route file)")
+    comp.add_argument("--camera-mount", default=default_config_path("camera_mount"),
+                      help="the mount the server renders with: the CSV and summary compare each frame's camera "
+                           "with gsrmr_pose ∘ mount")
+    comp.add_argument("--render-threads", type=int, default=0, help="GS render threads (0 = every core)")
+
+
+def base_composer(model: GaussianModel, args: argparse.Namespace, mount: CameraMount) -> MRComposer:
+    """The server's composer for ``model`` as the composition options say (rendering at each frame's own camera is
+    :func:`~gsrmr_server.deployment_survey.composer_for_frame`'s)."""
+    return build_composer(model, WARM_UP_INTRINSICS, mr_content=args.mr_content, mount=mount,
+                          background_rgb=tuple(args.background), render_threads=args.render_threads or None,
+                          warm_up=False)
+
+
 def parser() -> argparse.ArgumentParser:
     """The command line (defaults read from the package's parameter files)."""
-    server, robot, scheduler = (config_parameters(n) for n in ("server", "robot", "scheduler"))
-    s, lm = ServerParameters(), LossMap()
+    scheduler = config_parameters("scheduler")
+    lm = LossMap()
     ap = argparse.ArgumentParser(
         prog=PROG, formatter_class=argparse.ArgumentDefaultsHelpFormatter,
         description="Seed the scheduler's loss map from the mapping round: score the dataset's views the model was "
@@ -118,21 +149,7 @@ def parser() -> argparse.ArgumentParser:
                        help="survey every frame: DATASET is a lap the model was not trained on")
     which.add_argument("--allow-training-views", action="store_true",
                        help="survey the training views too (optimistic: the model was fitted to them)")
-    comp = ap.add_argument_group("composition, as the server and the robot do it")
-    comp.add_argument("--mr-content", default=str(server.get("mr_content", s.mr_content)),
-                      help="MR content: a name in config/mr or a YAML path (the server's mr_content)")
-    comp.add_argument("--background", type=rgb_arg, default=tuple(server.get("background_rgb", s.background_rgb)),
-                      help="r,g,b in [0, 1] where the model has no density (the server's background_rgb)")
-    comp.add_argument("--jpeg-quality", type=int, default=int(robot.get("jpeg_quality", ROBOT_JPEG_QUALITY)),
-                      help="the robot's JPEG quality (image_loss)")
-    comp.add_argument("--width", type=int, default=int(robot.get("uplink_width_px", ROBOT_UPLINK_WIDTH_PX)),
-                      help="render width [px]: the robot's uplink width (aspect kept, never enlarged)")
-    comp.add_argument("--route-file", default=default_config_path("sandbox", "routes"),
-                      help="the route the content time follows (the scheduler's route file)")
-    comp.add_argument("--camera-mount", default=default_config_path("camera_mount"),
-                      help="the mount the server renders with: the CSV and summary compare each frame's camera "
-                           "with gsrmr_pose ∘ mount")
-    comp.add_argument("--render-threads", type=int, default=0, help="GS render threads (0 = every core)")
+    add_composition_arguments(ap)
     grid = ap.add_argument_group("loss map (LossMap; the prior is the scheduler's loss_prior)")
     grid.add_argument("--cell-m", type=float, default=lm.cell_m, help="grid cell size [m]")
     grid.add_argument("--heading-bins", type=int, default=lm.heading_bins, help="heading sectors")
@@ -188,9 +205,7 @@ def run(args: argparse.Namespace) -> tuple[str, int]:
                     "prior": args.prior, "forgetting": args.forgetting}
         LossMap(**settings)  # refuses bad settings before anything is rendered
         model = GaussianModel.load_ply(model_path)
-        base = build_composer(model, WARM_UP_INTRINSICS, mr_content=args.mr_content, mount=mount,
-                              background_rgb=tuple(args.background), render_threads=args.render_threads or None,
-                              warm_up=False)
+        base = base_composer(model, args, mount)
     except (OSError, ValueError, yaml.YAMLError) as err:
         raise SurveyInputError(str(err)) from err
     times = [route_time_s(route, s.frame.pose) for s in selection.frames]  # type: ignore[arg-type]

@@ -143,3 +143,40 @@ def test_versions_are_numbered_recorded_and_the_newest_accepted_is_in_use(tmp_pa
     ply, _ = version_paths(tmp_path, 1)
     assert GaussianModel.load_ply(ply).num_gaussians == model.num_gaussians
     assert not list(tmp_path.glob("*.tmp.*"))
+
+
+def test_update_cli_writes_a_version_and_names_the_model_to_use(tmp_path, worlds, capsys):
+    """gsrmr-update on datasets as gsrmr-dataset writes them (frames with gsrmr_pose): version 0 from --init, then
+    an accepted update from a changed world (the model to use is the new one) and a refused one from the same
+    frames again (the model to use stays)."""
+    from gsrmr_common.nerfstudio import DatasetFrame, write_dataset
+    from gsrmr_server.update_cli import main
+
+    current, changed, mapping, cams = worlds
+    posed = [DatasetFrame(f.camera, f.image, None, (float(f.camera.camera_to_world[0, 3]),
+                                                     float(f.camera.camera_to_world[1, 3]), 0.0), f.file_path)
+             for f in mapping]
+    write_dataset(tmp_path / "mapping", posed)
+    received = [DatasetFrame(f.camera, f.image, None, (float(f.camera.camera_to_world[0, 3]),
+                                                       float(f.camera.camera_to_world[1, 3]), 0.0), f.file_path)
+                for f in render_views(changed, cams, with_depth=False)]
+    write_dataset(tmp_path / "round1", received)
+    current.save_ply(tmp_path / "mapping.ply")
+    args = ["--received", str(tmp_path / "round1"), "--mapping", str(tmp_path / "mapping"), "--steps", "300",
+            "--holdout", "8", "--no-compact", "--width", "40", "--train-width", "40", "--background", "0,0,0",
+            "--render-threads", "1"]
+    models = tmp_path / "models"
+    assert main([str(models), *args]) == 2  # no version yet and no --init
+    assert "start it with --init" in capsys.readouterr().err
+    assert main([str(models), "--init", str(tmp_path / "mapping.ply"), *args]) == 0
+    first = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert first["version"] == 1 and first["parent"] == 0 and first["accepted"], first["reason"]
+    assert first["heldout_loss_after"] < first["heldout_loss_before"] and first["model"].endswith("model_v1.ply")
+    assert read_version(models, 0)["accepted"] and in_use(models) == 1
+    changed.save_ply(tmp_path / "exact.ply")  # a model that is the world already: nothing to learn
+    exact = tmp_path / "exact_models"
+    assert main([str(exact), "--init", str(tmp_path / "exact.ply"), *args]) == 0
+    second = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert second["version"] == 1 and not second["accepted"] and "not" in second["reason"]
+    assert second["model"].endswith("model_v0.ply") and in_use(exact) == 0  # the refused one is kept, not used
+    assert read_version(exact, 1)["accepted"] is False
