@@ -16,7 +16,10 @@ to rebuild the slot's v and d), ``mr/image/compressed`` (JPEG), ``gsrmr/loss_sam
 image slot) and ``/diagnostics`` (:class:`~gsrmr_server.server_stats.ServerStats`, written to
 ``server_summary.json`` on shutdown). Records ``slots.csv`` and MCAP into ``record_dir`` when set. Parameters:
 :class:`~gsrmr_server.server_params.ServerParameters` (checked on set, applied after set; live ones only with
-``live_parameter_changes``).
+``live_parameter_changes``). A new ``model_path`` (``ros2 param set /gsrmr_server model_path …``, a live change) is
+loaded off the slot path and swapped in at a slot boundary (:class:`~gsrmr_server.model_swap.ModelSwap`): no slot
+waits for it; ``/diagnostics`` says which model is in use (``model``, ``model_swaps``, ``model_loading``) and warns
+when a load failed (the model in use stays).
 
 Nothing on the graph is taken blindly (``docs/security.md``, "Application checks"): every input is admitted by its
 writer (:class:`gsrmr_common.ros_admission.GatedInputs`: ``robot_writers`` for the uplink, the ledger and the
@@ -71,16 +74,18 @@ from gsrmr_common.ros_wire import (
 )
 from gsrmr_common.slot_clock import ComposeCursor, SlotClock
 from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
-from gsrmr_common.wire import MAX_COMPRESSED_BYTES, MR_SLOT_INFO_TOPIC, RealSource, UplinkFault
+from gsrmr_common.wire import MAX_COMPRESSED_BYTES, MR_SLOT_INFO_TOPIC, PoseKey, RealSource, UplinkFault
 from gsrmr_common.writer_admission import SeqTracker
+from gsrmr_server.compose import MRComposer
 from gsrmr_server.ledger_book import LedgerBook
+from gsrmr_server.model_swap import ModelSwap
 from gsrmr_server.recording import TOPIC_CAMERA_INFO, TOPIC_RECEIVED_IMAGE, TOPIC_RECEIVED_POSE, RunRecorder
 from gsrmr_server.render_intrinsics import RenderIntrinsics
 from gsrmr_server.server_params import ServerParameters
 from gsrmr_server.server_stats import ServerStats, diagnostic_report
 from gsrmr_server.slot_core import WARM_UP_INTRINSICS, build_server_core, count_composition_faults
 from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.uplink import UplinkAssembler
+from gsrmr_server.uplink import SlotUploads, UplinkAssembler
 
 # what a plausible schedule looks like to the server (the transmit power is the robot's radio's to bound)
 _SCHEDULE_LIMITS = ScheduleLimits(max_power_w=float("inf"))
@@ -97,6 +102,9 @@ class ServerNode(Node):
         # Warm-up: the first render compiles the kernels (~1.5 s) before the slot clock starts, not in a slot.
         self.core = build_server_core(p, GaussianModel.load_ply(p.model_path), WARM_UP_INTRINSICS)
         self.composer = self.core.composer
+        # a new model_path is loaded off the slot path and swapped in at a slot boundary (issue 27, item 3)
+        self.model_swap: ModelSwap[GaussianModel] = ModelSwap(self._load_model)
+        self.model_swap.in_use = p.model_path
         self.camera = RenderIntrinsics()  # none until the robot's camera_info arrives
         self.clock = SlotClock(p.slot_s)
         self.cursor = ComposeCursor(self.clock)
@@ -142,9 +150,12 @@ class ServerNode(Node):
                                f"content {content.name} ({len(content.agents)} agents); waiting for uplink/camera_info")
 
     def _validate(self, params: list[Parameter]) -> SetParametersResult:
-        """On-set: refuse a change :class:`ServerParameters` gives a reason for (type, range, read-only)."""
+        """On-set: refuse a change :class:`ServerParameters` gives a reason for (type, range, read-only), or a
+        ``model_path`` that is no file."""
         for param in params:
             reason = ServerParameters.change_problem(param.name, param.value)
+            if not reason and param.name == "model_path" and not Path(str(param.value)).is_file():
+                reason = f"model_path {param.value!r} is no file (a 3DGS .ply)"
             if reason:
                 return SetParametersResult(successful=False, reason=reason)
         reason = self.audit.refusal(param.name for param in params)
@@ -158,6 +169,21 @@ class ServerNode(Node):
             self.audit.record({param.name: (getattr(old, param.name, None), getattr(self.params, param.name, None))
                                for param in params})
             self.core.jpeg_quality, self.core.measure_loss = self.params.jpeg_quality, self.params.measure_loss
+        if any(param.name == "model_path" for param in params):  # a swap is privileged: audit.record logged it
+            self.get_logger().info(f"loading model {self.params.model_path} off the slot path; it is used from the "
+                                   "first slot after it is ready")
+            self.model_swap.request(self.params.model_path)
+
+    def _load_model(self, path: str) -> GaussianModel:
+        """The model_swap loader (its own thread): read the .ply and render it once at the current intrinsics, so
+        the first slot with it pays no first-touch cost."""
+        model = GaussianModel.load_ply(path)
+        with self._lock:
+            probe = MRComposer(model, self.composer.virtual, self.composer.intrinsics, self.composer.mount,
+                               tuple(float(c) for c in self.composer.background_rgb),  # type: ignore[arg-type]
+                               render_threads=1)
+        probe.compose(SlotUploads(0), PoseKey(0, 0.0, 0.0, 0.0), 0.0, measure_loss=False)
+        return model
 
     # ---------------------------------------------------------------- inputs
     def _on_key(self, msg: Vector3Stamped, _gid: bytes = b"") -> None:
@@ -275,7 +301,10 @@ class ServerNode(Node):
     def process_slot(self, slot: int) -> None:
         """Compose, publish and record slot ``slot`` (the work is the slot core's; this publishes)."""
         start_ns = self.clock.start_ns(slot)
+        swapped = self.model_swap.take()  # at the slot boundary: this slot is the first with a new model
         with self._lock:
+            if swapped is not None:
+                self.composer.model = swapped.model
             self._composed_slot = slot if self._composed_slot is None else max(slot, self._composed_slot)
             plan = self.ledgers.take(slot)
             uploads = self.uplink.take(slot, image_expected=plan.image_expected)
@@ -283,6 +312,9 @@ class ServerNode(Node):
         out = self.core.process(uploads, best, time_s=self.cursor.round_time_s(slot), stamp_s=start_ns / 1e9,
                                 ledger=plan.ledger, scheduled_x=plan.scheduled_x)
         count_composition_faults(self.uplink, uploads, out)
+        if swapped is not None:
+            self.get_logger().info(f"model swapped in at slot {slot}: {swapped.path} "
+                                   f"({swapped.model.num_gaussians} Gaussians, loaded in {swapped.load_s:.2f} s)")
         self._pub_mr.publish(image_to_msg(out.mr_u8, start_ns, CAMERA_OPTICAL_FRAME))
         latency_ms = (self.get_clock().now().nanoseconds - start_ns) / 1e6
         self._pub_info.publish(mr_slot_info_to_msg(out.info))
@@ -309,7 +341,11 @@ class ServerNode(Node):
         with self._lock:
             values, problems = diagnostic_report(self.stats.summary(self.uplink.faults), self.camera)
             values.update({k: json.dumps(v) if isinstance(v, dict) else v for k, v in self.security_summary().items()})
+            values.update({"model": self.model_swap.in_use, "model_gaussians": self.composer.model.num_gaussians,
+                           "model_swaps": self.model_swap.swaps, "model_loading": self.model_swap.loading})
             problems += self.inputs.problems()
+            if self.model_swap.error:
+                problems.append(f"model swap failed, the model in use stays: {self.model_swap.error}")
             if self.implausible:
                 problems.append("implausible inputs refused: " + ", ".join(
                     f"{k} {n}" for k, n in sorted(self.implausible.items())))

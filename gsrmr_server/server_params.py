@@ -19,7 +19,7 @@ from gsrmr_common.link_model import SLOT_S, LinkBudget
 from gsrmr_common.node_params import NodeParameters, ros_parameter
 from gsrmr_common.writer_admission import writer_list_problem
 
-LIVE_PARAMETERS = frozenset({"process_delay_s", "measure_loss", "jpeg_quality", "max_backlog_slots"})
+LIVE_PARAMETERS = frozenset({"process_delay_s", "measure_loss", "jpeg_quality", "max_backlog_slots", "model_path"})
 #: The read-only lists of node names allowed to write the server's input topics (relative: in its namespace; * any).
 WRITER_LISTS = ("robot_writers", "schedule_writers", "cmd_vel_writers")
 
@@ -33,7 +33,9 @@ class ServerParameters(NodeParameters):
     process_delay_s: float = ros_parameter(
         0.03, "Compose slot k at the latest this long after its start [s], earlier once its uploads are "
         "complete (uploads arriving after composition are counted late)", min_value=0.0, max_value=5.0)
-    model_path: str = ros_parameter("", "Gaussian-splatting model (.ply, 3DGS layout)", read_only=True)
+    model_path: str = ros_parameter(
+        "", "Gaussian-splatting model (.ply, 3DGS layout); a new one set at run time is loaded off the slot path and "
+        "used from the first slot after it is ready")
     mr_content: str = ros_parameter("sandbox", "MR content: the virtual agents and their lights (name in "
                                     "config/mr or a YAML path)", read_only=True)
     background_rgb: tuple[float, ...] = ros_parameter(

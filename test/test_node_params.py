@@ -31,7 +31,7 @@ from gsrmr_server.server_params import LIVE_PARAMETERS, ServerParameters
 SERVER_DECLARED = {
     "slot_s": (0.1, (0.01, 10.0), True),
     "process_delay_s": (0.03, (0.0, 5.0), False),
-    "model_path": ("", None, True),
+    "model_path": ("", None, False),  # issue 27: live (a model swap), when live changes are on
     "mr_content": ("sandbox", None, True),
     "background_rgb": ([0.5, 0.55, 0.6], None, True),
     "measure_loss": (True, None, False),
@@ -108,7 +108,7 @@ def test_nested_link_budget_and_camera_mount_default_to_theirs():
 
 def test_live_and_read_only_parameters():
     assert ServerParameters.read_only_names() == set(SERVER_DECLARED) - LIVE_PARAMETERS
-    assert {"process_delay_s", "measure_loss", "jpeg_quality", "max_backlog_slots"} == LIVE_PARAMETERS
+    assert {"process_delay_s", "measure_loss", "jpeg_quality", "max_backlog_slots", "model_path"} == LIVE_PARAMETERS
     live = set(SCHEDULER_DECLARED) - SchedulerParameters.read_only_names()
     assert live == PLANNING_PARAMETERS | {"replan_period_s"}
 

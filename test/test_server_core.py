@@ -6,6 +6,7 @@ from dataclasses import replace
 import json
 import math
 from pathlib import Path
+import time
 from types import SimpleNamespace
 
 from conftest import ros_env
@@ -283,3 +284,43 @@ def test_server_node_records_the_images_it_received_with_their_keys(server_node,
         want = camera_from_pose(keys[slot].a_m, keys[slot].b_m, keys[slot].theta_rad, mount, k)
         assert np.allclose(frame.camera.camera_to_world, want.camera_to_world, atol=1e-6)
         assert frame.pose == pytest.approx((keys[slot].a_m, keys[slot].b_m, keys[slot].theta_rad))
+
+
+@pytest.mark.ros
+def test_a_new_model_path_is_swapped_in_at_a_slot_boundary_without_missing_a_slot(server_node, tmp_path):
+    """Issue 27's hot swap: ``model_path`` set at run time (a live change) is loaded off the slot path; the slots
+    composed meanwhile keep the old model, the first slot after the load uses the new one, none is skipped; a path
+    that is no file is refused; /diagnostics names the model in use."""
+    node = server_node
+    published = []
+    node._pub_mr.publish = lambda msg: published.append(msg)
+    node._pub_info.publish = node._pub_mr_c.publish = lambda _msg: None
+    now = {"ns": 1_000_000 * node.clock.slot_len_ns}
+    node.get_clock = lambda: SimpleNamespace(now=lambda: SimpleNamespace(nanoseconds=now["ns"]))
+    node.use_camera_info(camera_info_from_intrinsics(Intrinsics.from_fov(32, 24, 1.2), 0, CAMERA_OPTICAL_FRAME))
+    node._tick()
+    first = node.cursor.next
+    old = node.composer.model
+    refused = node.set_parameters([Parameter("model_path", value=str(tmp_path / "missing.ply"))])[0]
+    assert not refused.successful and "is no file" in refused.reason
+    new_path = make_point_model(tmp_path / "v1", n=80)
+    assert node.set_parameters([Parameter("model_path", value=str(new_path))])[0].successful
+    used = []
+    for slot in range(first, first + 40):
+        node.uplink.on_key(PoseKey(slot, 0.5, 0.0, 0.1), slot, now["ns"])
+        node._on_ledger(ledger_to_msg(_ledger(slot, 0)))
+        now["ns"] = node.clock.start_ns(slot) + 1_000_000
+        node._tick()
+        used.append(node.composer.model.num_gaussians)
+        if used[-1] == 80 and slot > first + 2:
+            break
+        time.sleep(0.05)  # the loader thread runs meanwhile
+    assert used[-1] == 80 and old.num_gaussians == 50 and used[0] == 50  # the first slots kept the old model
+    assert len(published) == len(used)  # one MR image per slot, none skipped while loading
+    assert node.uplink.faults[UplinkFault.SKIPPED_SLOTS] == 0 and node.model_swap.swaps == 1
+    del node.get_clock
+    diag = []
+    node._pub_diag.publish = diag.append
+    node._publish_diagnostics()
+    values = {kv.key: kv.value for kv in diag[-1].status[0].values}
+    assert values["model"] == str(new_path) and values["model_gaussians"] == "80" and values["model_swaps"] == "1"
