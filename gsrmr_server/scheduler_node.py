@@ -104,6 +104,7 @@ class SchedulerNode(Node):
         self._lock = threading.RLock()
         self._pose: tuple[float, float, float] | None = None
         self._replan_reason: str | None = "start"
+        self._new_loss_map: LossMap | None = None  # a loss_map_file read by the on-set check, for the post-set
         self.last: PlanResult | None = None
         self.replans: dict[str, int] = {}
         self.solve_times_s: list[float] = []
@@ -197,6 +198,13 @@ class SchedulerNode(Node):
                     self.planner.loss_map)
             except ValueError as err:
                 return SetParametersResult(successful=False, reason=str(err))
+        for param in params:
+            if param.name == "loss_map_file":
+                try:  # a small JSON: read it here, so that a bad file is refused, not applied
+                    self._new_loss_map = LossMap.load(Path(str(param.value)))
+                except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
+                    return SetParametersResult(successful=False, reason=f"loss_map_file {param.value!r} is no loss "
+                                               f"map: {type(err).__name__}: {err}")
         return SetParametersResult(successful=True)
 
     def _apply(self, params: list[Parameter]) -> None:
@@ -211,6 +219,12 @@ class SchedulerNode(Node):
                                for param in params})
             if changed:
                 self.planner.reconfigure(self.params.planner_config(self.planner.loss_map))
+            if "loss_map_file" in names and self._new_loss_map is not None:
+                self.planner.reseed(self._new_loss_map)
+                self.get_logger().info(f"loss map re-seeded from {self.params.loss_map_file} "
+                                       f"({len(self._new_loss_map.cells)} cells)")
+                self._new_loss_map = None
+                changed.append("loss_map_file")
         if "replan_period_s" in names:
             self._replan_timer.timer_period_ns = round(self.params.replan_period_s * 1e9)
         if changed:

@@ -84,7 +84,9 @@ class SchedulerParameters(NodeParameters):
         "(config/routes/*.yaml)", read_only=True)
     route_speed_mps: float = ros_parameter(0.3, "Nominal speed along the route [m/s]", min_value=1e-3,
                                            max_value=10.0, read_only=True)
-    loss_map_file: str = ros_parameter("", "Seed loss map (JSON from a previous run)", read_only=True)
+    loss_map_file: str = ros_parameter(
+        "", "Seed loss map (JSON: gsrmr-survey, or a previous run); a new one set at run time (after a model swap) "
+        "re-seeds the loss forecast and replans")
     loss_prior: float = ros_parameter(0.05, "Predicted loss where the map knows nothing", min_value=0.0,
                                       max_value=1.0, read_only=True)
     state_dir: str = ros_parameter("", "Save/restore the last schedule and loss map here", read_only=True)

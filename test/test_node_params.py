@@ -60,7 +60,7 @@ SCHEDULER_DECLARED = {
     "loss_margin": (0.0, (0.0, 0.99), False),
     "route_waypoints_m": ([0.0], None, True),
     "route_speed_mps": (0.3, (1e-3, 10.0), True),
-    "loss_map_file": ("", None, True),
+    "loss_map_file": ("", None, False),  # issue 27: live (re-seeds the forecast after a model swap)
     "loss_prior": (0.05, (0.0, 1.0), True),
     "state_dir": ("", None, True),
     "in_slot_decision": (True, None, True),
@@ -110,7 +110,7 @@ def test_live_and_read_only_parameters():
     assert ServerParameters.read_only_names() == set(SERVER_DECLARED) - LIVE_PARAMETERS
     assert {"process_delay_s", "measure_loss", "jpeg_quality", "max_backlog_slots", "model_path"} == LIVE_PARAMETERS
     live = set(SCHEDULER_DECLARED) - SchedulerParameters.read_only_names()
-    assert live == PLANNING_PARAMETERS | {"replan_period_s"}
+    assert live == PLANNING_PARAMETERS | {"replan_period_s", "loss_map_file"}
 
 
 @pytest.mark.parametrize(("name", "value", "reason"), [

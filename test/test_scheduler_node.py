@@ -9,6 +9,7 @@ from pathlib import Path
 import time
 
 from conftest import ros_env
+import numpy as np
 import pytest
 import rclpy
 from rclpy.context import Context
@@ -111,6 +112,30 @@ def test_a_change_the_planner_refuses_is_refused_on_set(scheduler):
     result, = node.set_parameters([Parameter("oracle_channel", value=True)])
     assert not result.successful and "read-only" in result.reason
     assert node.planner.config is before and node.params.image_bits == before.image_bits
+
+
+def test_a_new_loss_map_file_reseeds_the_forecast_and_replans(scheduler, tmp_path):
+    """Issue 27: after a model swap the operator sets the new model's survey as loss_map_file: the forecast predicts
+    from it and a replan follows; a file that is no loss map is refused and changes nothing."""
+    from gsrmr_server.loss_map import LossMap
+
+    node, spin_until = scheduler
+    assert spin_until(lambda: node.last is not None)
+    (tmp_path / "bad.json").write_text("[1, 2]")
+    result, = node.set_parameters([Parameter("loss_map_file", value=str(tmp_path / "bad.json"))])
+    assert not result.successful and "is no loss map" in result.reason
+    result, = node.set_parameters([Parameter("loss_map_file", value=str(tmp_path / "missing.json"))])
+    assert not result.successful and node.params.loss_map_file == ""
+    seeded = LossMap(prior=0.05)
+    for x in np.linspace(0.0, 3.0, 30):
+        seeded.add(float(x), 0.0, 0.0, 0.011)
+    seeded.save(tmp_path / "v1.json")
+    old_map = node.planner.loss_map
+    result, = node.set_parameters([Parameter("loss_map_file", value=str(tmp_path / "v1.json"))])
+    assert result.successful, result.reason
+    assert node.planner.loss_map is not old_map and len(node.planner.loss_map.cells) == len(seeded.cells)
+    assert node.planner.loss_map.predict(1.5, 0.0, 0.0) == pytest.approx(0.011)
+    assert spin_until(lambda: node.replans.get("parameters", 0) >= 1)
 
 
 # ---------------------------------------------------------------------------- loss samples checked against the ledger

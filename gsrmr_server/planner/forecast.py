@@ -51,12 +51,22 @@ class LossForecast:
         if trust_loss_map and model is not None:
             raise ValueError("loss forecast: a loss model and trust_loss_map exclude each other")
         self.loss_map = loss_map  # keeps learning from the measured samples (saved for later runs)
+        self._burst = {"burst_time_constant_slots": burst_time_constant_slots, "margin_quantile": margin_quantile,
+                       "margin_window": margin_window_samples}
+        self._own_model = not trust_loss_map and model is None
         # the burst model reads a frozen copy of the seed
         self.model: SlotLossModel | None = None if trust_loss_map else model or LossPredictor(
-            LossMap.from_json(loss_map.to_json()), burst_time_constant_slots=burst_time_constant_slots,
-            margin_quantile=margin_quantile, margin_window=margin_window_samples)
+            LossMap.from_json(loss_map.to_json()), **self._burst)
         self._predicted: dict[int, float] = {}  # slot → what a plan predicted (no margin)
         self._measured = 0  # finite samples observed (trust_loss_map)
+
+    def reseed(self, loss_map: LossMap) -> None:
+        """Predict from a new seed map from now on (a new GS model's survey): the burst model restarts on a frozen
+        copy of it; the samples measured so far went with the old map (they measured the old model)."""
+        self.loss_map = loss_map
+        if self._own_model:
+            self.model = LossPredictor(LossMap.from_json(loss_map.to_json()), **self._burst)
+        self._measured = 0
 
     @property
     def samples(self) -> int:

@@ -108,6 +108,11 @@ class OnlinePlanner:
         """The live loss map (the seed, updated by every measured sample): what the scheduler saves."""
         return self.forecast.loss_map
 
+    def reseed(self, loss_map: LossMap) -> None:
+        """A new seed loss map (the scheduler's ``loss_map_file`` set at run time, after a model swap): the
+        forecast predicts from it from the next plan on (:meth:`LossForecast.reseed`)."""
+        self.forecast.reseed(loss_map)
+
     @property
     def active(self) -> ScheduleMsg | None:
         """The schedule most recently planned (or resumed)."""
