@@ -6,6 +6,7 @@ from dataclasses import replace
 import json
 import math
 from pathlib import Path
+import threading
 import time
 from types import SimpleNamespace
 
@@ -304,18 +305,23 @@ def test_a_new_model_path_is_swapped_in_at_a_slot_boundary_without_missing_a_slo
     refused = node.set_parameters([Parameter("model_path", value=str(tmp_path / "missing.ply"))])[0]
     assert not refused.successful and "is no file" in refused.reason
     new_path = make_point_model(tmp_path / "v1", n=80)
+    loaded = threading.Event()  # the load waits for the test: three slots are composed while it "runs"
+    load = node.model_swap._load
+    node.model_swap._load = lambda path: (loaded.wait(10.0), load(path))[1]
     assert node.set_parameters([Parameter("model_path", value=str(new_path))])[0].successful
     used = []
-    for slot in range(first, first + 40):
+    for slot in range(first, first + 200):  # up to 10 s for the load, a bound against never
+        if slot == first + 3:
+            loaded.set()
         node.uplink.on_key(PoseKey(slot, 0.5, 0.0, 0.1), slot, now["ns"])
         node._on_ledger(ledger_to_msg(_ledger(slot, 0)))
         now["ns"] = node.clock.start_ns(slot) + 1_000_000
         node._tick()
         used.append(node.composer.model.num_gaussians)
-        if used[-1] == 80 and slot > first + 2:
+        if used[-1] == 80:
             break
         time.sleep(0.05)  # the loader thread runs meanwhile
-    assert used[-1] == 80 and old.num_gaussians == 50 and used[0] == 50  # the first slots kept the old model
+    assert used[:3] == [50, 50, 50] and used[-1] == 80 and old.num_gaussians == 50  # the old model until ready
     assert len(published) == len(used)  # one MR image per slot, none skipped while loading
     assert node.uplink.faults[UplinkFault.SKIPPED_SLOTS] == 0 and node.model_swap.swaps == 1
     del node.get_clock
