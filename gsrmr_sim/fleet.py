@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
-import json
 import math
 from pathlib import Path
 import time
@@ -35,7 +34,7 @@ from typing import TYPE_CHECKING
 
 from gsrmr_sim.cpu_usage import CPU_GROUPS
 from gsrmr_sim.link_events import LinkEvent
-from gsrmr_sim.report import copy_recording, link_summary, log, run_summary, summarise, write_report
+from gsrmr_sim.report import copy_recording, link_summary, log, run_summary, summarise, summary_json, write_report
 from gsrmr_sim.sim_stack import fleet_stack
 from gsrmr_sim.stack_runner import RobotRun, limo_link_path, run_round
 
@@ -114,7 +113,7 @@ def fleet_demo(args: argparse.Namespace, *, slots: int, slot_s: float, out: Path
              **fleet_totals(runs, slot_s), "hosts": args.hosts,
              **(link_summary(link_log, every_row, args.uplink_mbit) if args.hosts == 2 else {}),
              "report_dir": str(out), "per_robot": per_robot}
-    (out / "fleet_summary.json").write_text(json.dumps(fleet, indent=1))
+    (out / "fleet_summary.json").write_text(summary_json(fleet, indent=1))  # strict JSON: NaN → null
     print(f"\ngsrmr demo — fleet of {robots} robots, scene {args.scene}, L_th {args.loss_threshold}, "
           f"{slots} slots each ({time.perf_counter() - t_start:.0f} s in all)")
     for s in per_robot:
@@ -132,5 +131,5 @@ def fleet_demo(args: argparse.Namespace, *, slots: int, slot_s: float, out: Path
         print(f"  two hosts: uplink limited to {args.uplink_mbit:g} Mbit/s; {fleet['link_uplink_bytes']} B crossed "
               f"robot → server ({fleet['link_uplink_mbit_mean']:.2f} Mbit/s mean) for {robots} robots")
     print(f"  reports: {out}/robot1 … robot{robots}")
-    print(json.dumps(fleet), flush=True)
+    print(summary_json(fleet), flush=True)
     return 0

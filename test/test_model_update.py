@@ -180,3 +180,15 @@ def test_update_cli_writes_a_version_and_names_the_model_to_use(tmp_path, worlds
     assert second["version"] == 1 and not second["accepted"] and "not" in second["reason"]
     assert second["model"].endswith("model_v0.ply") and in_use(exact) == 0  # the refused one is kept, not used
     assert read_version(exact, 1)["accepted"] is False
+
+
+def test_the_trainer_refuses_frames_without_their_images(worlds):
+    """A dataset read without its images (0×0 placeholders) trained to an empty model and then failed deep in the
+    fused engine (found writing gsrmr-update); now the trainer says so up front."""
+    from gsrmr_common.nerfstudio import DatasetFrame
+    from gsrmr_server.splatting.train import Trainer
+
+    current, _, mapping, _ = worlds
+    blind = [DatasetFrame(f.camera, np.zeros((0, 0, 3), np.float32), None, None, f.file_path) for f in mapping]
+    with pytest.raises(ValueError, match="were the images loaded"):
+        Trainer(blind, _TRAIN, initial_model=current)

@@ -120,6 +120,11 @@ class Trainer:
             torch.set_num_threads(cfg.torch_threads)
         if not frames:
             raise ValueError("Trainer: no training frames")
+        for i, f in enumerate([*frames, *(test_frames or [])]):
+            k = f.camera.intrinsics
+            if f.image.shape != (k.height, k.width, 3):  # e.g. read_dataset(load_images=False): 0×0 placeholders
+                raise ValueError(f"Trainer: frame {i} ({f.file_path or 'unnamed'}) has a {f.image.shape} image for a "
+                                 f"{k.width}×{k.height} camera (were the images loaded?)")
         if cfg.init not in INIT_METHODS:
             raise ValueError(f"Trainer: init must be one of {', '.join(INIT_METHODS)}, got {cfg.init!r}")
         self.frames = resize_frames(frames, cfg.resolution)
