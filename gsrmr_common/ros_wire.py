@@ -322,3 +322,11 @@ def intrinsics_from_camera_info(msg: CameraInfo, *, ignore_distortion: bool = Fa
     if not ignore_distortion and np.any(np.asarray(msg.d, dtype=np.float64)):
         raise ValueError(f"CameraInfo has non-zero distortion {list(msg.d)} ({msg.distortion_model})")
     return Intrinsics.from_ros_k(k, int(msg.width), int(msg.height))
+
+
+def intrinsics_or_problem(msg: CameraInfo) -> tuple[Intrinsics | None, str | None]:
+    """:func:`intrinsics_from_camera_info`, or None and why the calibration is unusable (never raises)."""
+    try:
+        return intrinsics_from_camera_info(msg), None
+    except ValueError as err:
+        return None, str(err)

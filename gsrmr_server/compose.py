@@ -60,6 +60,15 @@ class MRComposer:
         self.mount = mount
         self.background_rgb = np.asarray(background_rgb, np.float32)
 
+    def warm_up(self, model: GaussianModel) -> GaussianModel:
+        """Render ``model`` once with this composer's view, content and intrinsics (one thread, on the caller's
+        thread: a model swap's loader), so the first slot composed with it pays no first-touch cost."""
+        probe = MRComposer(model, self.virtual, self.intrinsics, self.mount,
+                           tuple(float(c) for c in self.background_rgb),  # type: ignore[arg-type]
+                           render_threads=1)
+        probe.compose(SlotUploads(0), PoseKey(0, 0.0, 0.0, 0.0), 0.0, measure_loss=False)
+        return model
+
     def compose(self, uploads: SlotUploads, best_pose: PoseKey | None, time_s: float,
                 measure_loss: bool = True) -> ComposedSlot:
         """Compose slot ``uploads.slot``; never raises on bad uploads (they become faults)."""

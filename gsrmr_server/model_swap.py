@@ -13,7 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 import threading
 import time
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
 M = TypeVar("M")
 
@@ -39,6 +39,14 @@ class ModelSwap(Generic[M]):
         self.swaps = 0
         self.error: str = ""  # the last failed load, '' when the last request loaded
         self.loading: str = ""  # the path being loaded, '' when idle
+
+    def diagnostic_values(self) -> dict[str, Any]:
+        """``model`` (the path in use), ``model_swaps`` and ``model_loading`` (the path being loaded, '' when idle)."""
+        return {"model": self.in_use, "model_swaps": self.swaps, "model_loading": self.loading}
+
+    def problems(self) -> list[str]:
+        """What ``/diagnostics`` warns about: the last load failed (the model in use stays)."""
+        return [f"model swap failed, the model in use stays: {self.error}"] if self.error else []
 
     def request(self, path: str) -> threading.Thread:
         """Load ``path`` in a daemon thread (returned, for tests to join)."""

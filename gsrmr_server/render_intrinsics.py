@@ -9,6 +9,7 @@ state and says what to log; the node only converts the message and writes the lo
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from gsrmr_common.camera import Intrinsics
 
@@ -35,6 +36,13 @@ class LogLine:
 
     level: str
     text: str
+
+    def log_to(self, logger: Any) -> None:
+        """Log the line on an rclpy logger at its level (rclpy: one severity per call site, hence two)."""
+        if self.level == "warning":
+            logger.warning(self.text)
+        else:
+            logger.info(self.text)
 
 
 class RenderIntrinsics:

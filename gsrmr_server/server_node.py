@@ -16,24 +16,20 @@ to rebuild the slot's v and d), ``mr/image/compressed`` (JPEG), ``gsrmr/loss_sam
 image slot) and ``/diagnostics`` (:class:`~gsrmr_server.server_stats.ServerStats`, written to
 ``server_summary.json`` on shutdown). Records ``slots.csv`` and MCAP into ``record_dir`` when set. Parameters:
 :class:`~gsrmr_server.server_params.ServerParameters` (checked on set, applied after set; live ones only with
-``live_parameter_changes``). A new ``model_path`` (``ros2 param set /gsrmr_server model_path …``, a live change) is
-loaded off the slot path and swapped in at a slot boundary (:class:`~gsrmr_server.model_swap.ModelSwap`): no slot
-waits for it; ``/diagnostics`` says which model is in use (``model``, ``model_swaps``, ``model_loading``) and warns
-when a load failed (the model in use stays).
+``live_parameter_changes``). A new ``model_path`` (``ros2 param set /gsrmr_server model_path …``) is loaded off the
+slot path and swapped in at a slot boundary, no slot waiting for it (:class:`~gsrmr_server.model_swap.ModelSwap`).
 
 Nothing on the graph is taken blindly (``docs/security.md``, "Application checks"): every input is admitted by its
 writer (:class:`gsrmr_common.ros_admission.GatedInputs`: ``robot_writers`` for the uplink, the ledger and the
-camera_info, ``schedule_writers``, ``cmd_vel_writers``; each writer endpoint rate-limited); pose keys must move
-within ``max_speed_mps`` (:class:`gsrmr_common.plausibility.PoseTrack`), a ledger row must name a slot near now and
-come once per slot, a schedule must be plausible and newer (``seq``) than the last of its writer endpoint. Refused
-messages are counted by writer and by reason on ``/diagnostics`` and in ``server_summary.json``.
+camera_info, ``schedule_writers``, ``cmd_vel_writers``; each writer endpoint rate-limited), then checked for
+plausibility (:class:`~gsrmr_server.server_inputs.ServerInputs`); refusals are counted by writer and by reason on
+``/diagnostics`` and in ``server_summary.json``.
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
 import json
-import math
 from pathlib import Path
 import threading
 
@@ -47,7 +43,6 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray
 
 from gsrmr_common.interrupts import console_main
-from gsrmr_common.plausibility import Implausible, PoseTrack, ScheduleLimits, ledger_problem, schedule_problem
 from gsrmr_common.ros_admission import GatedInputs, ParameterAudit
 from gsrmr_common.ros_node import (
     declare_camera_mount,
@@ -63,32 +58,21 @@ from gsrmr_common.ros_wire import (
     UPLINK_QOS,
     compressed_to_msg,
     image_to_msg,
-    intrinsics_from_camera_info,
-    ledger_from_msg,
+    intrinsics_or_problem,
     loss_sample_to_msg,
     mr_slot_info_to_msg,
-    pose_key_from_msg,
-    pose_key_pose_msg,
-    schedule_from_msg,
-    stamp_to_ns,
 )
 from gsrmr_common.slot_clock import ComposeCursor, SlotClock
 from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
-from gsrmr_common.wire import MAX_COMPRESSED_BYTES, MR_SLOT_INFO_TOPIC, PoseKey, RealSource, UplinkFault
-from gsrmr_common.writer_admission import SeqTracker
-from gsrmr_server.compose import MRComposer
-from gsrmr_server.ledger_book import LedgerBook
+from gsrmr_common.wire import MR_SLOT_INFO_TOPIC, RealSource, UplinkFault
 from gsrmr_server.model_swap import ModelSwap
-from gsrmr_server.recording import TOPIC_CAMERA_INFO, TOPIC_RECEIVED_IMAGE, TOPIC_RECEIVED_POSE, RunRecorder
+from gsrmr_server.recording import TOPIC_CAMERA_INFO, RunRecorder
 from gsrmr_server.render_intrinsics import RenderIntrinsics
+from gsrmr_server.server_inputs import ServerInputs
 from gsrmr_server.server_params import ServerParameters
 from gsrmr_server.server_stats import ServerStats, diagnostic_report
 from gsrmr_server.slot_core import WARM_UP_INTRINSICS, build_server_core, count_composition_faults
 from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.uplink import SlotUploads, UplinkAssembler
-
-# what a plausible schedule looks like to the server (the transmit power is the robot's radio's to bound)
-_SCHEDULE_LIMITS = ScheduleLimits(max_power_w=float("inf"))
 
 
 class ServerNode(Node):
@@ -108,15 +92,11 @@ class ServerNode(Node):
         self.camera = RenderIntrinsics()  # none until the robot's camera_info arrives
         self.clock = SlotClock(p.slot_s)
         self.cursor = ComposeCursor(self.clock)
-        self.uplink = UplinkAssembler()
-        self.ledgers = LedgerBook()
         self.stats = ServerStats(p.slot_s)
         self._lock = threading.Lock()
+        self.checked = ServerInputs(self.clock, p.max_speed_mps, self._lock)  # plausibility checks, per-slot books
+        self.uplink = self.checked.uplink
         self.audit = ParameterAudit(self, p.live_parameter_changes)
-        self.implausible = Implausible()
-        self.poses = PoseTrack(p.max_speed_mps, p.slot_s)
-        self._schedule_seq = SeqTracker()
-        self._composed_slot: int | None = None  # the newest slot composed
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._after_set)
         self._cmd: tuple[float, float] | None = None
@@ -150,13 +130,9 @@ class ServerNode(Node):
                                f"content {content.name} ({len(content.agents)} agents); waiting for uplink/camera_info")
 
     def _validate(self, params: list[Parameter]) -> SetParametersResult:
-        """On-set: refuse a change :class:`ServerParameters` gives a reason for (type, range, read-only), or a
-        ``model_path`` that is no file."""
+        """On-set: refuse a change :class:`ServerParameters` gives a reason for (type, range, read-only, no file)."""
         for param in params:
-            reason = ServerParameters.change_problem(param.name, param.value)
-            if not reason and param.name == "model_path" and not Path(str(param.value)).is_file():
-                reason = f"model_path {param.value!r} is no file (a 3DGS .ply)"
-            if reason:
+            if reason := ServerParameters.change_problem(param.name, param.value):
                 return SetParametersResult(successful=False, reason=reason)
         reason = self.audit.refusal(param.name for param in params)
         return SetParametersResult(successful=reason is None, reason=reason or "")
@@ -175,90 +151,23 @@ class ServerNode(Node):
             self.model_swap.request(self.params.model_path)
 
     def _load_model(self, path: str) -> GaussianModel:
-        """The model_swap loader (its own thread): read the .ply and render it once at the current intrinsics, so
-        the first slot with it pays no first-touch cost."""
-        model = GaussianModel.load_ply(path)
-        with self._lock:
-            probe = MRComposer(model, self.composer.virtual, self.composer.intrinsics, self.composer.mount,
-                               tuple(float(c) for c in self.composer.background_rgb),  # type: ignore[arg-type]
-                               render_threads=1)
-        probe.compose(SlotUploads(0), PoseKey(0, 0.0, 0.0, 0.0), 0.0, measure_loss=False)
-        return model
+        """The model_swap loader (its own thread): read the .ply and render it once (:meth:`MRComposer.warm_up`)."""
+        return self.composer.warm_up(GaussianModel.load_ply(path))
 
     # ---------------------------------------------------------------- inputs
     def _on_key(self, msg: Vector3Stamped, _gid: bytes = b"") -> None:
-        now_ns = self.get_clock().now().nanoseconds
-        with self._lock:
-            try:
-                key = pose_key_from_msg(msg, self.clock)
-            except ValueError:  # wrong frame or an invalid stamp: refuse, never raise out of the callback
-                self.uplink.count(UplinkFault.MALFORMED_KEY)
-                return
-            last = self.poses.last
-            if key.is_valid() and not self.poses.offer(key.slot, key.a_m, key.b_m):
-                self.implausible["pose_jump"] += 1  # faster than the robot drives: no relocalisation (yet)
-                if last is not None:  # what jumped, for a false alarm's diagnosis
-                    self.get_logger().warning(
-                        f"pose key refused (pose_jump): slot {key.slot} at ({key.a_m:.3f}, {key.b_m:.3f}) m, "
-                        f"{math.hypot(key.a_m - last[1], key.b_m - last[2]):.3f} m from the track's slot {last[0]} "
-                        f"({key.slot - last[0]} slots; reach {self.poses.reach_m(key.slot - last[0]):.3f} m)",
-                        throttle_duration_sec=1.0)
-                return
-            self.uplink.on_key(key, self.clock.slot_at(now_ns), now_ns)
+        if (line := self.checked.on_key(msg, self.get_clock().now().nanoseconds)) is not None:
+            self.get_logger().warning(line, throttle_duration_sec=1.0)
 
     def _on_image(self, msg: CompressedImage, _gid: bytes = b"") -> None:
-        now_ns = self.get_clock().now().nanoseconds
-        data = bytes(msg.data)
-        with self._lock:
-            if len(data) > MAX_COMPRESSED_BYTES:
-                self.uplink.count(UplinkFault.OVERSIZED_IMAGE)
-                return
-            try:
-                image_slot = self.clock.slot_named(stamp_to_ns(msg.header.stamp))
-            except ValueError:
-                self.uplink.count(UplinkFault.MALFORMED_IMAGE)
-                return
-            self.uplink.on_image(image_slot, data, self.clock.slot_at(now_ns), now_ns)
+        self.checked.on_image(msg, self.get_clock().now().nanoseconds)
 
     def _on_schedule(self, msg: Float64MultiArray, gid: bytes = b"") -> None:
-        """A schedule from an admitted writer: taken when it parses, is plausible (T, slots near now; the power is
-        the robot's to check) and is newer (seq) than the last one of its writer endpoint; else counted."""
-        try:
-            sched = schedule_from_msg(msg)
-        except ValueError as err:
-            self.implausible["schedule_malformed"] += 1
-            self.get_logger().error(f"schedule refused: {err}", throttle_duration_sec=5.0)
-            return
-        reason = schedule_problem(sched, self.clock.slot_at(self.get_clock().now().nanoseconds), _SCHEDULE_LIMITS)
-        if reason is None:
-            seq = self._schedule_seq.check(gid, sched.seq)
-            if seq == "repeat":  # the same schedule delivered again (latched): nothing new
-                return
-            reason = "schedule_seq" if seq == "older" else None
-        with self._lock:
-            if reason:
-                self.implausible[reason] += 1
-                return
-            self.ledgers.schedule = sched
+        if (line := self.checked.on_schedule(msg, gid, self.get_clock().now().nanoseconds)) is not None:
+            self.get_logger().error(line, throttle_duration_sec=5.0)
 
     def _on_ledger(self, msg: Float64MultiArray, _gid: bytes = b"") -> None:
-        with self._lock:
-            try:
-                row = ledger_from_msg(msg)
-            except ValueError:  # wrong length, or a NaN/inf slot, x or bit count
-                self.uplink.count(UplinkFault.MALFORMED_LEDGER)
-                return
-            # near the slot being composed (the clock's before the first): a replay driving the node faster than
-            # real time (bench/soak.py --node) stays near it too
-            near = self._composed_slot if self._composed_slot is not None else \
-                self.clock.slot_at(self.get_clock().now().nanoseconds)
-            reason = ledger_problem(row, near)
-            if reason is None and self.ledgers.image_sent(row.slot) is not None:
-                reason = "ledger_repeat"  # one row per slot: the first stands
-            if reason:
-                self.implausible[reason] += 1
-                return
-            self.ledgers.add(row)
+        self.checked.on_ledger(msg, self.get_clock().now().nanoseconds)
 
     def _on_cmd(self, msg: Twist, _gid: bytes = b"") -> None:
         self._cmd = (float(msg.linear.x), float(msg.angular.z))
@@ -268,18 +177,12 @@ class ServerNode(Node):
         refuse an unusable one (:class:`~gsrmr_server.render_intrinsics.RenderIntrinsics`)."""
         if self.recorder is not None:
             self.recorder.write_message(TOPIC_CAMERA_INFO, msg, self.get_clock().now().nanoseconds)
-        try:
-            got, problem = intrinsics_from_camera_info(msg), None
-        except ValueError as err:
-            got, problem = None, str(err)
         with self._lock:
-            line = self.camera.offer(got, problem)
+            line = self.camera.offer(*intrinsics_or_problem(msg))
             if self.camera.intrinsics is not None:
                 self.composer.intrinsics = self.camera.intrinsics
-        if line is not None and line.level == "warning":  # rclpy: one severity per call site
-            self.get_logger().warning(line.text)
-        elif line is not None:
-            self.get_logger().info(line.text)
+        if line is not None:
+            line.log_to(self.get_logger())
 
     # ---------------------------------------------------------------- slots
     def _tick(self) -> None:
@@ -287,16 +190,11 @@ class ServerNode(Node):
             return
         skips = self.cursor.skips
         slot = self.cursor.next_slot(self.get_clock().now().nanoseconds, delay_s=self.params.process_delay_s,
-                                     max_backlog_slots=self.params.max_backlog_slots, complete=self._uploads_complete)
+                                     max_backlog_slots=self.params.max_backlog_slots, complete=self.checked.complete)
         if self.cursor.skips > skips:  # far behind (suspended, clock jump): skipped ahead
             self.uplink.count(UplinkFault.SKIPPED_SLOTS)
         if slot is not None:
             self.process_slot(slot)
-
-    def _uploads_complete(self, slot: int) -> bool:
-        """Its key and its image arrived, or its key and the robot's ledger row saying no image follows."""
-        with self._lock:
-            return self.uplink.complete(slot, self.ledgers.image_sent(slot))
 
     def process_slot(self, slot: int) -> None:
         """Compose, publish and record slot ``slot`` (the work is the slot core's; this publishes)."""
@@ -305,10 +203,7 @@ class ServerNode(Node):
         with self._lock:
             if swapped is not None:
                 self.composer.model = swapped.model
-            self._composed_slot = slot if self._composed_slot is None else max(slot, self._composed_slot)
-            plan = self.ledgers.take(slot)
-            uploads = self.uplink.take(slot, image_expected=plan.image_expected)
-            best = self.uplink.best_pose(slot)
+            plan, uploads, best = self.checked.take(slot)
         out = self.core.process(uploads, best, time_s=self.cursor.round_time_s(slot), stamp_s=start_ns / 1e9,
                                 ledger=plan.ledger, scheduled_x=plan.scheduled_x)
         count_composition_faults(self.uplink, uploads, out)
@@ -325,37 +220,27 @@ class ServerNode(Node):
             self._pub_loss.publish(loss_sample_to_msg(out.loss_sample))
         if self.recorder is not None:
             if out.composed.source == RealSource.IMAGE and uploads.key is not None and uploads.jpeg is not None:
-                # what the robot paid to send: training data for a model update (issue 27)
-                self.recorder.write_message(TOPIC_RECEIVED_IMAGE,
-                                            compressed_to_msg(uploads.jpeg, start_ns, CAMERA_OPTICAL_FRAME), start_ns)
-                self.recorder.write_message(TOPIC_RECEIVED_POSE, pose_key_pose_msg(uploads.key, start_ns), start_ns)
+                self.recorder.write_received(uploads.jpeg, uploads.key, start_ns)  # training data for an update
             self.recorder.write_slot(replace(out.row, latency_ms=latency_ms), compressed, self._cmd,
                                      stamp_ns=start_ns)
 
     def security_summary(self) -> dict:
         """What the known-writer and plausibility checks refused, and the live parameter changes (JSON-able)."""
-        return {**self.inputs.diagnostic_values(), "implausible": self.implausible.values_for_diagnostics(),
-                "relocalisations": self.poses.relocalisations, **self.audit.diagnostic_values()}
+        return {**self.inputs.diagnostic_values(), **self.checked.diagnostic_values(), **self.audit.diagnostic_values()}
 
     def _publish_diagnostics(self) -> None:
         with self._lock:
             values, problems = diagnostic_report(self.stats.summary(self.uplink.faults), self.camera)
             values.update({k: json.dumps(v) if isinstance(v, dict) else v for k, v in self.security_summary().items()})
-            values.update({"model": self.model_swap.in_use, "model_gaussians": self.composer.model.num_gaussians,
-                           "model_swaps": self.model_swap.swaps, "model_loading": self.model_swap.loading})
-            problems += self.inputs.problems()
-            if self.model_swap.error:
-                problems.append(f"model swap failed, the model in use stays: {self.model_swap.error}")
-            if self.implausible:
-                problems.append("implausible inputs refused: " + ", ".join(
-                    f"{k} {n}" for k, n in sorted(self.implausible.items())))
+            values.update(self.model_swap.diagnostic_values(), model_gaussians=self.composer.model.num_gaussians)
+            problems += self.inputs.problems() + self.checked.problems() + self.model_swap.problems()
         self._pub_diag.publish(diagnostics_msg(self, name=f"{self.get_name()}: MR composition",
                                                hardware_id="gsrmr_server", values=values, problems=problems))
 
     def on_shutdown(self) -> None:
         """Close the recording and write ``server_summary.json`` beside it (called by run_node on exit); log what the
         input checks refused."""
-        self.inputs.log_summary(self.implausible, relocalisations=self.poses.relocalisations)
+        self.inputs.log_summary(self.checked.implausible, relocalisations=self.checked.poses.relocalisations)
         if self.recorder is not None:
             self.recorder.close()
             summary = {**self.stats.summary(self.uplink.faults), **self.security_summary()}

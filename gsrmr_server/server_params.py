@@ -12,6 +12,7 @@ simulation's scorer node (``gsrmr-sim-scorer``, :mod:`gsrmr_sim.world.scorer_nod
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from gsrmr_common.camera import CameraMount
@@ -79,6 +80,14 @@ class ServerParameters(NodeParameters):
         if name in WRITER_LISTS:
             return writer_list_problem(name, value)
         return None
+
+    @classmethod
+    def change_problem(cls, name: str, value: Any) -> str | None:
+        """As :meth:`NodeParameters.change_problem`; a new ``model_path`` must also be a file (the on-set check: at
+        start-up a missing file fails the load with its own error)."""
+        if name == "model_path" and value and not Path(str(value)).is_file():
+            return f"model_path {value!r} is no file (a 3DGS .ply)"
+        return super().change_problem(name, value)
 
     @property
     def render_threads_or_all(self) -> int | None:

@@ -23,12 +23,15 @@ from sensor_msgs.msg import CompressedImage
 from std_msgs.msg import String
 
 from gsrmr_common.jpeg import encode_jpeg
-from gsrmr_common.ros_wire import compressed_to_msg, ns_to_stamp
+from gsrmr_common.ros_wire import compressed_to_msg, ns_to_stamp, pose_key_pose_msg
 from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
+from gsrmr_common.wire import PoseKey
 from gsrmr_server.recording.mcap_log import (
     MCAP_NAME,
     TOPIC_CMD_VEL,
     TOPIC_MR_IMAGE,
+    TOPIC_RECEIVED_IMAGE,
+    TOPIC_RECEIVED_POSE,
     TOPIC_SLOT_LOG,
     TOPIC_TYPES,
     _encodable,
@@ -183,6 +186,13 @@ class RunRecorder:
             self._segment_count += 1
             if self._segment_count >= self.segment_slots:
                 self._finish_segment()
+
+    def write_received(self, jpeg: bytes, key: PoseKey, stamp_ns: int) -> None:
+        """Record what the robot paid to send in an image slot (training data for a model update): the JPEG as it
+        arrived on :data:`TOPIC_RECEIVED_IMAGE` and its pose key as a PoseStamped on :data:`TOPIC_RECEIVED_POSE`,
+        both stamped with the slot start ``stamp_ns``."""
+        self.write_message(TOPIC_RECEIVED_IMAGE, compressed_to_msg(jpeg, stamp_ns, CAMERA_OPTICAL_FRAME), stamp_ns)
+        self.write_message(TOPIC_RECEIVED_POSE, pose_key_pose_msg(key, stamp_ns), stamp_ns)
 
     def write_message(self, topic: str, msg: Any, stamp_ns: int) -> None:
         """Record any other ROS 2 message (e.g. the pose key or the schedule) into the MCAP.

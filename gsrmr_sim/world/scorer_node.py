@@ -40,7 +40,7 @@ from gsrmr_common.ros_wire import (
     CAMERA_INFO_QOS,
     UPLINK_QOS,
     image_from_msg,
-    intrinsics_from_camera_info,
+    intrinsics_or_problem,
     ledger_from_msg,
     mr_slot_info_from_msg,
     stamp_to_ns,
@@ -166,18 +166,12 @@ class ScorerNode(Node):
     def use_camera_info(self, msg: CameraInfo) -> None:
         """``uplink/camera_info``: the intrinsics the server renders with, adopted or refused as the server does
         (:class:`~gsrmr_server.render_intrinsics.RenderIntrinsics`); applied before the next slot scored."""
-        try:
-            got, problem = intrinsics_from_camera_info(msg), None
-        except ValueError as err:
-            got, problem = None, str(err)
         with self._pending_lock:
-            line = self.camera.offer(got, problem)
+            line = self.camera.offer(*intrinsics_or_problem(msg))
             self._pending_intrinsics = self.camera.intrinsics
         self._wake.set()
-        if line is not None and line.level == "warning":  # rclpy: one severity per call site
-            self.get_logger().warning(line.text)
-        elif line is not None:
-            self.get_logger().info(line.text)
+        if line is not None:
+            line.log_to(self.get_logger())
 
     # ---------------------------------------------------------------- scoring
     def _work(self) -> None:
