@@ -302,9 +302,10 @@ class SchedulerNode(Node):
 
     # ---------------------------------------------------------------- planning
     def replan(self, reason: str) -> tuple[PlanResult, int]:
-        """Plan from the first slot that starts after the plan is expected to be done (the p90 of the
-        last 20 plan times from now: the next slot for a 1-ms plan, later for a slow solver) and publish;
-        returns the result and how many slots changed x."""
+        """Plan from the slot in which the plan is expected to be done (the p90 of the last 20 plan times from
+        now: this slot for a 1-ms plan, later for a slow solver) and publish — a schedule that reaches the robot
+        before that slot starts covers it too (:mod:`gsrmr_server.planner.online`); returns the result and how many
+        slots changed x."""
         with self._lock:
             self._replan_reason = None
             recent = sorted(self.plan_times_s[-20:])
@@ -315,8 +316,8 @@ class SchedulerNode(Node):
             result = self.planner.plan(now_slot, self._pose)
             self.plan_times_s.append(time.perf_counter() - t0)
             del self.plan_times_s[:-100]
-            # > 0: the schedule was ready before the first slot it covers started
-            self.plan_slack_s.append(round((self.clock.start_ns(now_slot + 1)
+            # > 0: the schedule was ready before the first slot it covers started (< 0: during it, decided by then)
+            self.plan_slack_s.append(round((self.clock.start_ns(now_slot)
                                             - self.get_clock().now().nanoseconds) / 1e9, 4))
             del self.plan_slack_s[:-10_000]
             changed = 0

@@ -149,7 +149,7 @@ def test_robot_decides_in_the_slot_and_the_planner_sends_thresholds():
                            in_slot_decision=True)
     lm = LossMap(prior=0.05)
     planner = OnlinePlanner(config, RoutePredictor(route, 0.3), lm, link)
-    plan = planner.plan(100, (0.0, 0.0, 0.0))
+    plan = planner.plan(101, (0.0, 0.0, 0.0))  # the schedule from slot 101 on
     thr = plan.schedule.gain_threshold
     assert thr is not None and thr.shape == (30,) and np.all(thr > 0) and planner.last_price > 0
     # every slot has the prior loss: one price → one threshold per mean gain, higher where the gain is lower

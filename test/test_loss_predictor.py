@@ -95,13 +95,13 @@ def test_image_slots_leave_their_jpeg_loss_in_the_budget():
 def test_the_round_budget_ends_with_the_round():
     """Overspent in the round: its last slots are all images; the slots after it get a fresh budget."""
     planner = _planner(loss_map=_flat_map(0.05), round_slots=40, horizon_slots=30)
-    planner.plan(99, None)
+    planner.plan(100, None)
     planner.record_pose(100, 0.0, 0.0, 0.0)  # standing
     planner.record_pose(101, 0.2, 0.0, 0.0)  # moving: the round starts here
     for k in range(102, 130):
         planner.record_pose(k, 0.2, 0.0, 0.0)
         planner.record_action(k, 0)
-    plan = planner.plan(129, (0.2, 0.0, 0.0))  # 28 of 40 round slots booked at 0.05 > 40·0.03 budget
+    plan = planner.plan(130, (0.2, 0.0, 0.0))  # 28 of 40 round slots booked at 0.05 > 40·0.03 budget
     assert planner.budget.round_remaining(130) == 11
     n, spent = planner.budget.round_booked()
     assert n == 29 and spent > 0.03 * 40
@@ -121,7 +121,7 @@ def test_probe_gap_lowers_the_threshold_to_the_median_fade():
     for k in range(1, 4):  # calibrated: no start-up exploration
         planner.observe(k, 0.0, 0.0, 0.0, 0.02)
     planner.record_action(100, 1)
-    plan = planner.plan(100, (0.0, 0.0, 0.0))
+    plan = planner.plan(101, (0.0, 0.0, 0.0))
     poses = planner.route.predict((0.0, 0.0, 0.0), 30, 0.1)
     mean = np.array([planner.link.mean_gain(p[:2]) for p in poses])
     thr = plan.schedule.gain_threshold

@@ -176,7 +176,7 @@ def test_planner_meets_budget_carries_it_over_and_detects_drift():
     config = PlannerConfig(loss_threshold=0.03, horizon_slots=40, slot_s=0.1, image_bits=67200, pose_bits=192,
                            drift_threshold=0.05, drift_window_samples=2, trust_loss_map=True)
     planner = OnlinePlanner(config, RoutePredictor(scene.route.waypoints, scene.route.speed_mps), lm, LinkBudget())
-    first = planner.plan(1000, None)
+    first = planner.plan(1001, None)  # the schedule from slot 1001 on
     assert first.feasible and first.images == 0  # prior 0.02 < L_th: every slot can be a key
     assert first.mean_predicted_loss <= 0.03 + 1e-12
     # Losses turn out much higher than predicted: drift is detected after drift_window samples.
@@ -184,7 +184,7 @@ def test_planner_meets_budget_carries_it_over_and_detects_drift():
     assert planner.observe(1001, *p[0], 0.3) is False
     assert planner.observe(1002, *p[1], 0.3) is True
     # 40 key slots at predicted 0.02 were spent: the next budget still lets the run's mean meet L_th.
-    second = planner.plan(1040, None)
+    second = planner.plan(1041, None)
     assert second.budget == pytest.approx((0.03 * 80 - 40 * 0.02) / 40)
     assert second.schedule.first_slot == 1041 and len(second.schedule.x) == 40
     assert np.all(np.isfinite(second.schedule.power_w)) and np.all(second.schedule.power_w >= 0)
@@ -197,7 +197,7 @@ def test_planner_charges_key_slots_at_the_reported_pose_and_backs_off_by_the_mar
     config = PlannerConfig(loss_threshold=0.03, horizon_slots=40, slot_s=0.1, image_bits=67200, pose_bits=192,
                            loss_margin=0.2, trust_loss_map=True)
     planner = OnlinePlanner(config, RoutePredictor(scene.route.waypoints, scene.route.speed_mps), lm, LinkBudget())
-    first = planner.plan(1000, None)
+    first = planner.plan(1001, None)  # the schedule from slot 1001 on
     assert first.budget == pytest.approx(0.024)  # L_th·(1 − margin)
     x = first.schedule.x
     reported = [k for k in range(1001, 1041) if x[k - 1001] == 0][:10]
@@ -205,7 +205,7 @@ def test_planner_charges_key_slots_at_the_reported_pose_and_backs_off_by_the_mar
         planner.record_pose(k, 0.0, 0.0, 0.0)
     keys = int((x == 0).sum())
     planned = [planner.forecast.predicted(k) for k in range(1001, 1041) if x[k - 1001] == 0 and k not in reported]
-    second = planner.plan(1040, None)
+    second = planner.plan(1041, None)
     spent = 10 * lm.predict(0.0, 0.0, 0.0) + sum(planned)
     assert keys == 40 and lm.predict(0.0, 0.0, 0.0) > 0.05
     assert second.budget == pytest.approx((0.024 * 80 - spent) / 40)

@@ -22,7 +22,7 @@ from gsrmr_server.planner import (
     PlannerConfig,
     RoutePredictor,
 )
-from gsrmr_server.slot_price import gain_thresholds, rician_power_samples, saving_coefficient_j
+from gsrmr_server.slot_price import DEEP_FADE_FRACTION, gain_thresholds, rician_power_samples, saving_coefficient_j
 
 ROUTE = [(0.0, 0.0), (2.0, 0.0), (2.0, 2.0), (0.0, 2.0)]
 BASE = PlannerConfig(loss_threshold=0.03, horizon_slots=20)
@@ -100,6 +100,23 @@ def test_budget_books_what_the_robot_did_at_the_pose_it_reported():
     (part, cap), = budget.caps(15, h, target)
     assert part == slice(0, h) and cap == pytest.approx(target * (5 + h) - budget.loss_spent)  # running mean
     assert budget.round_remaining(15) is None
+
+
+def test_a_ledger_row_or_pose_key_that_comes_after_its_slot_was_booked_rebooks_it():
+    """A plan books every slot before its first one: with the plan's x and at no pose where the robot's ledger row
+    and pose key have not come (delayed on the way). When they come, they correct the booking (they were dropped
+    before: an image booked as a key for good)."""
+    budget = LossBudget(lambda _slot, pose: 0.05 if pose is not None else 0.02, image_slot_loss=0.007)
+    budget.account_until(3, _schedule(0, [0, 0, 0, 0]))  # slots 0–2 booked as the plan's keys, no pose
+    budget.planned_from(2)
+    assert budget.loss_spent == pytest.approx(3 * 0.02)
+    budget.record_action(2, 1)  # slot 2 was an image in fact (the robot's in-slot rule)
+    budget.record_pose(1, (1.0, 0.0, 0.0))  # slot 1 was a key at this pose
+    assert budget.slots_done == 3
+    assert budget.loss_spent == pytest.approx(0.02 + 0.05 + 0.007)
+    budget.record_action(3, 1)  # not booked yet: kept for its booking, as before
+    budget.account_until(4, _schedule(0, [0, 0, 0, 0]))
+    assert budget.slots_done == 4 and budget.loss_spent == pytest.approx(0.02 + 0.05 + 0.007 + 0.007)
 
 
 def test_budget_refines_recent_estimates_and_freezes_old_ones():
@@ -252,7 +269,7 @@ def test_resume_continues_a_saved_schedule():
     saved = ScheduleMsg(500, 0.1, 41, np.array([1, 0, 0, 1, 0], np.int8), np.zeros(5))
     planner.resume(saved)
     assert planner.active is saved and planner.seq == 41
-    result = planner.plan(502, (0.0, 0.0, 0.0))  # the saved schedule's slots 500–502 were booked
+    result = planner.plan(503, (0.0, 0.0, 0.0))  # the saved schedule's slots 500–502 were booked
     assert result.schedule.seq == 42 and result.schedule.first_slot == 503
     assert planner.budget.slots_done == 3
     assert planner.budget.loss_spent == pytest.approx(0.0 + 2 * 0.02)  # image, key, key (the map's prior)
@@ -264,3 +281,52 @@ def test_the_oracle_plans_without_thresholds_and_the_in_slot_rule_with_them():
     assert plan.schedule.gain_threshold is not None and priced.last_price is not None
     oracle = _planner(replace(BASE, in_slot_decision=True, oracle_channel=True, trust_loss_map=True))
     assert oracle.plan(0, (0.0, 0.0, 0.0)).schedule.gain_threshold is None and oracle.last_price is None
+
+
+def _robot_decides(schedule: ScheduleMsg | None, slot: int, gain: float) -> int:
+    """The robot's rule (``gsrmr_robot.uplink_core``): an image iff the slot's gain reaches its threshold; a slot its
+    schedule has no entry for uploads the image (``default_upload_image``), whatever the fade."""
+    entry = schedule.lookup(slot) if schedule is not None else None
+    if entry is None:
+        return 1
+    threshold = schedule.threshold(slot)
+    return entry[0] if threshold is None else int(gain >= threshold)
+
+
+def test_a_deficit_is_not_repaid_in_a_deep_fade_when_a_plan_is_published_before_its_slot():
+    """Issue 28's regret tail. The node plans from the slot after the one in which the plan is expected to be done;
+    a timer that fires just before a slot boundary publishes plan(k) — its horizon from k + 1 — before slot k
+    starts, and the robot decides slot k with it. Here every replan is so, the run starts 20 key slots in deficit
+    (L = 0.05 against L_th = 0.03) and slot 105 is a deep fade (1 % of the mean gain, below the in-slot rule's
+    floor): the robot keys it — the new schedule carries the previous one's entry — and the run still meets L_th.
+    Before, slot 105 had no entry and the robot uploaded its image there: 100× a typical image's energy."""
+    config = replace(BASE, horizon_slots=40, in_slot_decision=True, trust_loss_map=True, image_slot_loss=0.007,
+                     round_slots=140, loss_margin=0.1)  # the rule meets its budget in expectation: a back-off
+    planner = _planner(config, prior=0.05)  # L_t = 0.05 wherever the robot is
+    planner.record_pose(79, 0.0, 0.0, 0.0)
+    pose = (0.1, 0.0, 0.0)  # moved: the round of 140 slots starts in slot 80
+    mean = planner.link.mean_gain(pose[:2])
+    planner.plan(79, pose)  # the first schedule: slots 80–119
+    loss = {}
+    for k in range(80, 100):  # keys: 0.4 of loss budget overspent when the loop below starts
+        planner.record_pose(k, *pose)
+        planner.record_action(k, 0)
+        loss[k] = 0.05
+    fades, uncovered = {}, []
+    floor = np.quantile(rician_power_samples(1.0), DEEP_FADE_FRACTION)
+    for k in range(100, 220):
+        if k % 5 == 0:
+            planner.plan(k, pose)  # published before slot k started
+            if planner.active.lookup(k) is None:
+                uncovered.append(k)
+        fades[k] = 0.01 if k == 105 else planner.link.gain(k, pose[:2]) / mean
+        x = _robot_decides(planner.active, k, fades[k] * mean)
+        planner.record_pose(k, *pose)
+        planner.record_action(k, x)
+        if x:
+            planner.observe(k, *pose, 0.05)
+        loss[k] = 0.007 if x else 0.05
+        assert not (x and fades[k] < floor), f"an image in slot {k}, a fade of {fades[k]:.3f} of the mean gain"
+    assert uncovered == []  # every schedule covers the slot it may arrive before
+    assert planner.budget.round_remaining(219) == 1
+    assert math.fsum(loss.values()) / len(loss) <= config.loss_threshold  # the deficit repaid within the round

@@ -55,7 +55,10 @@ class LossBudget:
 
     # ------------------------------------------------------------------ what happened
     def record_action(self, slot: int, x: int) -> None:
-        """What the robot did in ``slot`` (1 = image), from its ledger."""
+        """What the robot did in ``slot`` (1 = image), from its ledger; a slot already booked without it (its row
+        came after the plan that booked it) is booked again with it."""
+        if self._rebook(slot, x=int(x)):
+            return
         self._actual_x[slot] = int(x)
         for old in [k for k in self._actual_x if k < slot - HISTORY_SLOTS]:
             del self._actual_x[old]
@@ -63,7 +66,8 @@ class LossBudget:
     def record_pose(self, slot: int, pose: Pose) -> None:
         """The pose the robot reported for ``slot`` (its pose key): a key there is charged at it; in round mode
         the first move of more than ``round_start_m`` starts a round."""
-        self._reported[slot] = pose
+        if not self._rebook(slot, pose=pose):
+            self._reported[slot] = pose
         if self.round_slots <= 0:
             return
         if self._round_start is not None and slot >= self._round_start + self.round_slots:
@@ -96,6 +100,21 @@ class LossBudget:
                 self._round_frozen_n += 1
         for old in [k for k in self._reported if k < slot - HISTORY_SLOTS]:
             del self._reported[old]
+
+    def _rebook(self, slot: int, *, x: int | None = None, pose: Pose | None = None) -> bool:
+        """Correct a booked slot that is still re-estimated with a ledger row or pose key that came after the plan
+        that booked it (delayed on the way; it was dropped before, the slot booked with the plan's x or at no pose
+        for good). True when ``slot`` is such a slot."""
+        if self._accounted_up_to is None or slot > self._accounted_up_to:
+            return False
+        for i in range(len(self._done) - 1, -1, -1):
+            k, booked_x, booked_pose = self._done[i]
+            if k == slot:
+                self._done[i] = (k, booked_x if x is None else x, booked_pose if pose is None else pose)
+                return True
+            if k < slot:
+                break
+        return False
 
     def planned_from(self, now_slot: int) -> None:
         """A new schedule covers the slots after ``now_slot``: booking continues from there."""

@@ -1,6 +1,7 @@
 """The receding-horizon planner (pure): :class:`OnlinePlanner` composes the planning steps of one replan.
 
-The scheduler node calls :meth:`OnlinePlanner.plan` at every replan. A plan
+The scheduler node calls :meth:`OnlinePlanner.plan` at every replan, with ``now_slot`` the slot in which it
+expects the plan to be done (now + the p90 of its plan times). A plan covers ``now_slot`` and the slots after it:
 
 1. predicts the robot's poses for the next ``horizon_slots`` along the route (:class:`~.route.RoutePredictor`);
 2. predicts L_t there (:class:`~.forecast.LossForecast`: the burst model with its learned margin, or the loss map
@@ -15,6 +16,18 @@ The scheduler node calls :meth:`OnlinePlanner.plan` at every replan. A plan
 5. solves each block with :func:`gsrmr_server.scheduling.solve`;
 6. with ``in_slot_decision`` (and no oracle) adds per-slot gain thresholds (:class:`~.pricing.InSlotPricing`);
    without, holds the solved images to what the uplink carries (:class:`~.link_cap.LinkCap`).
+
+Why the horizon starts at ``now_slot`` and not after it: the robot replaces its schedule with each new one as it
+arrives, and a slot its schedule has no entry for uploads the image (``default_upload_image``), in whatever fade. A
+plan the node's timer starts just before a slot boundary is expected to be done in the next slot, ``now_slot``,
+but usually is done and published before that slot starts — so the robot decides ``now_slot`` with it. Planned
+from ``now_slot + 1`` (until issue 28), that slot had no entry: a round whose timer fired at that phase of the slot
+(it keeps one phase for the whole round) left 10–30 slots to the default, each an image at whatever gain the slot
+had; the few of them in deep fades (3–6 % of the mean gain: 10–30 typical images each) were the live regret tail
+(3.77 in a clean seed-2 round with 19 such slots; 2.2–3.8 in one acceptance run in five). A plan that is done
+within ``now_slot`` covers a slot the robot has already decided; it is booked at the next plan, by its ledger row.
+(A lead of more than one slot — a solver much slower than ``exact`` whose plan is done early — can still leave
+slots before ``now_slot`` without an entry.)
 
 Between plans it takes in what happened — the robot's ledger (:meth:`record_action`), its pose keys
 (:meth:`record_pose`), the server's loss samples (:meth:`observe`, which also says when the prediction drifted
@@ -184,10 +197,11 @@ class OnlinePlanner:
         return np.array(out)
 
     def plan(self, now_slot: int, pose: tuple[float, float, float] | None) -> PlanResult:
-        """Solve the horizon starting at ``now_slot + 1`` from the robot's last reported ``pose``."""
+        """Solve the horizon starting at ``now_slot`` — the slot in which the schedule is expected to reach the
+        robot (see the module docstring) — from the robot's last reported ``pose``."""
         cfg = self.config
-        self.budget.account_until(now_slot + 1, self._active)
-        first, h = now_slot + 1, cfg.horizon_slots
+        self.budget.account_until(now_slot, self._active)
+        first, h = now_slot, cfg.horizon_slots
         poses = self.route.predict(pose, h, cfg.slot_s)
         slots = np.arange(first, first + h)
         raw, losses = self.forecast.predict(slots, poses)
@@ -220,7 +234,7 @@ class OnlinePlanner:
         schedule = ScheduleMsg(first, cfg.slot_s, self.seq, out.x, out.power_w, out.thresholds)
         self.forecast.remember(first, raw, now_slot)
         self._active = schedule
-        self.budget.planned_from(now_slot)
+        self.budget.planned_from(first - 1)
         return PlanResult(schedule, cfg.method, int(out.x.sum()), out.energy_j,
                           float(np.mean(losses * (1 - out.x) + j * out.x)), float(mean_budget), out.feasible,
                           out.solve_time_s, losses, out.notes)
