@@ -16,7 +16,8 @@ publishes:
 Inputs: ``camera/image_raw`` (``sensor_msgs/Image``, sensor-data QoS), ``odom`` (``nav_msgs/Odometry``,
 odom → base_link; composed with the ``map_from_odom`` parameter to get the pose in ``map``),
 ``gsrmr/schedule`` (``std_msgs/Float64MultiArray``, layout in :mod:`gsrmr_common.wire`, transient
-local). Without a schedule for the slot the node uploads the image (``default_upload_image``).
+local). Without a schedule for the slot (neither the newest nor the one before it covers it: a newer one that starts
+after the slot keeps the last plan for it) the node uploads the image (``default_upload_image``).
 
 Camera calibration: ``camera/camera_info`` (``sensor_msgs/CameraInfo``, sensor-data QoS; remap it to
 the driver's topic; plumb_bob, rational_polynomial or equidistant) decides what the robot uploads: every
@@ -122,7 +123,7 @@ from gsrmr_robot.camera_rectify import UplinkCamera
 from gsrmr_robot.dds_profile import use_uplink_profile
 from gsrmr_robot.robot_params import RobotParameters
 from gsrmr_robot.uplink_backlog import UplinkBacklog
-from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, odom_to_map
+from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, covering_schedule, odom_to_map
 
 
 def yaw_of(q) -> float:
@@ -152,6 +153,7 @@ class RobotNode(Node):
         # Recent poses in map: the key is the pose at the capture time of the frame it stands for.
         self._poses = PoseHistory()
         self._schedule: ScheduleMsg | None = None
+        self._schedule_before: ScheduleMsg | None = None  # the previous schedule, for slots the newest does not cover
         self.schedule_misses = self.no_frame = self.no_pose = 0
         self.core = UplinkCore(self.link, self.slot_s, self.params.jpeg_quality, self.params.default_upload_image)
         self.ledger = self.core.ledger
@@ -350,8 +352,8 @@ class RobotNode(Node):
             self.get_logger().warning(f"schedule seq {sched.seq} refused ({reason}) from "
                                       f"{self.inputs.writer_of('gsrmr/schedule', gid)}", throttle_duration_sec=5.0)
             return
-        with self._lock:
-            self._schedule = sched
+        with self._lock:  # the one before stays for the slots the new one starts after (one that began)
+            self._schedule, self._schedule_before = sched, self._schedule
 
     # ---------------------------------------------------------------- slots
     def _tick(self) -> None:
@@ -372,7 +374,7 @@ class RobotNode(Node):
             frame = self._uplink_frame(raw) if raw is not None else None
             frame_stamp_ns = self._frame_stamp_ns if frame is not None else None
             pose = self._poses.at(frame_stamp_ns, now_ns, round(self.params.max_pose_age_s * 1e9))
-            sched = self._schedule
+            sched = covering_schedule(slot, self._schedule, self._schedule_before)
             frame_id = self.params.camera_frame_id
             gain, round_slot = self._gains.get(slot, (None, -1))
             now_s = now_ns / 1e9

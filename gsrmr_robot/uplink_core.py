@@ -22,7 +22,7 @@ import numpy as np
 
 from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.link_model import LinkBudget
-from gsrmr_common.wire import LedgerRow, PoseKey
+from gsrmr_common.wire import LedgerRow, PoseKey, ScheduleMsg
 from gsrmr_robot.ledger import EnergyLedger
 
 Pose = tuple[float, float, float]  # (a_m, b_m, theta_rad) of base_link in map
@@ -99,6 +99,15 @@ class SlotDecision:
     row: LedgerRow  # the energy ledger's row for this slot
     scheduled: bool  # a schedule covered the slot
     publish_row: bool  # False when nothing at all was sent (no pose and no image)
+
+
+def covering_schedule(slot: int, newest: ScheduleMsg | None, before: ScheduleMsg | None) -> ScheduleMsg | None:
+    """The schedule that decides ``slot``: the newest one, unless it does not cover the slot and the one before it
+    does (a newer schedule that starts after a slot leaves that slot to the last plan made for it, not to the
+    default upload: issue 28's regret tail). None when neither is there."""
+    if newest is not None and newest.lookup(slot) is None and before is not None and before.lookup(slot) is not None:
+        return before
+    return newest
 
 
 class UplinkCore:

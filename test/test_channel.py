@@ -12,8 +12,8 @@ import pytest
 
 from gsrmr_common.link_model import LinkBudget
 from gsrmr_common.ros_wire import channel_sample_from_msg, channel_sample_to_msg
-from gsrmr_common.wire import ChannelSample
-from gsrmr_robot.uplink_core import SlotInputs, UplinkCore
+from gsrmr_common.wire import ChannelSample, ScheduleMsg
+from gsrmr_robot.uplink_core import SlotInputs, UplinkCore, covering_schedule
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.planner import OnlinePlanner, PlannerConfig, RoutePredictor
 from gsrmr_server.slot_price import DEEP_FADE_FRACTION, gain_thresholds, rician_power_samples, saving_coefficient_j
@@ -161,3 +161,17 @@ def test_robot_decides_in_the_slot_and_the_planner_sends_thresholds():
     assert planner.budget.loss_spent == 0.0 and planner.budget.slots_done == 10
     oracle = OnlinePlanner(replace(config, oracle_channel=True), RoutePredictor(route, 0.3), lm, link)
     assert oracle.plan(100, (0.0, 0.0, 0.0)).schedule.gain_threshold is None
+
+
+def test_a_newer_schedule_that_starts_after_the_slot_leaves_it_to_the_plan_before():
+    """The robot keeps the previous schedule's entry for a slot the newest one does not cover (it would otherwise
+    upload the image there by default, in whatever fade: issue 28's regret tail)."""
+    def sched(first: int, x: int, seq: int) -> ScheduleMsg:
+        return ScheduleMsg(first, 0.1, seq, np.full(10, x, np.int8), np.full(10, 0.01))
+
+    before, newest = sched(100, 0, 1), sched(105, 1, 2)
+    assert covering_schedule(104, newest, before) is before  # 104: only the one before covers it
+    assert covering_schedule(105, newest, before) is newest  # from 105 on the newest decides
+    assert covering_schedule(99, newest, before) is newest  # neither covers it: the default upload (lookup None)
+    assert covering_schedule(104, newest, None) is newest
+    assert covering_schedule(104, None, before) is None
