@@ -1,12 +1,13 @@
 """The uplink's carrying capacity as a cap on planned images (pure): what a slow link can deliver in its slots.
 
 The robot's ledger rows say, per slot, what it sent, whether it held an asked-for image back (its last one still
-queued), its estimate of the uplink throughput (from how long each image took to be acknowledged,
-:mod:`gsrmr_robot.uplink_backlog`) and the size of the slot's frame as a JPEG; the server's loss samples say which
-images it composed in their slot. :class:`LinkCap` turns the last :data:`LINK_WINDOW_SLOTS` of them into the
-fraction of slots a plan may give an image (:meth:`LinkCap.image_cap`); the in-slot rule then raises its price
-until the expected images fit (:func:`gsrmr_server.slot_price.cap_expected_images`), a plan without it keeps the
-images that save the most loss per joule (:func:`cap_planned_images`).
+queued), its estimate of the image throughput the uplink sustains (the image bits acknowledged over the time
+images were waiting for their acknowledgement or held back, :mod:`gsrmr_robot.uplink_backlog`) and the size of the
+slot's frame as a JPEG; the server's loss samples say which images it composed in their slot. :class:`LinkCap`
+turns the last :data:`LINK_WINDOW_SLOTS` of them into the fraction of slots a plan may give an image
+(:meth:`LinkCap.image_cap`); the in-slot rule then raises its price until the expected images fit
+(:func:`gsrmr_server.slot_price.cap_expected_images`), a plan without it keeps the images that save the most loss
+per joule (:func:`cap_planned_images`).
 """
 
 from __future__ import annotations
@@ -54,9 +55,12 @@ class LinkCap:
     def image_cap(self) -> float | None:
         """The fraction of slots that may plan an image because the uplink carries no more, or None (it carries
         at least one per slot): τ · R / b, with R the median of the robot's throughput estimates and b the median
-        JPEG size over its last ``LINK_WINDOW_SLOTS`` ledger rows. R comes from how long each image took to be
-        acknowledged: it measures the link, not the plan, so a cap does not ratchet itself down (a cap from the
-        images the link carried would: fewer planned, fewer carried). When, on such a slow link, most recent
+        JPEG size over its last ``LINK_WINDOW_SLOTS`` ledger rows. R is what the link sustains for images: their
+        bits over the time they were waiting (acknowledgement pending, or held back), so images that follow each
+        other measure the share the other traffic leaves them, not one image's crossing at the link's whole rate
+        (which read an image per slot on a link with room for 60 % of them). Slots the plan gives no image are
+        not in that time: it measures the link, not the plan, so a cap does not ratchet itself down (a cap from
+        the images the link carried would: fewer planned, fewer carried). When, on such a slow link, most recent
         images were not composed in their slot (:meth:`delivery_ratio` < ``MIN_DELIVERY_RATIO``: they arrive
         late), the cap is ``PROBE_IMAGE_FRACTION``: a few images keep measuring the link. Images lost to an
         outage do not count (the link is not slow once it is back)."""
