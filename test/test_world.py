@@ -128,6 +128,73 @@ def test_events_apply_only_in_round_two_and_only_in_their_span():
     assert "dropped_bag" not in {o.id for o in s.state_at(2, 22.0).objects}
 
 
+def test_a_persistent_change_happens_in_its_round_and_stays_in_every_later_one():
+    """from_round k: absent in the mapping round and scored rounds < k, from from_s in round k, from the start of
+    every later one; an event without from_round restarts with every scored round."""
+    s = parse_scene(_scene(objects=[{"id": "box", "position": [1.0, 0.0], "size": [0.2, 0.2, 0.2]}], events=[
+        {"type": "move", "object": "box", "from_s": 5.0, "from_round": 2, "position": [0.0, 1.0]},
+        {"type": "remove", "object": "box", "from_s": 1.0, "to_s": 2.0}]))
+
+    def box(round_index: int, t_s: float):
+        return {o.id: o.position for o in s.state_at(round_index, t_s).objects}.get("box")
+
+    assert box(1, 10.0) == (1.0, 0.0)  # mapping round
+    assert box(2, 10.0) == (1.0, 0.0)  # scored round 1: not yet
+    assert box(3, 4.0) == (1.0, 0.0) and box(3, 6.0) == (0.0, 1.0)  # scored round 2: from from_s
+    assert box(4, 0.0) == (0.0, 1.0) and box(9, 0.0) == (0.0, 1.0)  # later rounds: from the start
+    assert box(2, 1.5) is None and box(7, 1.5) is None and box(7, 2.5) == (0.0, 1.0)  # transient: every round
+
+
+def test_a_walker_crosses_and_is_gone_and_a_flicker_toggles():
+    s = parse_scene(_scene(lights=[{"id": "lamp", "type": "point", "position": [0, 0, 1], "intensity": 0.5}],
+                           events=[{"type": "walker", "from_s": 2.0, "to_s": 4.0, "position": [2.0, 0.0],
+                                    "shape": {"id": "person", "position": [0.0, 0.0], "size": [0.3, 0.3, 0.9]}},
+                                   {"type": "flicker", "light": "lamp", "from_s": 10.0, "to_s": 12.0,
+                                    "intensity_scale": 0.1, "period_s": 0.5}]))
+
+    def person(t_s: float):
+        return {o.id: o.position for o in s.state_at(2, t_s).objects}.get("person")
+
+    def lamp(t_s: float) -> float:
+        return {lt.id: lt.intensity for lt in s.state_at(2, t_s).lights}["lamp"]
+
+    assert person(1.9) is None and person(2.0) == (0.0, 0.0) and person(3.0) == pytest.approx((1.0, 0.0))
+    assert person(4.0) is None and person(3.0) == pytest.approx((1.0, 0.0)) and s.state_at(1, 3.0).objects == ()
+    assert lamp(9.9) == 0.5 and lamp(10.1) == pytest.approx(0.05) and lamp(10.3) == 0.5 and lamp(10.6) == \
+        pytest.approx(0.05) and lamp(12.1) == 0.5
+
+
+@pytest.mark.parametrize(("event", "message"), [
+    ({"type": "move", "object": "box", "from_s": 0.0, "to_s": 3.0, "from_round": 1, "position": [0, 0]},
+     r"events\[0\]\.from_round: marks a persistent change"),
+    ({"type": "walker", "from_s": 0.0, "position": [0, 0], "shape": {"position": [1, 1], "size": [1, 1, 1]}},
+     r"events\[0\]\.to_s: is required for a walker"),
+    ({"type": "walker", "from_s": 0.0, "to_s": 2.0, "shape": {"position": [1, 1], "size": [1, 1, 1]}},
+     r"events\[0\]\.position: is required for a walker"),
+    ({"type": "flicker", "light": "nope", "from_s": 0.0, "to_s": 2.0}, r"events\[0\]\.light: no light"),
+    ({"type": "move", "object": "box", "from_s": 0.0, "from_round": 0, "position": [0, 0]},
+     r"events\[0\]\.from_round"),
+])
+def test_bad_round_and_transient_events_are_refused_with_their_path(event, message):
+    with pytest.raises(SceneError, match=message):
+        parse_scene(_scene(objects=[{"id": "box", "position": [1.0, 0.0], "size": [0.2, 0.2, 0.2]}],
+                           events=[event]))
+
+
+def test_the_changed_and_transient_sandboxes_map_the_same_world_as_the_sandbox():
+    """Same mapping round (the model and its survey are the sandbox's); the changed one's changes persist from
+    scored round 1, the transient one's restart with every round."""
+    base, changed, transient = (load_scene(n) for n in ("sandbox", "sandbox_changed", "sandbox_transient"))
+    for t_s in (0.0, 10.0, 25.0):
+        assert changed.state_at(1, t_s) == base.state_at(1, t_s) == transient.state_at(1, t_s)
+    assert all(ev.persistent for ev in changed.events) and not any(ev.persistent for ev in transient.events)
+    for round_index in (2, 3, 5):
+        objects = {o.id: o for o in changed.state_at(round_index, 0.0).objects}
+        assert "shelf" in objects and objects["crate_b"].position == (1.55, 1.45)
+    assert "walker" in {o.id for o in transient.state_at(4, 9.0).objects}
+    assert "walker" not in {o.id for o in transient.state_at(4, 13.0).objects}
+
+
 # ---------------------------------------------------------------------------------------------- ray casting
 
 

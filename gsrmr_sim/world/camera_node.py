@@ -116,9 +116,10 @@ class MockCamera(Node):
     def __init__(self) -> None:
         super().__init__("gsrmr_mock_camera")
         scene_name = declare(self, "scene", "sandbox", "scene name (config/scenes) or YAML path")
-        self.round_param = declare(self, "round", 1, "1 = mapping (static world), 2 = apply change events, "
-                                   "0 = follow sim/route/lap (round = 1 + laps, clock restarts per lap)",
-                                   min_value=0, max_value=2)
+        self.round_param = declare(self, "round", 1, "1 = mapping (static world), r >= 2 = scored round r - 1 "
+                                   "(its change events; persistent changes of earlier rounds stay), 0 = follow "
+                                   "sim/route/lap (round = 1 + laps, clock restarts per lap)",
+                                   min_value=0, max_value=1000)
         self.round_index = self.round_param or 1
         rate = declare(self, "rate_hz", 0.0, "camera rate in Hz (0 = the scene's)", min_value=0.0,
                        max_value=100.0)
@@ -163,7 +164,7 @@ class MockCamera(Node):
                                "(scripted route until it arrives)")
 
     def _on_lap(self, msg: Int32) -> None:
-        new_round = min(2, 1 + int(msg.data))
+        new_round = min(1000, 1 + int(msg.data))  # persistent changes accumulate lap after lap
         self.start_ns = self.get_clock().now().nanoseconds
         if new_round != self.round_index:
             self.round_index = new_round

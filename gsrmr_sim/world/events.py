@@ -1,13 +1,18 @@
-"""Round-2 change events and the real world's state at a time.
+"""Change events and the real world's state at a time.
 
-Events are what makes the operating round differ from the mapping round (the paper's GS
-discrepancies): an object moved, added or removed; a light's intensity/colour changed (or the
-ambient level, target ``ambient``); surfaces inside an axis-aligned region brightened or tinted.
-Each is active for ``from_s ≤ t < to_s`` (round seconds; ``to_s`` = inf: until the end). Round 1
-never applies events. Validation of event entries lives with the rest of the scene schema in
-:mod:`gsrmr_sim.world.scene`. Pure Python, no ROS.
+Events are what makes the operating rounds differ from the mapping round (the paper's GS discrepancies): an object
+moved, added or removed; a light's intensity/colour changed (or the ambient level, target ``ambient``); surfaces
+inside an axis-aligned region brightened or tinted; and two transient ones (issue 27) — a **walker** (a shape that
+crosses the scene from its ``shape.position`` to ``position`` while the event lasts, then is gone) and a
+**flicker** (a light at ``intensity_scale`` in the first half of every ``period_s``, at its own level in the other).
+
+Rounds are counted as the world sees them: round 1 is the mapping round (no event ever applies), round r ≥ 2 is
+scored round r − 1 (``gsrmr-demo --rounds N`` scores rounds 1…N). An event without ``from_round`` happens in every
+scored round, by its span ``from_s ≤ t < to_s`` (round seconds; ``to_s`` = inf: until the round ends) — it
+restarts with every round. An event with ``from_round`` k is a **persistent change**: it happens in scored round k
+at ``from_s`` and is there from the start of every later round (no ``to_s``). Validation of event entries lives
+with the rest of the scene schema in :mod:`gsrmr_sim.world.scene`. Pure Python, no ROS.
 """
-
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -40,10 +45,19 @@ class Event:
     region_min: tuple[float, float, float] = (0.0, 0.0, 0.0)
     region_max: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    from_round: int = 0  # ≥ 1: a persistent change from that scored round on (module docstring); 0: every round
+    period_s: float = 1.0  # flicker: the light's on/off period
 
-    def active(self, t_s: float) -> bool:
-        """True while the event applies (from_s ≤ t < to_s)."""
+    def active(self, t_s: float, scored_round: int = 1) -> bool:
+        """True while the event applies in scored round ``scored_round`` (≥ 1) at round time ``t_s``."""
+        if self.from_round and scored_round != self.from_round:
+            return scored_round > self.from_round  # before its round: not yet; after it: there all along
         return self.from_s <= t_s < self.to_s
+
+    @property
+    def persistent(self) -> bool:
+        """A change that stays from its round on (``from_round`` set)."""
+        return self.from_round > 0
 
 
 @dataclass(frozen=True)
@@ -65,7 +79,7 @@ def world_state(objects: tuple[Shape, ...], lights: tuple[Light, ...], ambient: 
     global_gain = 1.0
     if round_index >= 2:
         for ev in events:
-            if not ev.active(t_s):
+            if not ev.active(t_s, round_index - 1):
                 continue
             if ev.type == "move":
                 if ev.target not in objs:  # removed by an earlier event
@@ -85,10 +99,18 @@ def world_state(objects: tuple[Shape, ...], lights: tuple[Light, ...], ambient: 
                 lts[ev.target] = replace(lt, intensity=lt.intensity * ev.intensity_scale, color=ev.color or lt.color)
             elif ev.type == "region_light":
                 regions.append((ev.region_min, ev.region_max, ev.gain))
+            elif ev.type == "walker" and ev.shape is not None and ev.position is not None:
+                done = (t_s - ev.from_s) / (ev.to_s - ev.from_s)  # 0 → 1 over the span (walkers have a to_s)
+                (x0, y0), (x1, y1) = ev.shape.position, ev.position
+                objs[ev.shape.id] = replace(ev.shape, position=(x0 + done * (x1 - x0), y0 + done * (y1 - y0)))
+            elif ev.type == "flicker" and ((t_s - ev.from_s) % ev.period_s) < 0.5 * ev.period_s:
+                lt = lts[ev.target]
+                lts[ev.target] = replace(lt, intensity=lt.intensity * ev.intensity_scale)
     return WorldState(tuple(objs.values()), tuple(lts.values()), tuple(regions), ambient * global_gain)
 
 
 def change_times_s(events: tuple[Event, ...]) -> list[float]:
-    """Sorted times at which the round-2 world changes (event starts and finite ends)."""
+    """Sorted times at which a scored round's world changes (event starts and finite ends; a walker moves and a
+    flicker toggles in between)."""
     times = {ev.from_s for ev in events} | {ev.to_s for ev in events if math.isfinite(ev.to_s)}
     return sorted(times)

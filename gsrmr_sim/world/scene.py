@@ -8,8 +8,9 @@ Frames and units: the world is the ROS ``map`` frame (x forward, y left, z up, m
 Angles in the YAML are in degrees (keys end in ``_deg``) and radians in the dataclasses (``_rad``).
 Colours are linear RGB in [0, 1]. Times (``*_s``) are seconds since the start of a round.
 
-Round 1 (mapping) never applies ``events``; round 2 (operating) applies every event whose time span
-contains the round time. Pure Python, no ROS.
+Round 1 (mapping) never applies ``events``; a scored round applies every event whose time span contains the
+round time, and every persistent change (``from_round``) from its round on (:mod:`gsrmr_sim.world.events`). Pure
+Python, no ROS.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from gsrmr_shapes.spec import unique as _unique
 from gsrmr_shapes.spec import vector as _vec
 from gsrmr_sim.world.events import Event, WorldState, change_times_s, world_state
 
-EVENT_TYPES = ("move", "add", "remove", "light", "region_light")
+EVENT_TYPES = ("move", "add", "remove", "light", "region_light", "walker", "flicker")
 __all__ = ["TEXTURES", "CameraSpec", "Event", "Light", "Material", "PointsWorld", "Room", "Route",
            "Scene", "SceneError", "Shape", "WorldState", "load_scene", "parse_scene", "resolve_scene_path",
            "scene_dirs"]
@@ -160,20 +161,26 @@ def _camera(value: Any, path: str) -> CameraSpec:
 
 
 def _event(value: Any, path: str, objects: dict[str, Shape], lights: set[str]) -> Event:
-    allowed = {"type", "from_s", "to_s", "object", "light", "position", "yaw_deg", "shape",
-               "intensity_scale", "color", "region_min", "region_max", "gain"}
+    allowed = {"type", "from_s", "to_s", "from_round", "object", "light", "position", "yaw_deg", "shape",
+               "intensity_scale", "color", "region_min", "region_max", "gain", "period_s"}
     m = _mapping(value, path, allowed, ("type", "from_s"))
     kind = _str(m["type"], f"{path}.type", EVENT_TYPES)
     from_s = _num(m["from_s"], f"{path}.from_s", lo=0.0)
     to_s = _num(m["to_s"], f"{path}.to_s") if "to_s" in m else math.inf
     if to_s <= from_s:
         raise _fail(f"{path}.to_s", "must be > from_s")
-    ev = Event(type=kind, from_s=from_s, to_s=to_s)
+    from_round = int(_num(m["from_round"], f"{path}.from_round", lo=1, integer=True)) if "from_round" in m else 0
+    if from_round and (math.isfinite(to_s) or kind in ("walker", "flicker")):
+        raise _fail(f"{path}.from_round", "marks a persistent change: no to_s, and not a walker or a flicker")
+    if kind in ("walker", "flicker") and not math.isfinite(to_s):
+        raise _fail(f"{path}.to_s", f"is required for a {kind} event (it is transient)")
+    ev = Event(type=kind, from_s=from_s, to_s=to_s, from_round=from_round)
     per_type = {"move": {"object", "position", "yaw_deg"}, "add": {"shape"}, "remove": {"object"},
                 "light": {"light", "intensity_scale", "color"},
-                "region_light": {"region_min", "region_max", "gain"}}
+                "region_light": {"region_min", "region_max", "gain"}, "walker": {"shape", "position"},
+                "flicker": {"light", "intensity_scale", "period_s"}}
     for key in m:
-        if key not in {"type", "from_s", "to_s"} and key not in per_type[kind]:
+        if key not in {"type", "from_s", "to_s", "from_round"} and key not in per_type[kind]:
             raise _fail(f"{path}.{key}", f"not allowed for a {kind} event")
     if kind in ("move", "remove"):
         target = _str(m.get("object"), f"{path}.object")
@@ -186,10 +193,22 @@ def _event(value: Any, path: str, objects: dict[str, Shape], lights: set[str]) -
             ev = replace(ev, position=_vec(m["position"], f"{path}.position", 2) if "position" in m else None,
                          yaw_rad=math.radians(_num(m["yaw_deg"], f"{path}.yaw_deg")) if "yaw_deg" in m
                          else None)
-    elif kind == "add":
+    elif kind in ("add", "walker"):
         if "shape" not in m:
-            raise _fail(f"{path}.shape", "is required for an add event")
+            raise _fail(f"{path}.shape", f"is required for an {kind} event" if kind == "add" else
+                        "is required for a walker event (its position is where the walker starts)")
         ev = replace(ev, shape=_shape(m["shape"], f"{path}.shape", f"added{len(objects)}"))
+        if kind == "walker":
+            if "position" not in m:
+                raise _fail(f"{path}.position", "is required for a walker event (where it ends)")
+            ev = replace(ev, position=_vec(m["position"], f"{path}.position", 2))
+    elif kind == "flicker":
+        target = _str(m.get("light"), f"{path}.light")
+        if target not in lights:
+            raise _fail(f"{path}.light", f"no light with id {target!r}")
+        ev = replace(ev, target=target,
+                     intensity_scale=_num(m.get("intensity_scale", 0.2), f"{path}.intensity_scale", lo=0.0),
+                     period_s=_num(m.get("period_s", 0.5), f"{path}.period_s", lo=0.05, hi=60.0))
     elif kind == "light":
         target = _str(m.get("light"), f"{path}.light")
         if target not in lights and target != "ambient":
