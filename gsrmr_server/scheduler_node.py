@@ -109,7 +109,7 @@ class SchedulerNode(Node):
         self.replans: dict[str, int] = {}
         self.solve_times_s: list[float] = []
         self.plan_times_s: list[float] = []  # wall time of the whole plan (predictor, solver, thresholds)
-        self.plan_slack_s: list[float] = []  # first covered slot's start − schedule ready
+        self.plan_slack_s: list[float] = []  # end of the first covered slot − schedule ready [s]
         self._logged_cap: float | None = None  # the uplink image cap last logged
         self._pub = self.create_publisher(Float64MultiArray, "gsrmr/schedule", SCHEDULE_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -316,8 +316,9 @@ class SchedulerNode(Node):
             result = self.planner.plan(now_slot, self._pose)
             self.plan_times_s.append(time.perf_counter() - t0)
             del self.plan_times_s[:-100]
-            # > 0: the schedule was ready before the first slot it covers started (< 0: during it, decided by then)
-            self.plan_slack_s.append(round((self.clock.start_ns(now_slot)
+            # > 0: the schedule was ready by the end of the slot it was expected to be done in (now_slot, the first
+            # it covers); < 0: later than expected (bench/demo.py's replans_late)
+            self.plan_slack_s.append(round((self.clock.start_ns(now_slot + 1)
                                             - self.get_clock().now().nanoseconds) / 1e9, 4))
             del self.plan_slack_s[:-10_000]
             changed = 0
