@@ -45,6 +45,7 @@ from gsrmr_sim.link_events import LinkEvent, parse_link_events
 from gsrmr_sim.models import LIVE_MAX_PSNR_DROP_DB, BuiltModel, live_model, live_recipe
 from gsrmr_sim.report import copy_recording, link_summary, log, run_summary, summary_json, write_report
 from gsrmr_sim.round_start import first_moving_slot as first_moving_slot  # re-exported: test_pipeline_units
+from gsrmr_sim.rounds import run_rounds
 from gsrmr_sim.sim_stack import config_dir, robot_jpeg_quality, sim_stack
 from gsrmr_sim.stack_runner import RobotRun, limo_link_path, run_round
 from gsrmr_sim.survey import SURVEY_VERSION, gs_losses, loss_map_from
@@ -166,6 +167,39 @@ def parse_params(items: Sequence[str]) -> dict[str, dict]:
     return out
 
 
+def rounds_demo(args: argparse.Namespace, *, scene_name: str, slots: int, slot_s: float, built: BuiltModel,
+                seed: Path, inputs: dict, out: Path, t_start: float) -> int:
+    """``--rounds N [--update]``: :func:`gsrmr_sim.rounds.run_rounds`, each round's report in ``out/round<k>``; the
+    last stdout line is the summary with ``rounds``."""
+
+    def one_round(k: int, model: Path, loss_map: Path, run_dir: Path, overrides: dict[str, dict]) -> dict:
+        run = run_stack(scene=scene_name, model_path=model, loss_map=loss_map, run_dir=run_dir,
+                        loss_threshold=args.loss_threshold, slots=slots, method=args.method,
+                        timeout_s=slots * slot_s + 120.0, channel_seed=args.channel_seed, overrides=overrides)
+        copy_recording(run_dir, run.record_dir, run.first_moving, len(run.rows))
+        summary = {**run_summary(args, run.rows, slot_s, built, args.channel_seed), "round": k,
+                   "model_path": str(model), "loss_map_path": str(loss_map), "report_dir": str(run_dir)}
+        write_report(run_dir, run.rows, summary)
+        return summary
+
+    rounds = run_rounds(args, scene_name=scene_name, slots=slots, slot_s=slot_s, model=built.path, loss_map=seed,
+                        mapping_dataset=built.folder / "round1", out=out, run_round=one_round,
+                        cache_dir=Path(args.cache) / f"worlds-{scene_name}")
+    summary = {"scene": scene_name, "loss_threshold": args.loss_threshold, "channel_seed": args.channel_seed,
+               "update": bool(args.update), **inputs, "rounds": rounds, "report_dir": str(out),
+               "wall_s": round(time.perf_counter() - t_start, 1)}
+    print(f"\ngsrmr demo — scene {scene_name}, {args.rounds} rounds{' with updates' if args.update else ''}, L_th "
+          f"{args.loss_threshold} ({summary['wall_s']:.0f} s in all)")
+    for r in rounds:
+        print(f"  round {r['round']}: {r['images_sent']}/{r['slots']} images, {r['energy_j']:.4g} J, mean loss "
+              f"{r['mean_loss']:.4f}, regret {r['regret']:.2f}, on time {r['slots_on_time']}/{r['slots']}, model "
+              f"v{r['model_version']} ({r['model_psnr_now_db']:.2f} dB against this round's world), update before "
+              f"it {r['update_cpu_s']:.0f} CPU-s")
+    (out / "summary.json").write_text(summary_json(summary) + "\n")
+    print(summary_json(summary), flush=True)
+    return 0
+
+
 def _exit_on_sigterm(signum: int, _frame: object) -> None:
     """SIGTERM (``kill``, a CI runner's timeout) as an exit: the stack's ``finally`` stops every node."""
     raise SystemExit(128 + signum)
@@ -227,7 +261,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--param", action="append", default=[], metavar="NODE:NAME=VALUE",
                     help="set a node's parameter on top of the stack's (YAML value), e.g. "
                          "gsrmr_robot:hold_images_while_queued=false; repeatable")
+    ap.add_argument("--rounds", type=int, default=1, metavar="N",
+                    help="N scored rounds after the mapping round, in the world as it is in each (a scene's "
+                         "persistent changes stay from their round on; gsrmr_sim.rounds); the last JSON line then "
+                         "carries 'rounds'")
+    ap.add_argument("--update", action="store_true",
+                    help="with --rounds N >= 2: update the model between rounds from what the server received "
+                         "(gsrmr-dataset, gsrmr-update, gsrmr-survey; docs/model_update.md)")
     args = ap.parse_args(argv)
+    if args.rounds < 1:
+        ap.error("--rounds must be >= 1")
+    if args.update and args.rounds < 2:
+        ap.error("--update needs --rounds N >= 2 (an update follows rounds 1 … N-1)")
+    if args.rounds > 1 and (args.robots is not None or args.hosts == 2 or args.oracle):
+        ap.error("--rounds N > 1 runs one robot on one host without --oracle")
     try:
         args.overrides = parse_params(args.param)
     except ValueError as e:
@@ -292,6 +339,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         seed = ensure_survey(args.scene, model, slots, round_index=2 if args.oracle else 1, cache_dir=survey_cache)
         seed_source = "round-2 survey (oracle)" if args.oracle else "mapping round"
     inputs = input_record(model, model_source, seed, seed_source)
+    if args.rounds > 1:
+        return rounds_demo(args, scene_name=args.scene, slots=slots, slot_s=scene.slot_s, built=built, seed=seed,
+                           inputs=inputs, out=out, t_start=t_start)
     if args.robots is not None:
         return fleet_demo(args, slots=slots, slot_s=scene.slot_s, out=out, built=built, loss_map=seed,
                           link_events=link_events, t_start=t_start)

@@ -13,7 +13,7 @@ import pytest
 
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_sim import demo
+from gsrmr_sim import demo, rounds
 from gsrmr_sim.link_events import parse_link_events
 import gsrmr_sim.netns as netns
 from gsrmr_sim.report import link_summary, summary_json, write_report
@@ -241,3 +241,23 @@ def test_outside_model_alone_is_surveyed_into_the_cache_not_beside_it(tmp_path, 
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert (summary["model_source"], summary["loss_map_seed"]) == ("--model", "round-2 survey (oracle)")
     assert summary["loss_map_sha256"] == hashlib.sha256(lm.read_bytes()).hexdigest()
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--update"], "--update needs --rounds N >= 2"),
+    (["--rounds", "3", "--update", "--robots", "2"], "--rounds N > 1 runs one robot on one host"),
+    (["--rounds", "2", "--oracle"], "--rounds N > 1 runs one robot on one host"),
+    (["--rounds", "0"], "--rounds must be >= 1"),
+])
+def test_rounds_options_are_checked_before_anything_runs(argv, message, capsys):
+    with pytest.raises(SystemExit):
+        demo.main(argv)
+    assert message in capsys.readouterr().err
+
+
+def test_each_scored_round_runs_in_its_world_and_models_are_numbered_by_version():
+    over = rounds.round_overrides({"gsrmr_robot": {"jpeg_quality": 70}, rounds.CAMERA_NODE: {"rate_hz": 5.0}}, 3)
+    assert over == {"gsrmr_robot": {"jpeg_quality": 70}, rounds.CAMERA_NODE: {"rate_hz": 5.0, "round": 4}}
+    assert rounds.round_overrides({}, 1) == {rounds.CAMERA_NODE: {"round": 2}}
+    assert [rounds.version_of(Path(p)) for p in ("m/model_v3.ply", "model-compact-0.3.ply", "model_vx.ply")] == \
+        [3, 0, 0]

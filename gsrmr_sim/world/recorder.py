@@ -114,7 +114,7 @@ def record_round2(scene: Scene, out_dir: str | Path, slots: int | None = None, s
                             mask=(d > 0.5).astype(np.uint8))
         entries.append({"t": t, "time_s": t_s, "pose": list(pose),
                         "control": [float(c) for c in drive.controls[t]],
-                        "events": [i for i, ev in enumerate(scene.events) if ev.active(t_s)],
+                        "events": [i for i, ev in enumerate(scene.events) if ev.active(t_s, max(1, round_index - 1))],
                         "file": rel})
         if progress and t % 20 == 0:
             print(f"round 2: slot {t}/{t_slots}", flush=True)
