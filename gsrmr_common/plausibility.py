@@ -30,6 +30,8 @@ from gsrmr_common.wire import LedgerRow, LossSample, ScheduleMsg
 
 #: The largest MR loss images in [0, 1] can have: (1 − λ)·1 + λ·(1 − (−1)).
 MR_LOSS_MAX = (1.0 - MR_LOSS_LAMBDA) * 1.0 + MR_LOSS_LAMBDA * 2.0
+#: :meth:`LossSampleCheck.problem` of a sample equal to the one its slot already took: dropped, not implausible.
+REDELIVERED = "loss_redelivered"
 #: How close a loss sample's pose must be to the robot's key of that slot (the server copies the key) [m, rad].
 POSE_MATCH_TOL = 1e-6
 
@@ -123,17 +125,19 @@ class LossSampleCheck:
 
     def __init__(self, keep_slots: int = 2000) -> None:
         self.keep = int(keep_slots)
-        self._seen: OrderedDict[int, None] = OrderedDict()  # slots that already had their sample
+        self._seen: OrderedDict[int, LossSample] = OrderedDict()  # slot → the sample it took
 
     def problem(self, sample: LossSample, image_sent: bool | None,
                 key_pose: tuple[float, float, float] | None) -> str | None:
-        """Why ``sample`` is implausible: ``loss_range``, ``loss_repeat``, ``loss_key_slot`` (the ledger says the slot
-        sent no image), ``loss_unledgered`` (no ledger row for it), ``loss_pose`` (not at the slot's reported key);
+        """Why ``sample`` is implausible: ``loss_range``, ``loss_repeat`` (a second, different sample for a slot),
+        ``loss_key_slot`` (the ledger says the slot sent no image), ``loss_unledgered`` (no ledger row for it),
+        ``loss_pose`` (not at the slot's reported key); :data:`REDELIVERED` for the very sample the slot already took
+        (a latched writer's history, read again by a reader that subscribed again: not a lie, and not used twice);
         None when it is plausible — then its slot counts as sampled."""
         if not 0.0 <= sample.loss <= MR_LOSS_MAX:
             return "loss_range"
         if sample.slot in self._seen:
-            return "loss_repeat"
+            return REDELIVERED if self._seen[sample.slot] == sample else "loss_repeat"
         if image_sent is None:
             return "loss_unledgered"
         if not image_sent:
@@ -141,7 +145,7 @@ class LossSampleCheck:
         if key_pose is not None and not all(abs(u - v) <= POSE_MATCH_TOL for u, v in
                                             zip((sample.a_m, sample.b_m, sample.theta_rad), key_pose, strict=True)):
             return "loss_pose"
-        self._seen[sample.slot] = None
+        self._seen[sample.slot] = sample
         while len(self._seen) > self.keep:
             self._seen.popitem(last=False)
         return None

@@ -54,8 +54,13 @@ _YUV422_ENCODINGS = frozenset({"yuv422", "uyvy", "yuv422_yuy2", "yuyv"})
 
 
 # QoS of the robot ↔ workstation topics (camera and odometry inputs use the sensor-data profile).
-#: pose keys, ledger rows, loss samples, MR slot infos: reliable, a few seconds of slots queued.
+#: pose keys, ledger rows, MR slot infos: reliable, a few seconds of slots queued.
 UPLINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+#: loss samples (server → scheduler): reliable, **transient local**, depth 50 (5 s of slots at one sample a slot): a
+#: reader that subscribes again — after a flood pause (:mod:`gsrmr_common.ros_admission`) or a restart — gets the
+#: samples it missed; the writer's history is its reliable queue of 50 either way. A volatile writer does not match it.
+LOSS_SAMPLE_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
 #: JPEG uploads: reliable, depth 10 (each is 5–40 kB).
 IMAGE_UPLOAD_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 #: the schedule: latched (reliable, transient local, depth 1): a robot started later gets the newest one.

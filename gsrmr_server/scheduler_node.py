@@ -50,10 +50,11 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from gsrmr_common.interrupts import console_main
-from gsrmr_common.plausibility import Implausible, LossSampleCheck, PoseTrack, ledger_problem
+from gsrmr_common.plausibility import REDELIVERED, Implausible, LossSampleCheck, PoseTrack, ledger_problem
 from gsrmr_common.ros_admission import GatedInputs, ParameterAudit
 from gsrmr_common.ros_node import declare_link_budget, declare_parameters, diagnostics_msg, run_node
 from gsrmr_common.ros_wire import (
+    LOSS_SAMPLE_QOS,
     SCHEDULE_QOS,
     UPLINK_QOS,
     channel_sample_from_msg,
@@ -125,12 +126,13 @@ class SchedulerNode(Node):
         # loss samples of slots before the first ledger row heard (start-up: discovery may match the server's loss
         # writer before the robot's ledger writer, whose rows are not latched): not used, and not implausible either
         self.loss_samples_unverified = 0
+        self.loss_samples_redelivered = 0  # samples taken already, sent again from the server's history: dropped
         self._service_replan_s: float | None = None  # monotonic time of the last replan the service ran
         self.replans_refused = 0
         self.inputs = GatedInputs(self)
         self.inputs.subscribe(Vector3Stamped, "uplink/pose_key", self._on_key, UPLINK_QOS, p.robot_writers,
                               rate_hz=40.0, burst=60.0)
-        self.inputs.subscribe(Float64MultiArray, "gsrmr/loss_sample", self._on_loss, UPLINK_QOS, p.loss_writers,
+        self.inputs.subscribe(Float64MultiArray, "gsrmr/loss_sample", self._on_loss, LOSS_SAMPLE_QOS, p.loss_writers,
                               rate_hz=40.0, burst=60.0)
         if p.oracle_channel:
             self.inputs.subscribe(Float64MultiArray, CHANNEL_TOPIC, self._on_channel, 10, p.channel_writers,
@@ -260,6 +262,9 @@ class SchedulerNode(Node):
         """Observe a plausible loss sample; one whose slot has no ledger row yet waits for it (a few at most)."""
         x = self._ledger_x.get(sample.slot)
         reason = self.loss_check.problem(sample, None if x is None else bool(x), self._key_poses.get(sample.slot))
+        if reason == REDELIVERED:  # the server's latched history, read again after this reader resubscribed
+            self.loss_samples_redelivered += 1
+            return
         if reason == "loss_unledgered" and len(self._waiting_loss) < 16 and sample.slot not in self._waiting_loss:
             self._waiting_loss[sample.slot] = sample
             return
@@ -407,7 +412,8 @@ class SchedulerNode(Node):
         """Log what the input checks refused and the replans the service refused (called by run_node on exit)."""
         self.inputs.log_summary(self.implausible, replans_refused=self.replans_refused,
                                 relocalisations=self.poses.relocalisations,
-                                loss_samples_unverified=self.loss_samples_unverified)
+                                loss_samples_unverified=self.loss_samples_unverified,
+                                loss_samples_redelivered=self.loss_samples_redelivered)
 
     def _publish_diagnostics(self) -> None:
         r = self.last
@@ -435,6 +441,7 @@ class SchedulerNode(Node):
             **self.inputs.diagnostic_values(), "implausible": self.implausible.values_for_diagnostics(),
             "relocalisations": self.poses.relocalisations, "replans_refused": self.replans_refused,
             "loss_samples_unverified": self.loss_samples_unverified,
+            "loss_samples_redelivered": self.loss_samples_redelivered,
             **self.audit.diagnostic_values()}.items()})
         problems = [] if r is None or r.feasible else ["plan infeasible"]
         problems += self.inputs.problems()

@@ -54,6 +54,7 @@ from gsrmr_common.ros_node import (
 from gsrmr_common.ros_wire import (
     CAMERA_INFO_QOS,
     IMAGE_UPLOAD_QOS,
+    LOSS_SAMPLE_QOS,
     SCHEDULE_QOS,
     UPLINK_QOS,
     compressed_to_msg,
@@ -108,7 +109,7 @@ class ServerNode(Node):
         self._pub_mr = self.create_publisher(Image, "mr/image", 5)
         self._pub_info = self.create_publisher(Float64MultiArray, MR_SLOT_INFO_TOPIC, UPLINK_QOS)
         self._pub_mr_c = self.create_publisher(CompressedImage, "mr/image/compressed", 5)
-        self._pub_loss = self.create_publisher(Float64MultiArray, "gsrmr/loss_sample", UPLINK_QOS)
+        self._pub_loss = self.create_publisher(Float64MultiArray, "gsrmr/loss_sample", LOSS_SAMPLE_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         # what is taken from the graph, and from whom (docs/security.md, "Application checks"); per writer endpoint:
         # a few messages per slot sustained (relay duplicates and reorderings come in bursts)

@@ -97,7 +97,8 @@ class DiagnosticsWatch:
         out = {}
         for key in ("writers_refused", "implausible", "writer_alarms", "parameter_changes",
                     "parameter_changes_refused", "replans_refused", "image_readers_unknown",
-                    "images_delivered_by_model", "schedule_seq", "floods", "loss_samples_unverified"):
+                    "images_delivered_by_model", "schedule_seq", "floods", "loss_samples_unverified",
+                    "loss_samples_redelivered"):
             if key in values:
                 with contextlib.suppress(ValueError):
                     out[key] = json.loads(values[key])
@@ -147,10 +148,10 @@ class Rogue:
     def _loss_samples(self, duration_s: float, loss: float) -> None:
         from std_msgs.msg import Float64MultiArray
 
-        from gsrmr_common.ros_wire import UPLINK_QOS, loss_sample_to_msg
+        from gsrmr_common.ros_wire import LOSS_SAMPLE_QOS, loss_sample_to_msg
         from gsrmr_common.wire import LossSample
 
-        pub = self._publisher(Float64MultiArray, "gsrmr/loss_sample", UPLINK_QOS)
+        pub = self._publisher(Float64MultiArray, "gsrmr/loss_sample", LOSS_SAMPLE_QOS)  # the QoS the graph shows
 
         def step() -> None:
             a, b = self.rng.uniform(-4, 4, 2)
@@ -344,10 +345,12 @@ class Rogue:
                    rate_hz: float = 10_000.0) -> None:
         from std_msgs.msg import Float64MultiArray
 
-        from gsrmr_common.ros_wire import UPLINK_QOS, loss_sample_to_msg
+        from gsrmr_common.ros_wire import LOSS_SAMPLE_QOS, UPLINK_QOS, loss_sample_to_msg
         from gsrmr_common.wire import LossSample
 
-        pub = self._publisher(Float64MultiArray, flood_topic, UPLINK_QOS)
+        # the QoS the graph shows for that topic (a volatile writer would not match the latched loss-sample reader)
+        pub = self._publisher(Float64MultiArray, flood_topic,
+                              LOSS_SAMPLE_QOS if flood_topic.endswith("gsrmr/loss_sample") else UPLINK_QOS)
         msg = loss_sample_to_msg(LossSample(self.now_slot(), 0.0, 0.0, 0.0, 0.5))
         wait_s = max(0.0, duration_s - flood_s) / 2
         self._loop(wait_s, 1.0, lambda: None)

@@ -59,6 +59,46 @@ def test_planner_users_touch_no_private_attribute_and_set_nothing_by_name(path):
     assert private_uses((REPO / path).read_text()) == []
 
 
+def test_the_server_s_samples_of_a_flood_pause_reach_the_scheduler_when_it_reads_again(scheduler):
+    """Issue 28: a flood pauses the scheduler's ``gsrmr/loss_sample`` reader for a second; the server's samples of
+    that second are not lost — the topic is latched (``LOSS_SAMPLE_QOS``), the new reader gets the writer's history
+    over DDS, takes what it missed and drops what it had taken (``loss_samples_redelivered``), none implausible."""
+    from std_msgs.msg import Float64MultiArray
+
+    from gsrmr_common.ros_wire import LOSS_SAMPLE_QOS, ledger_to_msg, loss_sample_to_msg
+    from gsrmr_common.wire import LedgerRow, LossSample
+
+    node, spin_until = scheduler
+    assert spin_until(lambda: node.last is not None)
+    server = rclpy.create_node("gsrmr_server", context=node.context)
+    try:
+        pub = server.create_publisher(Float64MultiArray, "gsrmr/loss_sample", LOSS_SAMPLE_QOS)
+        now = node.clock.slot_at(node.get_clock().now().nanoseconds)
+        slots = list(range(now - 8, now))
+        for slot in slots:
+            node._on_ledger(ledger_to_msg(LedgerRow(slot, 1, 1e-3, 64_000, 1e-6, 1e-3, 1e-4, 64_000, 1e-4)))
+        samples = node.planner.forecast.samples
+
+        def send(slot: int) -> None:
+            pub.publish(loss_sample_to_msg(LossSample(slot, -1.0, -1.1, 0.0, 0.02)))
+
+        assert spin_until(lambda: pub.get_subscription_count() == 1)
+        for slot in slots[:4]:
+            send(slot)
+        assert spin_until(lambda: node.planner.forecast.samples == samples + 4)
+        node.inputs._pause("gsrmr/loss_sample", "/a_test_flood")  # what FloodBreaker's 200th refusal does
+        assert spin_until(lambda: pub.get_subscription_count() == 0)
+        for slot in slots[4:]:
+            send(slot)  # no reader now
+        spin_until(lambda: False, timeout_s=0.3)
+        assert node.planner.forecast.samples == samples + 4
+        node.inputs._resume("gsrmr/loss_sample")
+        assert spin_until(lambda: node.planner.forecast.samples == samples + 8 and node.loss_samples_redelivered == 4)
+        assert not node.implausible
+    finally:
+        server.destroy_node()
+
+
 # ---------------------------------------------------------------------------- a live parameter change
 @pytest.fixture
 def scheduler(monkeypatch):
@@ -163,6 +203,9 @@ def test_loss_samples_are_taken_once_per_image_slot_the_ledger_names(scheduler):
     samples = node.planner.forecast.samples
     loss(now - 5)
     assert node.planner.forecast.samples == samples + 1 and not node.implausible  # an image slot: observed
+    loss(now - 5)  # the very same sample again (the latched history, read by a reader that resubscribed)
+    assert node.loss_samples_redelivered == 1 and node.planner.forecast.samples == samples + 1
+    assert not node.implausible
     loss(now - 5, 0.5)
     loss(now - 4)
     loss(now - 5, 5.0)

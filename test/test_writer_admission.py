@@ -24,6 +24,7 @@ from gsrmr_common.channel_band import (
 from gsrmr_common.metrics import mr_loss
 from gsrmr_common.plausibility import (
     MR_LOSS_MAX,
+    REDELIVERED,
     LossSampleCheck,
     PoseTrack,
     ScheduleLimits,
@@ -208,7 +209,8 @@ def test_loss_samples_in_range_once_per_image_slot_at_the_reported_key():
     assert check.problem(LossSample(10, *pose, 0.02), None, pose) == "loss_unledgered"
     assert check.problem(LossSample(10, 4.0, 2.0, 0.5, 0.02), True, pose) == "loss_pose"
     assert check.problem(LossSample(10, *pose, 0.0), True, None) is None  # 0 is a loss; no key known: no pose rule
-    assert check.problem(LossSample(10, *pose, 0.02), True, pose) == "loss_repeat"
+    assert check.problem(LossSample(10, *pose, 0.0), True, pose) == REDELIVERED  # the same sample again: a resubscribed
+    assert check.problem(LossSample(10, *pose, 0.02), True, pose) == "loss_repeat"  # reader, no lie; another: one
     for slot in (11, 12, 13):
         assert check.problem(LossSample(slot, *pose, 0.02), True, pose) is None
     assert check.problem(LossSample(10, *pose, 0.02), True, pose) is None  # forgotten past keep_slots
