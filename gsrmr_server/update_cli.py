@@ -66,6 +66,8 @@ def parser() -> argparse.ArgumentParser:
     up.add_argument("--min-holdout", type=int, default=d.min_holdout_frames,
                     help="fewer held-out frames give no verdict (refused)")
     up.add_argument("--replay", type=int, default=d.replay_frames, help="mapping frames replayed at most")
+    up.add_argument("--growth", type=float, default=d.growth,
+                    help="densification adds at most this share of the version in use's Gaussians")
     up.add_argument("--significance-z", type=float, default=d.significance_z,
                     help="accept when the mean held-out improvement exceeds this many standard errors")
     up.add_argument("--no-compact", action="store_true", help="do not compact the fine-tuned model")
@@ -118,7 +120,7 @@ def run(args: argparse.Namespace, log=print) -> dict:
         raise SurveyInputError(f"{args.models} has no accepted model version: start it with --init MODEL.ply")
     try:
         config = UpdateConfig(holdout_frames=args.holdout, min_holdout_frames=args.min_holdout,
-                              replay_frames=args.replay, finetune_steps=args.steps,
+                              replay_frames=args.replay, finetune_steps=args.steps, growth=args.growth,
                               significance_z=args.significance_z, compact=not args.no_compact,
                               max_psnr_drop_db=args.max_psnr_drop_db, seed=args.seed)
     except ValueError as err:

@@ -134,11 +134,12 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
               slots: int, method: str, timeout_s: float, channel_seed: int | None = None,
               oracle_channel: bool = False, hosts: int = 1, uplink_mbit: float = 5.0,
               link_events: Sequence[LinkEvent] = (), link_log: dict | None = None,
-              overrides: dict[str, dict] | None = None) -> RobotRun:
+              overrides: dict[str, dict] | None = None, label: str = "round 2") -> RobotRun:
     """Run the single robot's closed loop (:func:`gsrmr_sim.sim_stack.sim_stack`: recording in
     ``<run_dir>/recording``) with :func:`gsrmr_sim.stack_runner.run_round`: every node a process over DDS, stopped
     after ``slots`` composed slots of the round; return the robot's run (its scored rows).
-    ``overrides``: parameters per node name on top of the stack's (``gsrmr-demo --param``).
+    ``overrides``: parameters per node name on top of the stack's (``gsrmr-demo --param``); ``label``: what the
+    progress lines call the round.
 
     ``hosts`` = 2 runs the robot's processes and the server's in two network namespaces joined by a veth pair
     limited to ``uplink_mbit`` (:class:`gsrmr_sim.netns.TwoHosts`), DDS over UDPv4 across it, the
@@ -151,7 +152,7 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
                       channel_seed=channel_seed, oracle_channel=oracle_channel,
                       truth_dir=str(run_dir / "truth_frames") if hosts == 2 else "", overrides=overrides)
     (run,) = run_round(specs, run_dir=run_dir, slots=slots, timeout_s=timeout_s, hosts=hosts,
-                       uplink_mbit=uplink_mbit, link_events=link_events, link_log=link_log, log=log)
+                       uplink_mbit=uplink_mbit, link_events=link_events, link_log=link_log, label=label, log=log)
     return run
 
 
@@ -175,7 +176,8 @@ def rounds_demo(args: argparse.Namespace, *, scene_name: str, slots: int, slot_s
     def one_round(k: int, model: Path, loss_map: Path, run_dir: Path, overrides: dict[str, dict]) -> dict:
         run = run_stack(scene=scene_name, model_path=model, loss_map=loss_map, run_dir=run_dir,
                         loss_threshold=args.loss_threshold, slots=slots, method=args.method,
-                        timeout_s=slots * slot_s + 120.0, channel_seed=args.channel_seed, overrides=overrides)
+                        timeout_s=slots * slot_s + 120.0, channel_seed=args.channel_seed, overrides=overrides,
+                        label=f"round {k}")
         copy_recording(run_dir, run.record_dir, run.first_moving, len(run.rows))
         summary = {**run_summary(args, run.rows, slot_s, built, args.channel_seed), "round": k,
                    "model_path": str(model), "loss_map_path": str(loss_map), "report_dir": str(run_dir)}

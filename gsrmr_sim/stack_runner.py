@@ -128,7 +128,7 @@ def robot_runs(specs: Sequence[ProcessSpec]) -> dict[str, RobotRun]:
 def run_round(specs: Sequence[ProcessSpec], *, run_dir: Path, slots: int, timeout_s: float, hosts: int = 1,
               uplink_mbit: float = 5.0, link_events: Sequence[LinkEvent] = (), link_log: dict | None = None,
               kill_safe: bool = False, warm_timeout_s: float | None = None, domain_id: int | None = None,
-              log: Callable[[str], None] = print) -> list[RobotRun]:
+              label: str = "round 2", log: Callable[[str], None] = print) -> list[RobotRun]:
     """Run ``specs`` as processes over DDS until every robot has composed ``slots`` slots of its round, within
     ``timeout_s`` of setting off (else TimeoutError); return each robot's run (see the module docstring).
 
@@ -138,7 +138,8 @@ def run_round(specs: Sequence[ProcessSpec], *, run_dir: Path, slots: int, timeou
     their ``at_slot`` round slots, and ``link_log`` (a dict) receives the link's byte counters (``start``,
     ``end``) and the events applied. ``kill_safe`` selects the kill-safe DDS transport, ``domain_id`` the ROS
     domain (default: a random one), ``warm_timeout_s`` how long the servers may take to compose before the
-    robots set off anyway (default 60 s + 30 s per further robot).
+    robots set off anyway (default 60 s + 30 s per further robot), ``label`` what the progress lines call the
+    round (``gsrmr-demo --rounds``: "round k").
     """
     domain = random_domain_id() if domain_id is None else domain_id
     runs = robot_runs(specs)
@@ -172,7 +173,7 @@ def run_round(specs: Sequence[ProcessSpec], *, run_dir: Path, slots: int, timeou
         meter = CpuMeter({proc.pid for proc in stack.procs.values()})
         meter.take()
         _follow_round(stack, runs, slots=slots, timeout_s=timeout_s, net=net, link_events=link_events,
-                      link_log=link_log, meter=meter, fleet=fleet, log=log)
+                      link_log=link_log, meter=meter, fleet=fleet, label=label, log=log)
         meter.take()
         round_start_s = max(run.rows_so_far()[run.first_moving]["stamp_s"] for run in runs.values())
         _count_cpu(specs, stack, runs, meter.round_usage(round_start_s))
@@ -226,7 +227,7 @@ def _start_and_set_off(stack: ProcessStack, specs: Sequence[ProcessSpec], runs: 
 
 def _follow_round(stack: ProcessStack, runs: Mapping[str, RobotRun], *, slots: int, timeout_s: float,
                   net: TwoHosts | None, link_events: Sequence[LinkEvent], link_log: dict | None, meter: CpuMeter,
-                  fleet: bool, log: Callable[[str], None]) -> None:
+                  fleet: bool, label: str, log: Callable[[str], None]) -> None:
     """Until every robot has composed ``slots`` round slots: find where each robot's round starts, apply the
     link events that are due, take a CPU snapshot and log the progress; sets each run's ``first_moving`` and
     ``round_start``. Raises :class:`~gsrmr_sim.supervisor.ProcessDiedError` or TimeoutError."""
@@ -266,13 +267,13 @@ def _follow_round(stack: ProcessStack, runs: Mapping[str, RobotRun], *, slots: i
             break
         if time.monotonic() - last_report > PROGRESS_LOG_S:
             if fleet:
-                log("round 2: " + ", ".join(f"{n} {min(d, slots)}/{slots}" for n, d in done.items()) + " slots")
+                log(f"{label}: " + ", ".join(f"{n} {min(d, slots)}/{slots}" for n, d in done.items()) + " slots")
             else:
-                log(f"round 2: {min(least, slots)}/{slots} slots")
+                log(f"{label}: {min(least, slots)}/{slots} slots")
             last_report = time.monotonic()
     else:
         every = f" for every robot in {timeout_s:.0f} s: {done}" if fleet else f" in {timeout_s:.0f} s"
-        raise TimeoutError(f"round 2 did not produce {slots} slots{every}")
+        raise TimeoutError(f"{label} did not produce {slots} slots{every}")
     for name, run in runs.items():
         run.first_moving = int(first[name])  # type: ignore[arg-type]
         run.round_start = "radio log" if name in from_radio else "slots.csv"

@@ -1,10 +1,10 @@
 """Compaction: the smallest model of a scene within a held-out PSNR tolerance.
 
-After training, every Gaussian is ranked by its contribution over the training views — its accumulated
-blending weight Σ α·T over every pixel of every view (LightGaussian's global significance, Mini-Splatting's
-importance; :func:`~gsrmr_server.splatting.contribution.blend_weights`). Rounds then prune the least
-contributing ``prune_fraction`` of what is left and fine-tune briefly (Adam on every parameter, no
-densification, a small position rate), measuring the held-out PSNR after each; a round that drops more
+After training, every Gaussian is ranked by its contribution over the training views (or the views the caller
+names: ``coverage_cameras``) — its accumulated blending weight Σ α·T over every pixel of every view (LightGaussian's
+global significance, Mini-Splatting's importance; :func:`~gsrmr_server.splatting.contribution.blend_weights`).
+Rounds then prune the least contributing ``prune_fraction`` of what is left and fine-tune briefly (Adam on every
+parameter, no densification, a small position rate), measuring the held-out PSNR after each; a round that drops more
 than ``max_psnr_drop_db`` below the uncompacted model is discarded and retried with half the share,
 until the share falls below ``min_prune_fraction``; the last round within the tolerance is kept. Then
 the SH degree is lowered one step at a time (fine-tuned the same way) while the
@@ -22,6 +22,7 @@ import time
 
 import numpy as np
 
+from gsrmr_common.camera import Camera
 from gsrmr_common.nerfstudio import DatasetFrame
 from gsrmr_server.splatting.contribution import blend_weights
 from gsrmr_server.splatting.model import GaussianModel
@@ -97,10 +98,15 @@ class Compactor:
     """Runs the compaction of one model on one dataset split (see the module docstring)."""
 
     def __init__(self, train_frames: list[DatasetFrame], test_frames: list[DatasetFrame],
-                 train_config: TrainConfig | None = None, config: CompactConfig | None = None) -> None:
+                 train_config: TrainConfig | None = None, config: CompactConfig | None = None,
+                 coverage_cameras: list[Camera] | None = None) -> None:
+        """``coverage_cameras``: the views a Gaussian's contribution is summed over to rank it (default: the
+        training frames' cameras). A fine-tune on part of a scene (the model update) passes every view the model
+        must serve, so that what its training views do not see is not pruned first."""
         if not test_frames:
             raise ValueError("compaction needs held-out frames to measure the PSNR it may lose")
         self.train_frames, self.test_frames = train_frames, test_frames
+        self.coverage_cameras = list(coverage_cameras) if coverage_cameras is not None else None
         self.train_config = train_config or TrainConfig()
         self.config = config or CompactConfig()
 
@@ -127,7 +133,7 @@ class Compactor:
         floor = before - cfg.max_psnr_drop_db
         best, best_psnr = model, before
         steps: list[CompactStep] = []
-        cameras = [f.camera for f in self.train_frames]
+        cameras = self.coverage_cameras if self.coverage_cameras is not None else [f.camera for f in self.train_frames]
         fraction = cfg.prune_fraction
         for _ in range(cfg.max_rounds):
             n = best.num_gaussians

@@ -20,8 +20,8 @@ def densify_and_prune(st: TrainState, cfg: TrainConfig, extent: float, n_views: 
     Candidates have a mean view-space positional gradient ≥ ``grad_threshold`` since the last call; the
     large ones (> ``percent_dense`` × extent) are split in two samples of their own distribution at 1/1.6
     the scale, the small ones cloned; ranked by gradient when the budget is short. Pruned: opacity below
-    ``prune_opacity``, and after the first opacity reset too large on screen or in the world, and unseen for
-    two passes over the ``n_views`` training views.
+    ``prune_opacity``, and after the first opacity reset too large on screen or in the world, and (with
+    ``prune_unseen``) unseen for two passes over the ``n_views`` training views.
     """
     p = {k: v.detach() for k, v in st.params.items()}
     n = p["means"].shape[0]
@@ -57,7 +57,7 @@ def densify_and_prune(st: TrainState, cfg: TrainConfig, extent: float, n_views: 
     if it > cfg.opacity_reset_interval:
         prune |= (st.max_radius > cfg.max_screen_px) | (scale_max > 0.1 * extent)
     unused_after = 2 * n_views
-    if it > unused_after:
+    if cfg.prune_unseen and it > unused_after:
         prune |= st.last_seen < it - unused_after
     select_rows(st, ~prune, new_t)
     st.grad_accum.zero_()

@@ -41,7 +41,11 @@ class TrainConfig:
     seed: int = 0
     checkpoint_every: int = 1000
     near_m: float = NEAR_M
-    final_prune: bool = True
+    final_prune: bool = True  # at the end, remove the Gaussians that change no training pixel
+    # Density control also prunes the Gaussians no training view has drawn for two passes over the views. Both that
+    # and final_prune assume the training views see the whole scene; a fine-tune on part of it (the model update,
+    # gsrmr_server.model_update) turns both off: unseen there means unknown, not useless.
+    prune_unseen: bool = True
     torch_threads: int | None = 1  # torch.set_num_threads for the process (None = leave as is)
     # Where the initial Gaussians come from (initialise.choose_init): "auto" = depth when a training frame has
     # depth, else the point cloud the dataset names (ply_file_path), else random; or "depth", "points", "random".
