@@ -43,6 +43,7 @@ from gsrmr_sim import netns
 from gsrmr_sim.fleet import fleet_demo
 from gsrmr_sim.link_events import LinkEvent, parse_link_events
 from gsrmr_sim.models import LIVE_MAX_PSNR_DROP_DB, BuiltModel, live_model, live_recipe
+from gsrmr_sim.param_events import ParamEvent, swap_model_event, swap_summary
 from gsrmr_sim.report import copy_recording, link_summary, log, run_summary, summary_json, write_report
 from gsrmr_sim.round_start import first_moving_slot as first_moving_slot  # re-exported: test_pipeline_units
 from gsrmr_sim.rounds import run_rounds
@@ -134,12 +135,14 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
               slots: int, method: str, timeout_s: float, channel_seed: int | None = None,
               oracle_channel: bool = False, hosts: int = 1, uplink_mbit: float = 5.0,
               link_events: Sequence[LinkEvent] = (), link_log: dict | None = None,
-              overrides: dict[str, dict] | None = None, label: str = "round 2") -> RobotRun:
+              overrides: dict[str, dict] | None = None, label: str = "round 2",
+              param_events: Sequence[ParamEvent] = (), param_log: list | None = None) -> RobotRun:
     """Run the single robot's closed loop (:func:`gsrmr_sim.sim_stack.sim_stack`: recording in
     ``<run_dir>/recording``) with :func:`gsrmr_sim.stack_runner.run_round`: every node a process over DDS, stopped
     after ``slots`` composed slots of the round; return the robot's run (its scored rows).
     ``overrides``: parameters per node name on top of the stack's (``gsrmr-demo --param``); ``label``: what the
-    progress lines call the round.
+    progress lines call the round; ``param_events``/``param_log``: ``ros2 param set`` during the round
+    (:mod:`gsrmr_sim.param_events`).
 
     ``hosts`` = 2 runs the robot's processes and the server's in two network namespaces joined by a veth pair
     limited to ``uplink_mbit`` (:class:`gsrmr_sim.netns.TwoHosts`), DDS over UDPv4 across it, the
@@ -152,7 +155,8 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
                       channel_seed=channel_seed, oracle_channel=oracle_channel,
                       truth_dir=str(run_dir / "truth_frames") if hosts == 2 else "", overrides=overrides)
     (run,) = run_round(specs, run_dir=run_dir, slots=slots, timeout_s=timeout_s, hosts=hosts,
-                       uplink_mbit=uplink_mbit, link_events=link_events, link_log=link_log, label=label, log=log)
+                       uplink_mbit=uplink_mbit, link_events=link_events, link_log=link_log, label=label,
+                       param_events=param_events, param_log=param_log, log=log)
     return run
 
 
@@ -249,6 +253,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--link-events", default="",
                     help="with --hosts 2: link changes during the round, e.g. 'down@100,up@120,rate=1.5@150' "
                          "(ACTION@SLOT, SLOT = composed round slots)")
+    ap.add_argument("--swap-model", action="append", default=[], metavar="MODEL.ply@SLOT",
+                    help="a hot swap inside the round: `ros2 param set /gsrmr_server model_path MODEL.ply` once "
+                         "SLOT round slots are composed (turns on the server's live_parameter_changes; one robot, "
+                         "one host); the report's model_swaps say where it took over and the slots on time around it")
     ap.add_argument("--robots", type=int, default=None, metavar="N",
                     help="a fleet: N robots at once (namespaces /robot1 … /robotN, each with its own server, "
                          "scheduler and simulated world; channel seed + k - 1 for robot k), one report folder per "
@@ -298,6 +306,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             ap.error("--oracle reads the simulated radio on the server side; it is not run across two hosts")
     elif link_events:
         ap.error("--link-events needs --hosts 2")
+    try:
+        swap_events = [swap_model_event(text) for text in args.swap_model]
+    except ValueError as e:
+        ap.error(str(e))
+    if swap_events:
+        if args.hosts != 1 or args.robots is not None or args.rounds > 1:
+            ap.error("--swap-model runs in a single robot's round on one host (no --hosts 2, --robots, --rounds)")
+        args.overrides.setdefault("gsrmr_server", {})["live_parameter_changes"] = True
     if args.model is not None:
         given = [f"--{name.replace('_', '-')}" for name in MODEL_BUILDING_OPTIONS
                  if getattr(args, name) not in (None, False, 0)]
@@ -349,16 +365,20 @@ def main(argv: Sequence[str] | None = None) -> int:
                           link_events=link_events, t_start=t_start)
     log(f"round 2: {slots} slots in real time ({slots * scene.slot_s:.1f} s) over DDS, L_th = {args.loss_threshold}")
     link_log: dict = {}
+    param_log: list[dict] = []
     run = run_stack(scene=args.scene, model_path=model, loss_map=seed, run_dir=out,
                     loss_threshold=args.loss_threshold, slots=slots, method=args.method,
                     timeout_s=slots * scene.slot_s + 120.0, channel_seed=args.channel_seed,
                     oracle_channel=args.oracle, hosts=args.hosts, uplink_mbit=args.uplink_mbit,
-                    link_events=link_events, link_log=link_log, overrides=args.overrides)
+                    link_events=link_events, link_log=link_log, overrides=args.overrides,
+                    param_events=swap_events, param_log=param_log)
     rows = run.rows
     copy_recording(out, run.record_dir, run.first_moving, len(rows))
     summary = {**run_summary(args, rows, scene.slot_s, built, args.channel_seed), **inputs,
                **({"model_compacted": None} if outside_model is not None else {}),  # not known of an outside model
                "hosts": args.hosts, **(link_summary(link_log, rows, args.uplink_mbit) if args.hosts == 2 else {}),
+               **(swap_summary(param_log, (out / "logs" / "gsrmr_server.log").read_text(errors="replace"), rows,
+                               scene.slot_s) if swap_events else {}),
                "report_dir": str(out)}
     write_report(out, rows, summary)
     print(f"\ngsrmr demo — scene {args.scene}, L_th {args.loss_threshold}, {summary['slots']} slots "

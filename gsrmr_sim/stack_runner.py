@@ -29,12 +29,14 @@ import os
 from pathlib import Path
 import random
 import shutil
+import subprocess
 import time
 
 from gsrmr_server.recording import CSV_NAME, read_slots_csv
 from gsrmr_sim.cpu_usage import CPU_GROUPS, CpuMeter, RoundUsage, cpu_group
 from gsrmr_sim.link_events import LinkEvent
 from gsrmr_sim.netns import TwoHosts
+from gsrmr_sim.param_events import ParamEvent
 from gsrmr_sim.round_start import first_round_row, radio_round_row
 from gsrmr_sim.scores import await_scores, join_scores
 from gsrmr_sim.sim_stack import ProcessSpec, environment, mock_limo_link
@@ -128,7 +130,8 @@ def robot_runs(specs: Sequence[ProcessSpec]) -> dict[str, RobotRun]:
 def run_round(specs: Sequence[ProcessSpec], *, run_dir: Path, slots: int, timeout_s: float, hosts: int = 1,
               uplink_mbit: float = 5.0, link_events: Sequence[LinkEvent] = (), link_log: dict | None = None,
               kill_safe: bool = False, warm_timeout_s: float | None = None, domain_id: int | None = None,
-              label: str = "round 2", log: Callable[[str], None] = print) -> list[RobotRun]:
+              label: str = "round 2", param_events: Sequence[ParamEvent] = (), param_log: list | None = None,
+              log: Callable[[str], None] = print) -> list[RobotRun]:
     """Run ``specs`` as processes over DDS until every robot has composed ``slots`` slots of its round, within
     ``timeout_s`` of setting off (else TimeoutError); return each robot's run (see the module docstring).
 
@@ -139,7 +142,9 @@ def run_round(specs: Sequence[ProcessSpec], *, run_dir: Path, slots: int, timeou
     ``end``) and the events applied. ``kill_safe`` selects the kill-safe DDS transport, ``domain_id`` the ROS
     domain (default: a random one), ``warm_timeout_s`` how long the servers may take to compose before the
     robots set off anyway (default 60 s + 30 s per further robot), ``label`` what the progress lines call the
-    round (``gsrmr-demo --rounds``: "round k").
+    round (``gsrmr-demo --rounds``: "round k"). ``param_events`` (one host only) run ``ros2 param set`` at their
+    round slots (:mod:`gsrmr_sim.param_events`); ``param_log`` (a list) receives each one's slot, exit code and
+    output once the round is over.
     """
     domain = random_domain_id() if domain_id is None else domain_id
     runs = robot_runs(specs)
@@ -172,8 +177,12 @@ def run_round(specs: Sequence[ProcessSpec], *, run_dir: Path, slots: int, timeou
             link_log["start"] = net.link_bytes()
         meter = CpuMeter({proc.pid for proc in stack.procs.values()})
         meter.take()
-        _follow_round(stack, runs, slots=slots, timeout_s=timeout_s, net=net, link_events=link_events,
-                      link_log=link_log, meter=meter, fleet=fleet, label=label, log=log)
+        if param_events and hosts != 1:
+            raise ValueError("parameter events run on one host only")
+        started = _follow_round(stack, runs, slots=slots, timeout_s=timeout_s, net=net, link_events=link_events,
+                                link_log=link_log, meter=meter, fleet=fleet, label=label, log=log,
+                                param_events=param_events)
+        _finish_param_events(started, param_log, log)
         meter.take()
         round_start_s = max(run.rows_so_far()[run.first_moving]["stamp_s"] for run in runs.values())
         _count_cpu(specs, stack, runs, meter.round_usage(round_start_s))
@@ -227,11 +236,15 @@ def _start_and_set_off(stack: ProcessStack, specs: Sequence[ProcessSpec], runs: 
 
 def _follow_round(stack: ProcessStack, runs: Mapping[str, RobotRun], *, slots: int, timeout_s: float,
                   net: TwoHosts | None, link_events: Sequence[LinkEvent], link_log: dict | None, meter: CpuMeter,
-                  fleet: bool, label: str, log: Callable[[str], None]) -> None:
+                  fleet: bool, label: str, log: Callable[[str], None],
+                  param_events: Sequence[ParamEvent] = ()) -> list[tuple[ParamEvent, subprocess.Popen, int, Path]]:
     """Until every robot has composed ``slots`` round slots: find where each robot's round starts, apply the
     link events that are due, take a CPU snapshot and log the progress; sets each run's ``first_moving`` and
-    ``round_start``. Raises :class:`~gsrmr_sim.supervisor.ProcessDiedError` or TimeoutError."""
+    ``round_start``; starts the parameter events that are due (returned: each with its process, the round slot it
+    was started after and its log). Raises :class:`~gsrmr_sim.supervisor.ProcessDiedError` or TimeoutError."""
     events = sorted(link_events, key=lambda e: e.at_slot)
+    pending = sorted(param_events, key=lambda e: e.at_slot)
+    started: list[tuple[ParamEvent, subprocess.Popen, int, Path]] = []
     first: dict[str, int | None] = dict.fromkeys(runs)
     from_radio: set[str] = set()
     done: dict[str, int] = dict.fromkeys(runs, 0)
@@ -263,6 +276,11 @@ def _follow_round(stack: ProcessStack, runs: Mapping[str, RobotRun], *, slots: i
                 link_log.setdefault("events", []).append(
                     {**event.as_dict(), "applied_after_slot": least, "wall_s": time.time()})
             log(f"link: {event.describe()} (round slot ~{least}{' of every robot' if fleet else ''})")
+        while pending and least >= pending[0].at_slot:
+            param = pending.pop(0)
+            out = stack.log_dir / f"param_set_{len(started)}.log"
+            started.append((param, param.start(stack.env, out), least, out))
+            log(f"{param.describe()} (round slot ~{least})")
         if least >= slots:
             break
         if time.monotonic() - last_report > PROGRESS_LOG_S:
@@ -277,6 +295,26 @@ def _follow_round(stack: ProcessStack, runs: Mapping[str, RobotRun], *, slots: i
     for name, run in runs.items():
         run.first_moving = int(first[name])  # type: ignore[arg-type]
         run.round_start = "radio log" if name in from_radio else "slots.csv"
+    return started
+
+
+def _finish_param_events(started: Sequence[tuple[ParamEvent, subprocess.Popen, int, Path]], param_log: list | None,
+                         log: Callable[[str], None], timeout_s: float = 30.0) -> None:
+    """Wait for the started ``ros2 param set`` commands (at most ``timeout_s`` each, then killed) and record each
+    one in ``param_log``: the event, the round slot it started after, its exit code and its output's last line."""
+    for event, proc, after_slot, out in started:
+        try:
+            rc = proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            rc = proc.wait()
+        lines = [line for line in out.read_text(errors="replace").splitlines() if line.strip()]
+        answer = lines[-1] if lines else ""
+        if rc != 0:
+            log(f"{event.describe()} failed ({rc}): {answer}")
+        if param_log is not None:
+            param_log.append({**event.as_dict(), "started_after_slot": after_slot, "returncode": rc,
+                              "answer": answer})
 
 
 def _count_cpu(specs: Sequence[ProcessSpec], stack: ProcessStack, runs: Mapping[str, RobotRun],

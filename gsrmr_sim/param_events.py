@@ -1,0 +1,86 @@
+"""Parameter changes during a round, made as an operator makes them: ``ros2 param set`` (``gsrmr-demo --swap-model``).
+
+A :class:`ParamEvent` runs ``ros2 param set /NODE NAME VALUE`` in the stack's ROS domain once the round has composed
+``at_slot`` slots (the runner, :mod:`gsrmr_sim.stack_runner`, starts it and does not wait for it: the round goes on
+while the CLI discovers the node). The first use is issue 27's hot swap inside a live round: the server's
+``model_path`` set to a new model (the server must run with ``live_parameter_changes`` on); its log then says at
+which slot the new model took over (:func:`swap_slots`), and the round's slots on time say whether any was missed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+import re
+import subprocess
+import sys
+
+#: The server's log line of a swap (gsrmr_server.server_node): "model swapped in at slot N: PATH (…)".
+SWAP_LINE = re.compile(r"model swapped in at slot (\d+): (\S+)")
+
+
+def ros2_cli() -> str:
+    """The ``ros2`` command of this environment (beside the interpreter), else as found on PATH."""
+    beside = Path(sys.executable).parent / "ros2"
+    return str(beside) if beside.exists() else "ros2"
+
+
+@dataclass(frozen=True)
+class ParamEvent:
+    """``ros2 param set /node name value`` once the round has composed ``at_slot`` slots."""
+
+    at_slot: int
+    node: str
+    name: str
+    value: str
+
+    def argv(self) -> list[str]:
+        """The command line (no daemon: nothing outlives the round)."""
+        return [ros2_cli(), "param", "set", "--no-daemon", f"/{self.node.lstrip('/')}", self.name, self.value]
+
+    def start(self, env: dict[str, str], log_path: Path) -> subprocess.Popen:
+        """Start the command in ``env`` (the stack's: its ROS domain), its output to ``log_path``."""
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+        with open(log_path, "w") as out:
+            return subprocess.Popen(self.argv(), env=env, stdout=out, stderr=subprocess.STDOUT,
+                                    start_new_session=True)
+
+    def describe(self) -> str:
+        """``ros2 param set /gsrmr_server model_path v1.ply`` (the runner's log)."""
+        return f"ros2 param set /{self.node.lstrip('/')} {self.name} {self.value}"
+
+    def as_dict(self) -> dict:
+        """The event as the report's ``param_events`` list has it."""
+        return {"at_slot": self.at_slot, "node": self.node, "name": self.name, "value": self.value}
+
+
+def swap_model_event(text: str) -> ParamEvent:
+    """``"MODEL.ply@SLOT"`` → the server's ``model_path`` set to MODEL.ply (absolute) at round slot SLOT.
+    ValueError for anything else, or a file that does not exist."""
+    path, sep, at = text.rpartition("@")
+    if not (sep and path and at.isdigit()):
+        raise ValueError(f"--swap-model {text!r}: expected MODEL.ply@SLOT")
+    model = Path(path).expanduser().resolve()
+    if not model.is_file():
+        raise ValueError(f"--swap-model {text!r}: {model} is no file")
+    return ParamEvent(int(at), "gsrmr_server", "model_path", str(model))
+
+
+def swap_slots(server_log: str) -> list[dict]:
+    """The swaps a server log reports: ``[{"slot": N, "path": PATH}, …]`` (N the server's slot index)."""
+    return [{"slot": int(m.group(1)), "path": m.group(2).rstrip(":")} for m in SWAP_LINE.finditer(server_log)]
+
+
+def swap_summary(param_log: list[dict], server_log: str, rows: list[dict], slot_s: float, around: int = 5) -> dict:
+    """The report's figures of the swaps in a round: ``param_events`` (each ``ros2 param set``: its round slot, exit
+    code, answer) and ``model_swaps`` (each swap the server logged: its slot, the round slot it is (None: outside the
+    scored rows), the model, and how many of the ``2·around + 1`` scored slots around it were on time:
+    ``latency_ms`` ≤ ``slot_s``)."""
+    index = {int(r["slot"]): i for i, r in enumerate(rows)}
+    swaps = []
+    for swap in swap_slots(server_log):
+        i = index.get(swap["slot"])
+        near = rows[max(0, i - around):i + around + 1] if i is not None else []
+        on_time = sum(1 for r in near if float(r["latency_ms"]) <= 1e3 * slot_s)
+        swaps.append({**swap, "round_slot": i, "on_time_around": f"{on_time}/{len(near)}"})
+    return {"param_events": list(param_log), "model_swaps": swaps}

@@ -1,0 +1,30 @@
+"""gsrmr-demo --swap-model (gsrmr_sim/param_events.py): the event it makes, the command it runs, the swaps it reports."""
+
+from __future__ import annotations
+
+import pytest
+
+from gsrmr_sim.param_events import swap_model_event, swap_slots, swap_summary
+
+
+def test_a_swap_event_sets_the_server_model_path_at_its_round_slot(tmp_path):
+    model = tmp_path / "model_v2.ply"
+    model.write_bytes(b"ply\n")
+    ev = swap_model_event(f"{model}@144")
+    assert (ev.at_slot, ev.node, ev.name, ev.value) == (144, "gsrmr_server", "model_path", str(model))
+    assert ev.argv()[1:] == ["param", "set", "--no-daemon", "/gsrmr_server", "model_path", str(model)]
+    for bad in (f"{model}", f"{model}@x", "@3", f"{tmp_path / 'missing.ply'}@3"):
+        with pytest.raises(ValueError):
+            swap_model_event(bad)
+
+
+def test_the_report_places_each_logged_swap_in_the_round_and_counts_the_slots_on_time_around_it():
+    log = ("[INFO] [gsrmr_server]: model swapped in at slot 1005: /m/model_v2.ply (9 Gaussians, loaded in 0.10 s)\n"
+           "[INFO] [gsrmr_server]: model swapped in at slot 77: /m/model_v3.ply (9 Gaussians, loaded in 0.10 s)\n")
+    assert swap_slots(log) == [{"slot": 1005, "path": "/m/model_v2.ply"}, {"slot": 77, "path": "/m/model_v3.ply"}]
+    rows = [{"slot": 1000 + i, "latency_ms": 150.0 if i == 7 else 20.0} for i in range(20)]
+    out = swap_summary([{"at_slot": 4}], log, rows, 0.1, around=3)
+    assert out["param_events"] == [{"at_slot": 4}]
+    assert out["model_swaps"][0] == {"slot": 1005, "path": "/m/model_v2.ply", "round_slot": 5,
+                                     "on_time_around": "6/7"}  # slot 1007 late
+    assert out["model_swaps"][1]["round_slot"] is None and out["model_swaps"][1]["on_time_around"] == "0/0"
