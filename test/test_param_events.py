@@ -1,4 +1,4 @@
-"""gsrmr-demo --swap-model (gsrmr_sim/param_events.py): the event it makes, the command it runs, the swaps it reports."""
+"""gsrmr-demo --swap-model (gsrmr_sim/param_events.py): the event, the command it runs, the swaps it reports."""
 
 from __future__ import annotations
 
