@@ -43,10 +43,10 @@ from gsrmr_sim import netns
 from gsrmr_sim.fleet import fleet_demo
 from gsrmr_sim.link_events import LinkEvent, parse_link_events
 from gsrmr_sim.models import LIVE_MAX_PSNR_DROP_DB, BuiltModel, live_model, live_recipe
-from gsrmr_sim.param_events import ParamEvent, swap_model_event, swap_summary
+from gsrmr_sim.param_events import ParamEvent, swap_loss_map_event, swap_model_event, swap_summary
 from gsrmr_sim.report import copy_recording, link_summary, log, run_summary, summary_json, write_report
 from gsrmr_sim.round_start import first_moving_slot as first_moving_slot  # re-exported: test_pipeline_units
-from gsrmr_sim.rounds import run_rounds
+from gsrmr_sim.rounds import run_rounds, worlds_cache
 from gsrmr_sim.sim_stack import config_dir, robot_jpeg_quality, sim_stack
 from gsrmr_sim.stack_runner import RobotRun, limo_link_path, run_round
 from gsrmr_sim.survey import SURVEY_VERSION, gs_losses, loss_map_from
@@ -190,7 +190,7 @@ def rounds_demo(args: argparse.Namespace, *, scene_name: str, slots: int, slot_s
 
     rounds = run_rounds(args, scene_name=scene_name, slots=slots, slot_s=slot_s, model=built.path, loss_map=seed,
                         mapping_dataset=built.folder / "round1", out=out, run_round=one_round,
-                        cache_dir=Path(args.cache) / f"worlds-{scene_name}")
+                        cache_dir=worlds_cache(Path(args.cache), scene_name))
     summary = {"scene": scene_name, "loss_threshold": args.loss_threshold, "channel_seed": args.channel_seed,
                "update": bool(args.update), **inputs, "rounds": rounds, "report_dir": str(out),
                "wall_s": round(time.perf_counter() - t_start, 1)}
@@ -257,6 +257,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="a hot swap inside the round: `ros2 param set /gsrmr_server model_path MODEL.ply` once "
                          "SLOT round slots are composed (turns on the server's live_parameter_changes; one robot, "
                          "one host); the report's model_swaps say where it took over and the slots on time around it")
+    ap.add_argument("--swap-loss-map", action="append", default=[], metavar="MAP.json@SLOT",
+                    help="the scheduler's seed map follows: `ros2 param set /gsrmr_scheduler loss_map_file MAP.json` "
+                         "once SLOT round slots are composed (the new model's gsrmr-survey; turns on the scheduler's "
+                         "live_parameter_changes); the report's loss_map_reseeds list what it took")
     ap.add_argument("--robots", type=int, default=None, metavar="N",
                     help="a fleet: N robots at once (namespaces /robot1 … /robotN, each with its own server, "
                          "scheduler and simulated world; channel seed + k - 1 for robot k), one report folder per "
@@ -307,13 +311,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     elif link_events:
         ap.error("--link-events needs --hosts 2")
     try:
-        swap_events = [swap_model_event(text) for text in args.swap_model]
+        model_swaps = [swap_model_event(text) for text in args.swap_model]
+        map_swaps = [swap_loss_map_event(text) for text in args.swap_loss_map]
     except ValueError as e:
         ap.error(str(e))
+    swap_events = model_swaps + map_swaps
     if swap_events:
         if args.hosts != 1 or args.robots is not None or args.rounds > 1:
-            ap.error("--swap-model runs in a single robot's round on one host (no --hosts 2, --robots, --rounds)")
-        args.overrides.setdefault("gsrmr_server", {})["live_parameter_changes"] = True
+            ap.error("--swap-model and --swap-loss-map run in a single robot's round on one host (no --hosts 2, "
+                     "--robots, --rounds)")
+        for event in swap_events:
+            args.overrides.setdefault(event.node, {})["live_parameter_changes"] = True
     if args.model is not None:
         given = [f"--{name.replace('_', '-')}" for name in MODEL_BUILDING_OPTIONS
                  if getattr(args, name) not in (None, False, 0)]
@@ -378,7 +386,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                **({"model_compacted": None} if outside_model is not None else {}),  # not known of an outside model
                "hosts": args.hosts, **(link_summary(link_log, rows, args.uplink_mbit) if args.hosts == 2 else {}),
                **(swap_summary(param_log, (out / "logs" / "gsrmr_server.log").read_text(errors="replace"), rows,
-                               scene.slot_s) if swap_events else {}),
+                               scene.slot_s, scheduler_log=(out / "logs" / "gsrmr_scheduler.log").read_text(
+                                   errors="replace")) if swap_events else {}),
                "report_dir": str(out)}
     write_report(out, rows, summary)
     print(f"\ngsrmr demo — scene {args.scene}, L_th {args.loss_threshold}, {summary['slots']} slots "

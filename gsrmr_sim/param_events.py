@@ -5,6 +5,8 @@ A :class:`ParamEvent` runs ``ros2 param set /NODE NAME VALUE`` in the stack's RO
 while the CLI discovers the node). The first use is issue 27's hot swap inside a live round: the server's
 ``model_path`` set to a new model (the server must run with ``live_parameter_changes`` on); its log then says at
 which slot the new model took over (:func:`swap_slots`), and the round's slots on time say whether any was missed.
+The scheduler's seed loss map follows the same way (``gsrmr-demo --swap-loss-map``): its ``loss_map_file`` set to
+the new model's deployment survey (``gsrmr-survey``), logged as "loss map re-seeded from …" (:func:`reseeds`).
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ import sys
 
 #: The server's log line of a swap (gsrmr_server.server_node): "model swapped in at slot N: PATH (…)".
 SWAP_LINE = re.compile(r"model swapped in at slot (\d+): (\S+)")
+#: The scheduler's log line of a new seed map (gsrmr_server.scheduler_node): "loss map re-seeded from PATH (N cells)".
+RESEED_LINE = re.compile(r"loss map re-seeded from (\S+) \((\d+) cells\)")
 
 
 def ros2_cli() -> str:
@@ -54,16 +58,30 @@ class ParamEvent:
         return {"at_slot": self.at_slot, "node": self.node, "name": self.name, "value": self.value}
 
 
+def _file_at_slot(text: str, option: str, what: str) -> tuple[Path, int]:
+    """``"FILE@SLOT"`` → (FILE absolute, SLOT); ValueError for anything else, or a file that does not exist."""
+    path, sep, at = text.rpartition("@")
+    if not (sep and path and at.isdigit()):
+        raise ValueError(f"{option} {text!r}: expected {what}@SLOT")
+    file = Path(path).expanduser().resolve()
+    if not file.is_file():
+        raise ValueError(f"{option} {text!r}: {file} is no file")
+    return file, int(at)
+
+
 def swap_model_event(text: str) -> ParamEvent:
     """``"MODEL.ply@SLOT"`` → the server's ``model_path`` set to MODEL.ply (absolute) at round slot SLOT.
     ValueError for anything else, or a file that does not exist."""
-    path, sep, at = text.rpartition("@")
-    if not (sep and path and at.isdigit()):
-        raise ValueError(f"--swap-model {text!r}: expected MODEL.ply@SLOT")
-    model = Path(path).expanduser().resolve()
-    if not model.is_file():
-        raise ValueError(f"--swap-model {text!r}: {model} is no file")
-    return ParamEvent(int(at), "gsrmr_server", "model_path", str(model))
+    model, at = _file_at_slot(text, "--swap-model", "MODEL.ply")
+    return ParamEvent(at, "gsrmr_server", "model_path", str(model))
+
+
+def swap_loss_map_event(text: str) -> ParamEvent:
+    """``"MAP.json@SLOT"`` → the scheduler's ``loss_map_file`` set to MAP.json (absolute) at round slot SLOT (the
+    scheduler reads and checks the file itself, and refuses one that is no loss map). ValueError as
+    :func:`swap_model_event`."""
+    loss_map, at = _file_at_slot(text, "--swap-loss-map", "MAP.json")
+    return ParamEvent(at, "gsrmr_scheduler", "loss_map_file", str(loss_map))
 
 
 def swap_slots(server_log: str) -> list[dict]:
@@ -71,11 +89,17 @@ def swap_slots(server_log: str) -> list[dict]:
     return [{"slot": int(m.group(1)), "path": m.group(2).rstrip(":")} for m in SWAP_LINE.finditer(server_log)]
 
 
-def swap_summary(param_log: list[dict], server_log: str, rows: list[dict], slot_s: float, around: int = 5) -> dict:
+def reseeds(scheduler_log: str) -> list[dict]:
+    """The seed maps a scheduler log reports taking: ``[{"path": PATH, "cells": N}, …]``."""
+    return [{"path": m.group(1), "cells": int(m.group(2))} for m in RESEED_LINE.finditer(scheduler_log)]
+
+
+def swap_summary(param_log: list[dict], server_log: str, rows: list[dict], slot_s: float, around: int = 5,
+                 scheduler_log: str = "") -> dict:
     """The report's figures of the swaps in a round: ``param_events`` (each ``ros2 param set``: its round slot, exit
-    code, answer) and ``model_swaps`` (each swap the server logged: its slot, the round slot it is (None: outside the
+    code, answer), ``model_swaps`` (each swap the server logged: its slot, the round slot it is (None: outside the
     scored rows), the model, and how many of the ``2·around + 1`` scored slots around it were on time:
-    ``latency_ms`` ≤ ``slot_s``)."""
+    ``latency_ms`` ≤ ``slot_s``) and ``loss_map_reseeds`` (each seed map the scheduler logged taking)."""
     index = {int(r["slot"]): i for i, r in enumerate(rows)}
     swaps = []
     for swap in swap_slots(server_log):
@@ -83,4 +107,4 @@ def swap_summary(param_log: list[dict], server_log: str, rows: list[dict], slot_
         near = rows[max(0, i - around):i + around + 1] if i is not None else []
         on_time = sum(1 for r in near if float(r["latency_ms"]) <= 1e3 * slot_s)
         swaps.append({**swap, "round_slot": i, "on_time_around": f"{on_time}/{len(near)}"})
-    return {"param_events": list(param_log), "model_swaps": swaps}
+    return {"param_events": list(param_log), "model_swaps": swaps, "loss_map_reseeds": reseeds(scheduler_log)}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from gsrmr_sim.param_events import swap_model_event, swap_slots, swap_summary
+from gsrmr_sim.param_events import reseeds, swap_loss_map_event, swap_model_event, swap_slots, swap_summary
 
 
 def test_a_swap_event_sets_the_server_model_path_at_its_round_slot(tmp_path):
@@ -28,3 +28,17 @@ def test_the_report_places_each_logged_swap_in_the_round_and_counts_the_slots_on
     assert out["model_swaps"][0] == {"slot": 1005, "path": "/m/model_v2.ply", "round_slot": 5,
                                      "on_time_around": "6/7"}  # slot 1007 late
     assert out["model_swaps"][1]["round_slot"] is None and out["model_swaps"][1]["on_time_around"] == "0/0"
+
+
+def test_a_loss_map_swap_sets_the_scheduler_loss_map_file_and_the_report_lists_what_it_took(tmp_path):
+    loss_map = tmp_path / "loss_map_v2.json"
+    loss_map.write_text("{}")
+    ev = swap_loss_map_event(f"{loss_map}@150")
+    assert (ev.at_slot, ev.node, ev.name, ev.value) == (150, "gsrmr_scheduler", "loss_map_file", str(loss_map))
+    for bad in (f"{loss_map}", f"{loss_map}@", f"{tmp_path / 'missing.json'}@3"):
+        with pytest.raises(ValueError, match="--swap-loss-map"):
+            swap_loss_map_event(bad)
+    log = "[INFO] [gsrmr_scheduler]: loss map re-seeded from /m/loss_map_v2.json (31 cells)\n"
+    assert reseeds(log) == [{"path": "/m/loss_map_v2.json", "cells": 31}]
+    assert swap_summary([], "", [], 0.1, scheduler_log=log)["loss_map_reseeds"] == reseeds(log)
+    assert swap_summary([], "", [], 0.1)["loss_map_reseeds"] == []
