@@ -33,6 +33,7 @@ import numpy as np
 from gsrmr_common.nerfstudio import read_dataset
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.splatting.render import render
+from gsrmr_sim.rounds import worlds_cache
 from gsrmr_sim.world.recorder import Round2Record, record_round2
 from gsrmr_sim.world.scene import Scene, load_scene
 
@@ -81,10 +82,11 @@ def received_dataset(run_dir: Path, k: int) -> Path:
     return out
 
 
-def transient_spans(scene: Scene, margin_s: float) -> list[tuple[float, float]]:
-    """The scene's transient events' time spans (s from the round's first slot), widened by ``margin_s``."""
-    return [(ev.from_s - margin_s, ev.to_s + margin_s) for ev in scene.events
-            if not ev.from_round and math.isfinite(ev.to_s)]
+def transient_spans(scene: Scene, margin_s: float, scored_round: int) -> list[tuple[float, float]]:
+    """The scene's transient events' time spans in scored round ``scored_round`` (s from the round's first slot; each
+    shifted by its ``round_shift_s``), widened by ``margin_s``."""
+    spans = [ev.span_s(scored_round) for ev in scene.events if not ev.from_round and math.isfinite(ev.to_s)]
+    return [(a - margin_s, b + margin_s) for a, b in spans]
 
 
 def _mean(values: list[float]) -> str:
@@ -107,7 +109,7 @@ def main() -> int:
     background = np.asarray(scene.background, np.float32)
     versions = [int(v) for v in args.versions.split(",")]
     models = {v: GaussianModel.load_ply(str(args.run_dir / "models" / f"model_v{v}.ply")) for v in versions}
-    cache = args.cache / f"worlds-{args.scene}"
+    cache = worlds_cache(args.cache, args.scene)
     print(f"# bench/rounds_truth.py {args.run_dir} --scene {args.scene} --round {args.round} (hindsight; before: "
           f"{machine_line()} (bench/machine.py))")
     print(f"\n## Against the truth at the true camera: PSNR per {args.windows} windows of the lap, pooled\n")
@@ -118,7 +120,7 @@ def main() -> int:
         for v, model in models.items():
             per, pooled = truth_windows(model, record, background, args.windows)
             print(f"| {label} | v{v} | " + " | ".join(f"{p:.1f}" for p in per) + f" | {pooled:.2f} |", flush=True)
-    spans = transient_spans(scene, args.margin_s)
+    spans = transient_spans(scene, args.margin_s, args.round)
     dataset = received_dataset(args.run_dir, args.round)
     frames = read_dataset(dataset)
     with open(dataset / "frames.csv") as f:

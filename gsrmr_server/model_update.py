@@ -14,7 +14,11 @@ server received, as a dataset"). An update (:func:`update_model`):
    :attr:`UpdateConfig.supersede_deg` (30°) of it, the same view later — is not replayed (:func:`superseded`):
    replaying the old view would teach the model the world before the change the received one shows. A held-out
    frame supersedes nothing: it is not trained on, and where neither view is trained on the fine-tune learns
-   nothing there and drifts (docs/results.md, "The update's collapse"). The current model is fine-tuned
+   nothing there and drifts (docs/results.md, "The update's collapse"). A received frame teaches only what it shares
+   with the current model and the changes **another round confirms** (:mod:`gsrmr_server.change_confirmation`): a
+   change seen once — a person crossing, a flickering light — is replaced by the current model's render in that
+   frame, so it is not burned in (:attr:`UpdateConfig.confirm_changes`; it needs the round each frame came from,
+   ``received_rounds``). The current model is fine-tuned
    (:func:`update_train_config`: the recipe's rates, the position rate at its final value, the SH degree fixed, no
    opacity reset; densification on, so a new object can grow Gaussians, up to :attr:`UpdateConfig.growth` more of
    them; no pruning of what the training views do not see — they see part of the scene) and, optionally, compacted
@@ -49,6 +53,7 @@ import time
 import numpy as np
 
 from gsrmr_common.nerfstudio import DatasetFrame
+from gsrmr_server.change_confirmation import ConfirmConfig, confirm_changes
 from gsrmr_server.splatting.compact import CompactConfig, Compactor
 from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.splatting.train import TrainConfig, Trainer
@@ -74,6 +79,8 @@ class UpdateConfig:
     significance_z: float = 2.0  # the mean improvement must exceed this many standard errors
     compact: bool = True  # compact the fine-tuned model again
     max_psnr_drop_db: float = 0.3  # compaction's tolerance on the held-out frames
+    confirm_changes: bool = True  # learn a change only where another round's frame saw it too
+    confirm: ConfirmConfig = field(default_factory=ConfirmConfig)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -116,11 +123,12 @@ class UpdateResult:
     replay_frames: int
     superseded_frames: int
     heldout_frames: int
-    finetune_cpu_s: float
+    finetune_cpu_s: float  # confirmation included
     compact_cpu_s: float
     gaussians_before: int
     gaussians_after: int
     notes: list[str] = field(default_factory=list)
+    confirmation: dict | None = None  # changed / confirmed cells (None: not run)
 
 
 def split_received(frames: Sequence[DatasetFrame], holdout: int) -> tuple[list[DatasetFrame], list[DatasetFrame]]:
@@ -202,19 +210,33 @@ def update_train_config(base: TrainConfig, steps: int, sh_degree: int, budget: i
 
 def update_model(current: GaussianModel, received: Sequence[DatasetFrame], mapping: Sequence[DatasetFrame],
                  score: Scorer, train_config: TrainConfig, config: UpdateConfig | None = None,
-                 log: Callable[[str], None] = lambda _line: None) -> UpdateResult:
-    """One update (module docstring, 1–3): the candidate and its verdict. ValueError when nothing can be trained."""
+                 log: Callable[[str], None] = lambda _line: None,
+                 received_rounds: Sequence[int] | None = None) -> UpdateResult:
+    """One update (module docstring, 1–3): the candidate and its verdict. ``received_rounds[i]``: the round received
+    frame ``i`` came from (for the change confirmation; None: not confirmed, every received pixel trained on).
+    ValueError when nothing can be trained."""
     cfg = config or UpdateConfig()
+    if received_rounds is not None and len(received_rounds) != len(received):
+        raise ValueError(f"update: {len(received)} received frames but {len(received_rounds)} round indices")
     train_rx, heldout = split_received(received, cfg.holdout_frames)
     stale = superseded(mapping, train_rx, cfg.supersede_m, cfg.supersede_deg)
     replay = replay_buffer([f for f, old in zip(mapping, stale, strict=True) if not old], cfg.replay_frames)
+    cpu0 = time.process_time()
+    confirmation = None
+    if cfg.confirm_changes and received_rounds is not None and train_rx:
+        confirmed = confirm_changes(current, train_rx, list(received_rounds)[:len(train_rx)],
+                                    train_config.background, cfg.confirm)
+        log(f"update: {confirmed.summary()}")
+        train_rx = confirmed.frames
+        confirmation = {"cells": confirmed.cells, "changed_cells": confirmed.changed_cells,
+                        "confirmed_cells": confirmed.confirmed_cells,
+                        "frames_with_changes": confirmed.frames_with_changes}
     train = train_rx + replay
     if not train:
         raise ValueError("update: no frame to train on (no received frame beside the held-out ones, no replay)")
     log(f"update: {len(train_rx)} received frames + {len(replay)} replayed mapping frames to train "
         f"({int(stale.sum())} of {len(mapping)} superseded by a received view), {len(heldout)} received frames held "
         "out")
-    cpu0 = time.process_time()
     tune = update_train_config(train_config, cfg.finetune_steps, current.sh_degree,
                                budget=math.ceil((1.0 + cfg.growth) * current.num_gaussians))
     trainer = Trainer(train, tune, initial_model=current)
@@ -242,7 +264,7 @@ def update_model(current: GaussianModel, received: Sequence[DatasetFrame], mappi
     verdict = paired_verdict(before, after, significance_z=cfg.significance_z, min_frames=cfg.min_holdout_frames)
     log(f"update: {'accepted' if verdict.accepted else 'refused'}: {verdict.reason}")
     return UpdateResult(candidate, verdict, len(train_rx), len(replay), int(stale.sum()), len(heldout), finetune_cpu_s,
-                        compact_cpu_s, current.num_gaussians, candidate.num_gaussians, notes)
+                        compact_cpu_s, current.num_gaussians, candidate.num_gaussians, notes, confirmation)
 
 
 # ---------------------------------------------------------------------------------------------------- versions

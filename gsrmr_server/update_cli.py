@@ -5,7 +5,8 @@ first version comes from ``--init MODEL.ply`` (the mapping round's model). Each 
 ``gsrmr-dataset`` made of a server's ``run.mcap`` (docs/dataset_tool.md, "What the server received, as a
 dataset"), oldest first; ``--mapping`` is the mapping round's dataset (the replay buffer). The version in use —
 the newest accepted one — is fine-tuned, compacted again (``--no-compact`` to skip) and validated on the most
-recent received frames, held out, by the MR loss the live server would pay there (composition options as
+recent received frames, held out, by the MR loss the live server would pay there; a received frame teaches only the
+changes another ``--received`` round saw too (``--no-confirm``: every pixel; composition options as
 ``gsrmr-survey``'s); the new version is written either way, accepted or refused with the reason. The last stdout
 line is a JSON object: ``version``, ``parent``, ``accepted``, ``reason``, ``heldout_loss_before``,
 ``heldout_loss_after``, ``finetune_cpu_s``, ``compact_cpu_s``, ``model`` (the .ply to use now: the new one if
@@ -21,6 +22,7 @@ import sys
 
 from gsrmr_common.nerfstudio import DatasetFrame
 from gsrmr_common.wire import PoseKey
+from gsrmr_server.change_confirmation import ConfirmConfig
 from gsrmr_server.compose import to_u8
 from gsrmr_server.deployment_survey import (
     SurveyInputError,
@@ -71,6 +73,12 @@ def parser() -> argparse.ArgumentParser:
     up.add_argument("--significance-z", type=float, default=d.significance_z,
                     help="accept when the mean held-out improvement exceeds this many standard errors")
     up.add_argument("--no-compact", action="store_true", help="do not compact the fine-tuned model")
+    up.add_argument("--no-confirm", action="store_true",
+                    help="train on every received pixel: a change seen in one round only (a person crossing) is "
+                         "learned too (default: only changes another --received round confirms)")
+    up.add_argument("--change-threshold", type=float, default=d.confirm.threshold,
+                    help="a cell of a received frame is changed when its mean |image − render| exceeds this "
+                         "(colour in [0, 1])")
     up.add_argument("--max-psnr-drop-db", type=float, default=d.max_psnr_drop_db, help="compaction's tolerance")
     up.add_argument("--train-width", type=int, default=TRAIN_WIDTH_PX, help="training width [px]")
     up.add_argument("--budget", type=int, default=TRAIN_BUDGET, help="at most this many Gaussians")
@@ -122,15 +130,19 @@ def run(args: argparse.Namespace, log=print) -> dict:
         config = UpdateConfig(holdout_frames=args.holdout, min_holdout_frames=args.min_holdout,
                               replay_frames=args.replay, finetune_steps=args.steps, growth=args.growth,
                               significance_z=args.significance_z, compact=not args.no_compact,
-                              max_psnr_drop_db=args.max_psnr_drop_db, seed=args.seed)
+                              max_psnr_drop_db=args.max_psnr_drop_db, confirm_changes=not args.no_confirm,
+                              confirm=ConfirmConfig(threshold=args.change_threshold), seed=args.seed)
     except ValueError as err:
         raise SurveyInputError(str(err)) from err
-    received = [f for d in args.received for f in _frames(d)]
+    per_round = [_frames(d) for d in args.received]
+    received = [f for frames in per_round for f in frames]
+    received_rounds = [k for k, frames in enumerate(per_round) for _ in frames]
     mapping = _frames(args.mapping) if args.mapping is not None else []
     current = GaussianModel.load_ply(version_paths(args.models, parent)[0])
     train = TrainConfig(resolution=args.train_width, sh_degree=current.sh_degree, budget=args.budget,
                         background=tuple(args.background), seed=args.seed)
-    result = update_model(current, received, mapping, mr_loss_scorer(args), train, config, log=log)
+    result = update_model(current, received, mapping, mr_loss_scorer(args), train, config, log=log,
+                          received_rounds=received_rounds)
     v = result.verdict
     record = {"parent": parent, "accepted": v.accepted, "reason": v.reason,
               "rounds": [str(d) for d in args.received], "image_slots": len(received),
@@ -138,7 +150,8 @@ def run(args: argparse.Namespace, log=print) -> dict:
               "superseded_frames": result.superseded_frames, "heldout_frames": result.heldout_frames,
               "heldout_loss_before": v.as_dict()["loss_before"], "heldout_loss_after": v.as_dict()["loss_after"],
               "finetune_steps": config.finetune_steps, "finetune_cpu_s": round(result.finetune_cpu_s, 2),
-              "compact_cpu_s": round(result.compact_cpu_s, 2), "notes": result.notes}
+              "compact_cpu_s": round(result.compact_cpu_s, 2), "confirmation": result.confirmation,
+              "notes": result.notes}
     version = write_version(args.models, result.model, record)
     use = version if v.accepted else parent
     return {"version": version, **record, "model": str(version_paths(args.models, use)[0])}

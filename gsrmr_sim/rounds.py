@@ -48,7 +48,7 @@ from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.splatting.render import render
 from gsrmr_sim.report import log
 from gsrmr_sim.world.recorder import Round2Record, record_round2
-from gsrmr_sim.world.scene import Scene, load_scene
+from gsrmr_sim.world.scene import Scene, load_scene, scene_digest
 
 #: the mock camera's node name (the ``round`` parameter set per scored round)
 CAMERA_NODE = "gsrmr_mock_camera"
@@ -148,6 +148,11 @@ def survey_frames(mapping_dataset: Path, received_dataset: Path, out_dir: Path,
     frames = [f for f, old in zip(held_mapping, stale, strict=True) if not old] + held_received
     write_dataset(out_dir, frames)
     return out_dir
+
+
+def worlds_cache(cache_root: Path, scene_name: str) -> Path:
+    """The folder the headless laps of ``scene_name``'s rounds are cached in (keyed by the scene file's digest)."""
+    return Path(cache_root) / f"worlds-{scene_name}-{scene_digest(scene_name)}"
 
 
 def model_psnr_now_db(model: GaussianModel, scene: Scene, scored_round: int, slots: int,

@@ -196,9 +196,11 @@ def test_update_cli_writes_a_version_and_names_the_model_to_use(tmp_path, worlds
     received = [DatasetFrame(f.camera, f.image, None, (float(f.camera.camera_to_world[0, 3]),
                                                        float(f.camera.camera_to_world[1, 3]), 0.0), f.file_path)
                 for f in render_views(changed, cams, with_depth=False)]
-    write_dataset(tmp_path / "round1", received)
+    # two rounds of neighbouring views (each confirms the other's changes); round 2 ends with the 8 held out
+    write_dataset(tmp_path / "round1", received[:-8:2])
+    write_dataset(tmp_path / "round2", received[1:-8:2] + received[-8:])
     current.save_ply(tmp_path / "mapping.ply")
-    args = ["--received", str(tmp_path / "round1"), "--mapping", str(tmp_path / "mapping"), "--steps", "300",
+    args = ["--received", str(tmp_path / "round1"), str(tmp_path / "round2"), "--mapping", str(tmp_path / "mapping"), "--steps", "300",
             "--holdout", "8", "--no-compact", "--width", "40", "--train-width", "40", "--background", "0,0,0",
             "--render-threads", "1"]
     models = tmp_path / "models"
@@ -208,6 +210,8 @@ def test_update_cli_writes_a_version_and_names_the_model_to_use(tmp_path, worlds
     first = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert first["version"] == 1 and first["parent"] == 0 and first["accepted"], first["reason"]
     assert first["heldout_loss_after"] < first["heldout_loss_before"] and first["model"].endswith("model_v1.ply")
+    confirmation = first["confirmation"]  # the change is in both rounds: confirmed, learned
+    assert confirmation["confirmed_cells"] > 0.5 * confirmation["changed_cells"] > 0, confirmation
     assert read_version(models, 0)["accepted"] and in_use(models) == 1
     changed.save_ply(tmp_path / "exact.ply")  # a model that is the world already: nothing to learn
     exact = tmp_path / "exact_models"

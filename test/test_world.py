@@ -174,6 +174,12 @@ def test_a_walker_crosses_and_is_gone_and_a_flicker_toggles():
     ({"type": "flicker", "light": "nope", "from_s": 0.0, "to_s": 2.0}, r"events\[0\]\.light: no light"),
     ({"type": "move", "object": "box", "from_s": 0.0, "from_round": 0, "position": [0, 0]},
      r"events\[0\]\.from_round"),
+    ({"type": "move", "object": "box", "from_s": 1.0, "from_round": 1, "position": [0, 0], "round_shift_s": [2.0]},
+     r"events\[0\]\.round_shift_s: a non-empty list"),
+    ({"type": "move", "object": "box", "from_s": 1.0, "to_s": 3.0, "position": [0, 0], "round_shift_s": []},
+     r"events\[0\]\.round_shift_s: a non-empty list"),
+    ({"type": "move", "object": "box", "from_s": 1.0, "to_s": 3.0, "position": [0, 0], "round_shift_s": [0, -2]},
+     r"events\[0\]\.round_shift_s: shifts the event before the round starts"),
 ])
 def test_bad_round_and_transient_events_are_refused_with_their_path(event, message):
     with pytest.raises(SceneError, match=message):
@@ -183,7 +189,7 @@ def test_bad_round_and_transient_events_are_refused_with_their_path(event, messa
 
 def test_the_changed_and_transient_sandboxes_map_the_same_world_as_the_sandbox():
     """Same mapping round (the model and its survey are the sandbox's); the changed one's changes persist from
-    scored round 1, the transient one's restart with every round."""
+    scored round 1, the transient one's restart with every round, each round at another time (round_shift_s)."""
     base, changed, transient = (load_scene(n) for n in ("sandbox", "sandbox_changed", "sandbox_transient"))
     for t_s in (0.0, 10.0, 25.0):
         assert changed.state_at(1, t_s) == base.state_at(1, t_s) == transient.state_at(1, t_s)
@@ -191,8 +197,17 @@ def test_the_changed_and_transient_sandboxes_map_the_same_world_as_the_sandbox()
     for round_index in (2, 3, 5):
         objects = {o.id: o for o in changed.state_at(round_index, 0.0).objects}
         assert "shelf" in objects and objects["crate_b"].position == (1.55, 1.45)
-    assert "walker" in {o.id for o in transient.state_at(4, 9.0).objects}
-    assert "walker" not in {o.id for o in transient.state_at(4, 13.0).objects}
+    def walker_at(round_index: int, t_s: float):
+        return {o.id: o for o in transient.state_at(round_index, t_s).objects}.get("walker")
+
+    assert walker_at(2, 9.0) is not None and walker_at(2, 13.0) is None  # scored round 1: 6–12 s
+    assert walker_at(3, 9.0) is None and walker_at(3, 17.0) is not None  # scored round 2: 14–20 s
+    assert walker_at(5, 3.0) is not None and walker_at(5, 9.0) is None  # scored round 4: 0–6 s
+    assert walker_at(6, 9.0) is not None  # scored round 5: the shifts repeat
+    # the same crossing, shifted: at the same time into its span the walker is at the same place
+    assert walker_at(2, 7.5).position == walker_at(3, 15.5).position == walker_at(5, 1.5).position
+    lamp = {lt.id: lt.intensity for lt in transient.state_at(3, 1.0).lights}["lamp"]  # scored round 2: 1–8 s
+    assert lamp < {lt.id: lt.intensity for lt in transient.state_at(3, 16.0).lights}["lamp"]
 
 
 # ---------------------------------------------------------------------------------------------- ray casting

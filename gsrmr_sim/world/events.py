@@ -9,8 +9,11 @@ crosses the scene from its ``shape.position`` to ``position`` while the event la
 Rounds are counted as the world sees them: round 1 is the mapping round (no event ever applies), round r ≥ 2 is
 scored round r − 1 (``gsrmr-demo --rounds N`` scores rounds 1…N). An event without ``from_round`` happens in every
 scored round, by its span ``from_s ≤ t < to_s`` (round seconds; ``to_s`` = inf: until the round ends) — it
-restarts with every round. An event with ``from_round`` k is a **persistent change**: it happens in scored round k
-at ``from_s`` and is there from the start of every later round (no ``to_s``). Validation of event entries lives
+restarts with every round — at the same round time, unless ``round_shift_s`` moves it: in scored round r its span
+is shifted by ``round_shift_s[(r − 1) mod len]`` seconds (a person crosses at another time on every mission, so the
+robot sees the walker from another stretch of its lap, or not at all). An event with ``from_round`` k is a
+**persistent change**: it happens in scored round k at ``from_s`` and is there from the start of every later round
+(no ``to_s``). Validation of event entries lives
 with the rest of the scene schema in :mod:`gsrmr_sim.world.scene`. Pure Python, no ROS.
 """
 from __future__ import annotations
@@ -47,12 +50,21 @@ class Event:
     gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
     from_round: int = 0  # ≥ 1: a persistent change from that scored round on (module docstring); 0: every round
     period_s: float = 1.0  # flicker: the light's on/off period
+    round_shift_s: tuple[float, ...] = ()  # an every-round event's span shifted per scored round (module docstring)
+
+    def span_s(self, scored_round: int = 1) -> tuple[float, float]:
+        """(from_s, to_s) of the event in scored round ``scored_round`` (≥ 1): shifted by ``round_shift_s``."""
+        if not self.round_shift_s or self.from_round:
+            return self.from_s, self.to_s
+        shift = self.round_shift_s[(scored_round - 1) % len(self.round_shift_s)]
+        return self.from_s + shift, self.to_s + shift
 
     def active(self, t_s: float, scored_round: int = 1) -> bool:
         """True while the event applies in scored round ``scored_round`` (≥ 1) at round time ``t_s``."""
         if self.from_round and scored_round != self.from_round:
             return scored_round > self.from_round  # before its round: not yet; after it: there all along
-        return self.from_s <= t_s < self.to_s
+        from_s, to_s = self.span_s(scored_round)
+        return from_s <= t_s < to_s
 
     @property
     def persistent(self) -> bool:
@@ -100,17 +112,18 @@ def world_state(objects: tuple[Shape, ...], lights: tuple[Light, ...], ambient: 
             elif ev.type == "region_light":
                 regions.append((ev.region_min, ev.region_max, ev.gain))
             elif ev.type == "walker" and ev.shape is not None and ev.position is not None:
-                done = (t_s - ev.from_s) / (ev.to_s - ev.from_s)  # 0 → 1 over the span (walkers have a to_s)
+                from_s, to_s = ev.span_s(round_index - 1)
+                done = (t_s - from_s) / (to_s - from_s)  # 0 → 1 over the span (walkers have a to_s)
                 (x0, y0), (x1, y1) = ev.shape.position, ev.position
                 objs[ev.shape.id] = replace(ev.shape, position=(x0 + done * (x1 - x0), y0 + done * (y1 - y0)))
-            elif ev.type == "flicker" and ((t_s - ev.from_s) % ev.period_s) < 0.5 * ev.period_s:
+            elif ev.type == "flicker" and ((t_s - ev.span_s(round_index - 1)[0]) % ev.period_s) < 0.5 * ev.period_s:
                 lt = lts[ev.target]
                 lts[ev.target] = replace(lt, intensity=lt.intensity * ev.intensity_scale)
     return WorldState(tuple(objs.values()), tuple(lts.values()), tuple(regions), ambient * global_gain)
 
 
-def change_times_s(events: tuple[Event, ...]) -> list[float]:
-    """Sorted times at which a scored round's world changes (event starts and finite ends; a walker moves and a
-    flicker toggles in between)."""
-    times = {ev.from_s for ev in events} | {ev.to_s for ev in events if math.isfinite(ev.to_s)}
-    return sorted(times)
+def change_times_s(events: tuple[Event, ...], scored_round: int = 1) -> list[float]:
+    """Sorted times at which scored round ``scored_round``'s world changes (event starts and finite ends; a walker
+    moves and a flicker toggles in between)."""
+    spans = [ev.span_s(scored_round) for ev in events]
+    return sorted({a for a, _ in spans} | {b for _, b in spans if math.isfinite(b)})

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+import hashlib
 import math
 from pathlib import Path
 from typing import Any
@@ -132,9 +133,9 @@ class Scene:
         """Objects, lights and illumination regions of the real world at round time ``t_s``."""
         return world_state(self.objects, self.lights, self.ambient, self.events, round_index, t_s)
 
-    def change_times_s(self) -> list[float]:
-        """Sorted times at which the round-2 world changes (event starts and ends)."""
-        return change_times_s(self.events)
+    def change_times_s(self, scored_round: int = 1) -> list[float]:
+        """Sorted times at which scored round ``scored_round``'s world changes (event starts and ends)."""
+        return change_times_s(self.events, scored_round)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -162,7 +163,7 @@ def _camera(value: Any, path: str) -> CameraSpec:
 
 def _event(value: Any, path: str, objects: dict[str, Shape], lights: set[str]) -> Event:
     allowed = {"type", "from_s", "to_s", "from_round", "object", "light", "position", "yaw_deg", "shape",
-               "intensity_scale", "color", "region_min", "region_max", "gain", "period_s"}
+               "intensity_scale", "color", "region_min", "region_max", "gain", "period_s", "round_shift_s"}
     m = _mapping(value, path, allowed, ("type", "from_s"))
     kind = _str(m["type"], f"{path}.type", EVENT_TYPES)
     from_s = _num(m["from_s"], f"{path}.from_s", lo=0.0)
@@ -175,12 +176,21 @@ def _event(value: Any, path: str, objects: dict[str, Shape], lights: set[str]) -
     if kind in ("walker", "flicker") and not math.isfinite(to_s):
         raise _fail(f"{path}.to_s", f"is required for a {kind} event (it is transient)")
     ev = Event(type=kind, from_s=from_s, to_s=to_s, from_round=from_round)
+    if "round_shift_s" in m:
+        shifts = m["round_shift_s"]
+        if from_round or not isinstance(shifts, list) or not shifts:
+            raise _fail(f"{path}.round_shift_s", "a non-empty list of seconds, for an event of every round (no "
+                        "from_round)")
+        shifts = tuple(_num(v, f"{path}.round_shift_s[{i}]") for i, v in enumerate(shifts))
+        if from_s + min(shifts) < 0:
+            raise _fail(f"{path}.round_shift_s", f"shifts the event before the round starts (from_s {from_s:g})")
+        ev = replace(ev, round_shift_s=shifts)
     per_type = {"move": {"object", "position", "yaw_deg"}, "add": {"shape"}, "remove": {"object"},
                 "light": {"light", "intensity_scale", "color"},
                 "region_light": {"region_min", "region_max", "gain"}, "walker": {"shape", "position"},
                 "flicker": {"light", "intensity_scale", "period_s"}}
     for key in m:
-        if key not in {"type", "from_s", "to_s", "from_round"} and key not in per_type[kind]:
+        if key not in {"type", "from_s", "to_s", "from_round", "round_shift_s"} and key not in per_type[kind]:
             raise _fail(f"{path}.{key}", f"not allowed for a {kind} event")
     if kind in ("move", "remove"):
         target = _str(m.get("object"), f"{path}.object")
@@ -338,6 +348,12 @@ def scene_dirs() -> list[Path]:
 def resolve_scene_path(name_or_path: str) -> Path:
     """A scene file path from a path or a bare name (``sandbox`` → ``…/config/scenes/sandbox.yaml``)."""
     return resolve_config(name_or_path, "scenes", "scene", REPO_SCENES_DIR)
+
+
+def scene_digest(name_or_path: str) -> str:
+    """The first 12 hex digits of the SHA-256 of the scene file's text: a cache of anything made from the scene
+    (headless laps, models) keyed by it is never stale after an edit."""
+    return hashlib.sha256(resolve_scene_path(name_or_path).read_bytes()).hexdigest()[:12]
 
 
 def load_scene(name_or_path: str, overrides: Callable[[dict], None] | None = None) -> Scene:
