@@ -200,7 +200,8 @@ def test_update_cli_writes_a_version_and_names_the_model_to_use(tmp_path, worlds
     write_dataset(tmp_path / "round1", received[:-8:2])
     write_dataset(tmp_path / "round2", received[1:-8:2] + received[-8:])
     current.save_ply(tmp_path / "mapping.ply")
-    args = ["--received", str(tmp_path / "round1"), str(tmp_path / "round2"), "--mapping", str(tmp_path / "mapping"), "--steps", "300",
+    args = ["--received", str(tmp_path / "round1"), str(tmp_path / "round2"), "--mapping", str(tmp_path / "mapping"),
+            "--steps", "300",
             "--holdout", "8", "--no-compact", "--width", "40", "--train-width", "40", "--background", "0,0,0",
             "--render-threads", "1"]
     models = tmp_path / "models"
