@@ -17,6 +17,10 @@ import re
 import subprocess
 import sys
 
+#: The niceness an operator's ``ros2 param set`` runs at beside the round (:meth:`ParamEvent.start`); on hardware
+#: run it the same way on the server's machine (``nice -n 10 ros2 param set …``), or from another one.
+OPERATOR_NICE = 10
+
 #: The server's log line of a swap (gsrmr_server.server_node): "model swapped in at slot N: PATH (…)".
 SWAP_LINE = re.compile(r"model swapped in at slot (\d+): (\S+)")
 #: The scheduler's log line of a new seed map (gsrmr_server.scheduler_node): "loss map re-seeded from PATH (N cells)".
@@ -43,11 +47,14 @@ class ParamEvent:
         return [ros2_cli(), "param", "set", "--no-daemon", f"/{self.node.lstrip('/')}", self.name, self.value]
 
     def start(self, env: dict[str, str], log_path: Path) -> subprocess.Popen:
-        """Start the command in ``env`` (the stack's: its ROS domain), its output to ``log_path``."""
+        """Start the command in ``env`` (the stack's: its ROS domain), its output to ``log_path``, at
+        :data:`OPERATOR_NICE`: on the 2 cores the round's nodes share, an operator's CLI (a Python process that
+        imports rclpy and discovers the graph for ~3 s) must not take the CPU the slot path needs (one run made a
+        slot 133 ms late while two CLIs started at normal priority, docs/results.md)."""
         log_path.parent.mkdir(parents=True, exist_ok=True)
         with open(log_path, "w") as out:
-            return subprocess.Popen(self.argv(), env=env, stdout=out, stderr=subprocess.STDOUT,
-                                    start_new_session=True)
+            return subprocess.Popen(["nice", "-n", str(OPERATOR_NICE), *self.argv()], env=env, stdout=out,
+                                    stderr=subprocess.STDOUT, start_new_session=True)
 
     def describe(self) -> str:
         """``ros2 param set /gsrmr_server model_path v1.ply`` (the runner's log)."""

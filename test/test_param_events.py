@@ -42,3 +42,17 @@ def test_a_loss_map_swap_sets_the_scheduler_loss_map_file_and_the_report_lists_w
     assert reseeds(log) == [{"path": "/m/loss_map_v2.json", "cells": 31}]
     assert swap_summary([], "", [], 0.1, scheduler_log=log)["loss_map_reseeds"] == reseeds(log)
     assert swap_summary([], "", [], 0.1)["loss_map_reseeds"] == []
+
+
+def test_the_operator_command_runs_below_the_round_nodes_priority(tmp_path, monkeypatch):
+    """On the 2 cores the round shares, the CLI must not take the slot path's CPU: it runs at OPERATOR_NICE."""
+    import os
+    import sys
+
+    from gsrmr_sim.param_events import OPERATOR_NICE, ParamEvent
+
+    monkeypatch.setattr(ParamEvent, "argv", lambda self: [sys.executable, "-c", "import os; print(os.nice(0))"])
+    log = tmp_path / "param_set_0.log"
+    proc = ParamEvent(1, "gsrmr_server", "model_path", "x.ply").start(dict(os.environ), log)
+    assert proc.wait(timeout=30) == 0
+    assert int(log.read_text().split()[-1]) == os.nice(0) + OPERATOR_NICE
