@@ -20,6 +20,8 @@ import sys
 #: The niceness an operator's ``ros2 param set`` runs at beside the round (:meth:`ParamEvent.start`); on hardware
 #: run it the same way on the server's machine (``nice -n 10 ros2 param set …``), or from another one.
 OPERATOR_NICE = 10
+#: Seconds the CLI spins to discover the node before it sets the parameter (``--spin-time``; :meth:`ParamEvent.argv`).
+DISCOVERY_SPIN_S = 5.0
 
 #: The server's log line of a swap (gsrmr_server.server_node): "model swapped in at slot N: PATH (…)".
 SWAP_LINE = re.compile(r"model swapped in at slot (\d+): (\S+)")
@@ -43,8 +45,11 @@ class ParamEvent:
     value: str
 
     def argv(self) -> list[str]:
-        """The command line (no daemon: nothing outlives the round)."""
-        return [ros2_cli(), "param", "set", "--no-daemon", f"/{self.node.lstrip('/')}", self.name, self.value]
+        """The command line: no daemon (nothing outlives the round), so the CLI discovers the graph itself, for
+        :data:`DISCOVERY_SPIN_S` (ros2cli's default, 0.5 s, missed the node in 3 of 10 sets at nice 10 beside a
+        round: "Node not found")."""
+        return [ros2_cli(), "param", "set", "--no-daemon", "--spin-time", f"{DISCOVERY_SPIN_S:g}",
+                f"/{self.node.lstrip('/')}", self.name, self.value]
 
     def start(self, env: dict[str, str], log_path: Path) -> subprocess.Popen:
         """Start the command in ``env`` (the stack's: its ROS domain), its output to ``log_path``, at

@@ -12,7 +12,8 @@ def test_a_swap_event_sets_the_server_model_path_at_its_round_slot(tmp_path):
     model.write_bytes(b"ply\n")
     ev = swap_model_event(f"{model}@144")
     assert (ev.at_slot, ev.node, ev.name, ev.value) == (144, "gsrmr_server", "model_path", str(model))
-    assert ev.argv()[1:] == ["param", "set", "--no-daemon", "/gsrmr_server", "model_path", str(model)]
+    assert ev.argv()[1:] == ["param", "set", "--no-daemon", "--spin-time", "5", "/gsrmr_server", "model_path",
+                             str(model)]
     for bad in (f"{model}", f"{model}@x", "@3", f"{tmp_path / 'missing.ply'}@3"):
         with pytest.raises(ValueError):
             swap_model_event(bad)
