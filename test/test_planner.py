@@ -129,6 +129,27 @@ def test_budget_refines_recent_estimates_and_freezes_old_ones():
     assert budget.loss_spent == pytest.approx(3 * 0.02 + 2 * 0.08)
 
 
+def test_a_new_seed_map_leaves_the_loss_the_old_model_left_as_it_was_estimated():
+    """A model swap re-seeds the forecast mid-round: the slots the old model served keep their estimate, in the
+    running total and in the round's (re-estimating them with the new map once made the planner send an image in
+    77–100 % of the slots left)."""
+    estimate = {k: 0.02 for k in range(100)}
+    budget = LossBudget(lambda slot, _pose: estimate[slot], round_slots=50, refine_slots=300)
+    sched = _schedule(0, [0] * 40)
+    budget.record_pose(0, (0.0, 0.0, 0.0))
+    for k in range(1, 8):
+        budget.record_pose(k, (0.1 * k, 0.0, 0.0))  # the round starts in slot 1
+    budget.account_until(8, sched)
+    assert budget.loss_spent == pytest.approx(8 * 0.02) and budget.round_booked() == (7, pytest.approx(7 * 0.02))
+    budget.freeze_all()
+    for k in range(100):  # the new map, not measured yet, says something else about every slot
+        estimate[k] = 0.09
+    assert budget.loss_spent == pytest.approx(8 * 0.02) and budget.round_booked() == (7, pytest.approx(7 * 0.02))
+    budget.account_until(10, sched)  # slots served by the new model follow the new estimate
+    assert budget.loss_spent == pytest.approx(8 * 0.02 + 2 * 0.09)
+    assert budget.round_booked() == (9, pytest.approx(7 * 0.02 + 2 * 0.09))
+
+
 def test_round_starts_on_motion_and_its_budget_ends_with_it():
     budget = LossBudget(lambda _slot, _pose: 0.05, round_slots=10, round_start_m=0.05)
     sched = _schedule(0, [0] * 40)

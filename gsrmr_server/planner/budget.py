@@ -91,15 +91,26 @@ class LossBudget:
             self.slots_done += 1
             self._done.append((k, self._actual_x.pop(k, entry[0]), self._reported.pop(k, None)))
             self._accounted_up_to = k
-        while len(self._done) > self.refine_slots:  # old slots: their estimate will not change any more
+        self._freeze(self.refine_slots)
+        for old in [k for k in self._reported if k < slot - HISTORY_SLOTS]:
+            del self._reported[old]
+
+    def _freeze(self, keep: int) -> None:
+        """Fix the estimate of every booked slot but the newest ``keep``: it will not change any more."""
+        while len(self._done) > keep:
             done = self._done.popleft()
             loss = self.slot_loss(*done)
             self._frozen_spent += loss
             if self._round_start is not None and done[0] >= self._round_start:
                 self._round_frozen += loss
                 self._round_frozen_n += 1
-        for old in [k for k in self._reported if k < slot - HISTORY_SLOTS]:
-            del self._reported[old]
+
+    def freeze_all(self) -> None:
+        """Fix the estimate of every slot booked so far, with the key-loss estimate as it is now: before the seed
+        map changes (a model swap), the slots the old model served keep the loss estimated for them — the new
+        map describes the new model, and re-estimating the round's past with it (no measurement of it yet) once
+        made the planner send an image in 77–100 % of the slots left after a swap."""
+        self._freeze(0)
 
     def _rebook(self, slot: int, *, x: int | None = None, pose: Pose | None = None) -> bool:
         """Correct a booked slot that is still re-estimated with a ledger row or pose key that came after the plan

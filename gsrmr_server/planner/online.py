@@ -123,7 +123,9 @@ class OnlinePlanner:
 
     def reseed(self, loss_map: LossMap) -> None:
         """A new seed loss map (the scheduler's ``loss_map_file`` set at run time, after a model swap): the
-        forecast predicts from it from the next plan on (:meth:`LossForecast.reseed`)."""
+        forecast predicts from it from the next plan on (:meth:`LossForecast.reseed`); the loss the booked slots left
+        stays as estimated before it (:meth:`LossBudget.freeze_all`: they were served by the old model)."""
+        self.budget.freeze_all()
         self.forecast.reseed(loss_map)
 
     @property
