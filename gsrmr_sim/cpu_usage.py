@@ -1,7 +1,7 @@
 """CPU a stack's processes spend during a round (``gsrmr-demo``'s runner, :mod:`gsrmr_sim.stack_runner`).
 
-Each process of a :class:`~gsrmr_sim.supervisor.ProcessStack` runs in its own session (its Popen pid is the
-session id), so its CPU — threads and children included — is the sum over that session in ``/proc/<pid>/stat``
+Each process of a :class:`~gsrmr_sim.supervisor.ProcessStack` runs in its own process group (its Popen pid is the
+group id), so its CPU — threads and children included — is the sum over that group in ``/proc/<pid>/stat``
 (user + system). A :class:`CpuMeter` takes snapshots of those sums and of the machine's busy time
 (``/proc/stat``) while the round runs; :meth:`CpuMeter.round_usage` turns the window from the last snapshot
 before the round's start to the last one into CPU seconds per process and cores of the whole machine.
@@ -34,11 +34,12 @@ def cpu_group(spec: ProcessSpec) -> str:
     return "server" if spec.host == "server" else "robot"
 
 
-def cpu_seconds_by_session() -> dict[int, float]:
-    """CPU seconds (user + system, own and of reaped children) of every live process, summed per session id.
+def cpu_seconds_by_group() -> dict[int, float]:
+    """CPU seconds (user + system, own and of reaped children) of every live process, summed per process group.
 
-    The supervisor starts each node in its own session (``start_new_session``; ``nice`` and ``ip netns exec``
-    exec the node), so a node's session id is its Popen pid and the sum covers its threads and any children.
+    The supervisor starts each node in its own process group (:data:`~gsrmr_sim.supervisor.OWN_PROCESS_GROUP`;
+    ``nice`` and ``ip netns exec`` exec the node), so a node's group id is its Popen pid and the sum covers its
+    threads and any children.
     """
     tick = os.sysconf("SC_CLK_TCK")
     out: dict[int, float] = {}
@@ -51,9 +52,9 @@ def cpu_seconds_by_session() -> dict[int, float]:
         except OSError:
             continue
         fields = stat[stat.rindex(b")") + 2:].split()  # after "pid (comm) ": state is fields[0] (field 3)
-        session = int(fields[3])  # field 6
+        group = int(fields[2])  # field 5 (pgrp)
         utime, stime, cutime, cstime = (int(v) for v in fields[11:15])  # fields 14-17
-        out[session] = out.get(session, 0.0) + (utime + stime + cutime + cstime) / tick
+        out[group] = out.get(group, 0.0) + (utime + stime + cutime + cstime) / tick
     return out
 
 
@@ -66,26 +67,26 @@ def machine_busy_seconds() -> float:
 
 @dataclass(frozen=True)
 class CpuSnapshot:
-    """CPU seconds of the watched sessions and of the machine at one wall-clock time."""
+    """CPU seconds of the watched process groups and of the machine at one wall-clock time."""
 
     wall_s: float  # time.time()
-    by_session_s: dict[int, float]
+    by_group_s: dict[int, float]
     machine_busy_s: float
 
 
 @dataclass(frozen=True)
 class RoundUsage:
-    """CPU over a round's window: seconds per watched session, and the machine's cores."""
+    """CPU over a round's window: seconds per watched process group, and the machine's cores."""
 
     window_s: float
-    by_session_s: dict[int, float]
+    by_group_s: dict[int, float]
     machine_busy_cores: float  # every core of the machine: the watched processes, the runner, anything else
     other_cores: float  # the machine's busy cores less the watched processes'
 
 
 @dataclass
 class CpuMeter:
-    """Snapshots of the CPU of the sessions ``pids`` and of the machine (see the module docstring)."""
+    """Snapshots of the CPU of the process groups ``pids`` and of the machine (see the module docstring)."""
 
     pids: Collection[int]
     snapshots: list[CpuSnapshot] = field(default_factory=list)
@@ -93,7 +94,7 @@ class CpuMeter:
     def take(self) -> CpuSnapshot:
         """Take one snapshot now (kept in :attr:`snapshots`)."""
         watched = set(self.pids)
-        snap = CpuSnapshot(time.time(), {pid: v for pid, v in cpu_seconds_by_session().items() if pid in watched},
+        snap = CpuSnapshot(time.time(), {pid: v for pid, v in cpu_seconds_by_group().items() if pid in watched},
                            machine_busy_seconds())
         self.snapshots.append(snap)
         return snap
@@ -108,6 +109,6 @@ class CpuMeter:
         window_s = end.wall_s - start.wall_s
         if window_s <= 0:
             raise ValueError("the CPU window is empty: take a snapshot after the round's start")
-        used = {pid: end.by_session_s.get(pid, 0.0) - start.by_session_s.get(pid, 0.0) for pid in self.pids}
+        used = {pid: end.by_group_s.get(pid, 0.0) - start.by_group_s.get(pid, 0.0) for pid in self.pids}
         machine = (end.machine_busy_s - start.machine_busy_s) / window_s
         return RoundUsage(window_s, used, machine, machine - sum(used.values()) / window_s)

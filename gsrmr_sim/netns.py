@@ -28,6 +28,8 @@ import signal
 import subprocess
 import time
 
+from gsrmr_sim.supervisor import OWN_PROCESS_GROUP
+
 NETNS_PREFIX = "gsrmr"
 
 
@@ -146,7 +148,7 @@ class TwoHosts:
         ns = {"robot": self.robot_ns, "server": self.server_ns}[host]
         out = open(log, "w") if log is not None else subprocess.DEVNULL  # noqa: SIM115 - owned by the process
         p = subprocess.Popen(["ip", "netns", "exec", ns, *argv], env=self.environment(env), stdout=out,
-                             stderr=subprocess.STDOUT, start_new_session=True)
+                             stderr=subprocess.STDOUT, **OWN_PROCESS_GROUP)
         self._procs.append(p)
         return p
 

@@ -17,6 +17,8 @@ import re
 import subprocess
 import sys
 
+from gsrmr_sim.supervisor import OWN_PROCESS_GROUP
+
 #: The niceness an operator's ``ros2 param set`` runs at beside the round (:meth:`ParamEvent.start`); on hardware
 #: run it the same way on the server's machine (``nice -n 10 ros2 param set …``), or from another one.
 OPERATOR_NICE = 10
@@ -59,7 +61,7 @@ class ParamEvent:
         log_path.parent.mkdir(parents=True, exist_ok=True)
         with open(log_path, "w") as out:
             return subprocess.Popen(["nice", "-n", str(OPERATOR_NICE), *self.argv()], env=env, stdout=out,
-                                    stderr=subprocess.STDOUT, start_new_session=True)
+                                    stderr=subprocess.STDOUT, **OWN_PROCESS_GROUP)
 
     def describe(self) -> str:
         """``ros2 param set /gsrmr_server model_path v1.ply`` (the runner's log)."""

@@ -323,7 +323,7 @@ def _count_cpu(specs: Sequence[ProcessSpec], stack: ProcessStack, runs: Mapping[
     the machine's busy cores and those of everything else, and cores per group (:func:`cpu_group`)."""
     for spec in specs:
         run = runs[spec.namespace.strip("/")]
-        used = usage.by_session_s.get(stack.procs[process_name(spec)].pid, 0.0)
+        used = usage.by_group_s.get(stack.procs[process_name(spec)].pid, 0.0)
         run.cpu.setdefault("by_node_cpu_s", {})[spec.name] = round(used, 3)
         group = cpu_group(spec)
         run.cpu[f"{group}_cpu_s"] = run.cpu.get(f"{group}_cpu_s", 0.0) + used

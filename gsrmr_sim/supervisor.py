@@ -1,10 +1,10 @@
 """Supervising a stack of processes: one implementation for the demo, the test stacks and the benches.
 
-:class:`ProcessStack` starts each process in its own session (so a signal reaches its whole group),
-logs its output to ``<log_dir>/<name>.log``, reports one that died, and stops them all the way a
-terminal's Ctrl-C would: SIGINT to every process (newest first), then SIGKILL to the group of any that
-is still running after ``stop_timeout_s``. A process is a :class:`~gsrmr_sim.sim_stack.ProcessSpec`
-(turned into a command line with its parameter file) or a plain argv.
+:class:`ProcessStack` starts each process in its own process group (so a signal reaches the whole group), in the
+supervisor's session (:data:`OWN_PROCESS_GROUP`), logs its output to ``<log_dir>/<name>.log``, reports one that
+died, and stops them all the way a terminal's Ctrl-C would: SIGINT to every process (newest first), then SIGKILL
+to the group of any that is still running after ``stop_timeout_s``. A process is a
+:class:`~gsrmr_sim.sim_stack.ProcessSpec` (turned into a command line with its parameter file) or a plain argv.
 """
 
 from __future__ import annotations
@@ -20,6 +20,16 @@ from types import TracebackType
 
 from gsrmr_common.interrupts import STACK_DUMP_SIGNAL
 from gsrmr_sim.sim_stack import ProcessSpec, command_line
+
+#: ``subprocess.Popen`` keywords of every supervised process: its own process group (``killpg`` reaches its threads'
+#: and children's processes; the terminal's Ctrl-C reaches only the supervisor, which stops the stack in order), but
+#: **not its own session**. With ``kernel.sched_autogroup_enabled`` = 1 (Ubuntu's and most distributions' default)
+#: the scheduler first shares the CPU equally between *sessions* (autogroups) and applies ``nice`` only inside one:
+#: a node started with ``start_new_session`` at nice 19 took as much CPU as the server at nice 0 (the simulated
+#: world's scorer, 40–58 % of a core in the last seconds of a round, which made 14–80 of 288 slots late,
+#: docs/results.md). In the supervisor's session, a node's niceness orders it against the others as its
+#: ProcessSpec says. stdin is /dev/null: a background process group that read the terminal would be stopped.
+OWN_PROCESS_GROUP: dict = {"process_group": 0, "stdin": subprocess.DEVNULL}
 
 
 class ProcessDiedError(RuntimeError):
@@ -48,7 +58,7 @@ class ProcessStack:
         argv = [*prefix, *argv]
         log = (self.log_dir / f"{name}.log").open("a")
         proc = subprocess.Popen(argv, env=self.env if env is None else env, stdout=log, stderr=subprocess.STDOUT,
-                                start_new_session=True)
+                                **OWN_PROCESS_GROUP)
         log.close()  # the child holds its own descriptor
         self.procs[name] = proc
         if wait_for_path is not None:

@@ -24,7 +24,7 @@ from sensor_msgs.msg import Image
 from stack_harness import HEIGHT, WIDTH, make_point_model
 import yaml
 
-from gsrmr_sim.cpu_usage import CpuMeter, CpuSnapshot, cpu_group, cpu_seconds_by_session
+from gsrmr_sim.cpu_usage import CpuMeter, CpuSnapshot, cpu_group, cpu_seconds_by_group
 from gsrmr_sim.fleet import run_fleet
 from gsrmr_sim.limo.mock import GROUND_TRUTH_TOPIC
 from gsrmr_sim.limo.mock_ros import GroundTruthPublisher
@@ -208,25 +208,25 @@ def test_cpu_meter_counts_from_the_last_snapshot_before_the_round_to_the_last_on
     meter.snapshots += [CpuSnapshot(100.0, {11: 1.0, 12: 2.0}, 50.0), CpuSnapshot(101.0, {11: 1.5, 12: 2.0}, 51.0),
                         CpuSnapshot(105.0, {11: 3.5, 12: 4.0}, 58.0)]
     usage = meter.round_usage(round_start_s=102.0)  # from the snapshot at 101 s to the one at 105 s
-    assert usage.window_s == 4.0 and usage.by_session_s == {11: 2.0, 12: 2.0}
+    assert usage.window_s == 4.0 and usage.by_group_s == {11: 2.0, 12: 2.0}
     assert usage.machine_busy_cores == pytest.approx(7.0 / 4.0)
     assert usage.other_cores == pytest.approx(7.0 / 4.0 - 4.0 / 4.0)
     assert meter.round_usage(round_start_s=50.0).window_s == 5.0  # before every snapshot: from the first
     with pytest.raises(ValueError):
         CpuMeter([11]).round_usage(0.0)
     snap = CpuMeter([]).take()
-    assert snap.by_session_s == {} and snap.machine_busy_s > 0
+    assert snap.by_group_s == {} and snap.machine_busy_s > 0
 
 
-def test_cpu_seconds_by_session_counts_a_busy_process():
+def test_cpu_seconds_by_group_counts_a_busy_process():
     proc = subprocess.Popen([sys.executable, "-c", "import time\nt = time.process_time()\n"
-                             "while time.process_time() - t < 0.6: pass\ntime.sleep(30)"], start_new_session=True)
+                             "while time.process_time() - t < 0.6: pass\ntime.sleep(30)"], process_group=0)
     try:
         deadline = time.monotonic() + 20
         used = 0.0
         while time.monotonic() < deadline and used < 0.6:
             time.sleep(0.1)
-            used = cpu_seconds_by_session().get(proc.pid, 0.0)
+            used = cpu_seconds_by_group().get(proc.pid, 0.0)
         assert 0.6 <= used < 3.0, used
     finally:
         proc.kill()
