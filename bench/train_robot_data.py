@@ -187,13 +187,31 @@ def row_result(row: Row, trainer: Trainer, psnr_db: list[float], test_pose_steps
 PROBE_S, PROBE_RATE_FRACTION, OVERRUN = 15.0, 0.7, 1.15
 
 
+_warmed_up: set[tuple[bool, bool]] = set()
+
+
+def warm_up(row: Row, train: list[DatasetFrame], held: list[DatasetFrame], run: int, iterations: int,
+            quick: bool) -> None:
+    """Once per process and option set: a throwaway run past the first densification, so that numba's compilation
+    (tens of CPU-seconds in a fresh checkout, whose kernel cache is empty) falls in no probe and no stage's budget
+    (it once left a 1-CPU-minute stage 10 iterations)."""
+    key = (row.pose_opt, row.exposure_opt)
+    if key in _warmed_up:
+        return
+    cfg = train_config(row, run, iterations, quick)
+    Trainer(train, cfg, held).train(iterations=min(cfg.iterations, cfg.densify_from + cfg.densify_interval + 1),
+                                    progress=False)
+    _warmed_up.add(key)
+
+
 def run_row_fitted(row: Row, train: list[DatasetFrame], held: list[DatasetFrame], run: int, iterations: int,
                    quick: bool, stages_s: list[float], test_pose_steps: int) -> dict:
     """``--fit-schedule``: every stage is its own run from scratch, its schedule (position-rate decay, densification
     to 2/3) sized to the stage's CPU budget, as a user who gives training B CPU-minutes would size it: iterations =
     budget × the rate of the stage before (the first: a probe of the default schedule, at PROBE_RATE_FRACTION of its
-    rate); stopped at OVERRUN × budget if the schedule is not done by then. The held-out PSNR of each stage's end,
-    its iterations and CPU s (``stages``); the last stage's trainer gives the rest of the row."""
+    rate, after :func:`warm_up`); stopped at OVERRUN × budget if the schedule is not done by then. The held-out PSNR
+    of each stage's end, its iterations and CPU s (``stages``); the last stage's trainer gives the rest of the row."""
+    warm_up(row, train, held, run, iterations, quick)
     probe = Trainer(train, train_config(row, run, iterations, quick), held)
     probe.train(cpu_budget_s=PROBE_S if not quick else 1.0, progress=False)
     rate = PROBE_RATE_FRACTION * probe.state.history[-1].iteration / max(probe.state.history[-1].cpu_s, 1e-9)

@@ -56,4 +56,4 @@ def test_the_operator_command_runs_below_the_round_nodes_priority(tmp_path, monk
     log = tmp_path / "param_set_0.log"
     proc = ParamEvent(1, "gsrmr_server", "model_path", "x.ply").start(dict(os.environ), log)
     assert proc.wait(timeout=30) == 0
-    assert int(log.read_text().split()[-1]) == os.nice(0) + OPERATOR_NICE
+    assert int(log.read_text().split()[-1]) == min(19, os.nice(0) + OPERATOR_NICE)  # the kernel caps niceness at 19
