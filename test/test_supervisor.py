@@ -38,8 +38,16 @@ def test_a_supervised_process_has_its_own_group_in_the_supervisors_session_and_k
         proc.wait(timeout=10)
 
 
-def test_stop_ends_a_supervised_process_group(tmp_path):
-    stack = ProcessStack(dict(os.environ), tmp_path, stop_timeout_s=5.0)
-    proc = stack.start("sleeper", [sys.executable, "-c", "import time; time.sleep(60)"])
+def test_stop_ends_a_supervised_process_on_sigint(tmp_path):
+    """The sleeper handles SIGINT itself, as every gsrmr node does: a shell's background job (CI's runner may be
+    one) inherits SIGINT ignored, and a plain Python script would then ignore it too."""
+    ready = tmp_path / "ready"
+    sleeper = ("import pathlib, signal, sys, time\n"
+               "signal.signal(signal.SIGINT, lambda *_: sys.exit(3))\n"
+               f"pathlib.Path({str(ready)!r}).touch()\n"
+               "time.sleep(60)\n")
+    stack = ProcessStack(dict(os.environ), tmp_path, stop_timeout_s=20.0)
+    proc = stack.start("sleeper", [sys.executable, "-c", sleeper], wait_for_path=str(ready), wait_s=30.0)
     took = stack.stop()
-    assert proc.returncode is not None and took["sleeper"] < 5.0
+    assert proc.returncode == 3, "ended by its SIGINT handler, not killed"
+    assert took["sleeper"] < 20.0
