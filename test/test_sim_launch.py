@@ -3,7 +3,8 @@
 The launch file is included from the ament index (as ``ros2 launch gsrmr sim.launch.py`` finds it),
 against the loopback mock camera and mock serial base. While the round runs, the test checks what a
 ROS user would: the server composes every slot of the round (its recording, asked for by the
-``record_dir`` launch argument, has a row for each) and MR images reach a subscriber of ``mr/image``
+``record_dir`` launch argument, has a row for each), every topic a gsrmr node publishes carries messages, and MR
+images reach a subscriber of ``mr/image``
 all through the round (no 2 s without one: a subscriber may miss some of a reliable keep-last-5
 topic of 0.9 MB images when its own process is starved, as on a loaded CI machine), ``ros2 service call
 /gsrmr/replan std_srvs/srv/Trigger`` answering ``success: true`` with what changed, ``ros2 param set``
@@ -40,6 +41,17 @@ from stack_harness import make_point_model  # noqa: E402
 from gsrmr_server.recording.slots_csv import read_slots_csv  # noqa: E402
 
 SLOT_S = 0.1
+# Every topic a gsrmr node publishes in this stack, with its type (README "Use it from ROS 2": `ros2 topic echo`).
+GSRMR_TOPICS = {"/uplink/pose_key": "geometry_msgs/msg/Vector3Stamped",
+                "/uplink/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
+                "/uplink/camera_info": "sensor_msgs/msg/CameraInfo", "/gsrmr/ledger": "std_msgs/msg/Float64MultiArray",
+                "/gsrmr/schedule": "std_msgs/msg/Float64MultiArray",
+                "/gsrmr/loss_sample": "std_msgs/msg/Float64MultiArray", "/mr/image": "sensor_msgs/msg/Image",
+                "/mr/image/compressed": "sensor_msgs/msg/CompressedImage", "/odom": "nav_msgs/msg/Odometry",
+                "/imu": "sensor_msgs/msg/Imu", "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
+                "/camera/image_raw": "sensor_msgs/msg/Image", "/camera/camera_info": "sensor_msgs/msg/CameraInfo",
+                "/cmd_vel": "geometry_msgs/msg/Twist", "/sim/ground_truth/odom": "nav_msgs/msg/Odometry"}
+CLI_ECHO_TOPICS = ("/uplink/pose_key", "/gsrmr/schedule", "/mr/image/compressed", "/odom")
 ROUND_TIMEOUT_S = 150.0
 #: How long after the lap ends the server may take to compose the round's last slot [s].
 COMPOSE_GRACE_S = 10.0
@@ -66,6 +78,7 @@ class RoundProbe:
         from nav_msgs.msg import Odometry
         import rclpy
         from rclpy.qos import qos_profile_sensor_data
+        from rosidl_runtime_py.utilities import get_message
         from sensor_msgs.msg import Image
         from std_msgs.msg import Int32
 
@@ -73,16 +86,24 @@ class RoundProbe:
         rclpy.init(context=self.context)
         self.node = rclpy.create_node("sim_launch_probe", context=self.context)
         self.mr_slots: set[int] = set()
+        self.heard: set[str] = set()  # GSRMR_TOPICS with a message at the probe
         self.moved_at_s: float | None = None
         self.lap_done_at_s: float | None = None
         self._start_xy: tuple[float, float] | None = None
         self.node.create_subscription(Image, "mr/image", self._on_mr, 50)
         self.node.create_subscription(Int32, "sim/route/lap", self._on_lap, 10)
         self.node.create_subscription(Odometry, "/sim/ground_truth/odom", self._on_truth, qos_profile_sensor_data)
+        # best effort and volatile: compatible with every publisher's QoS (reliable, transient local or not)
+        for topic, type_name in GSRMR_TOPICS.items():
+            if topic == "/mr/image":  # heard by _on_mr
+                continue
+            self.node.create_subscription(get_message(type_name), topic, lambda _msg, t=topic: self.heard.add(t),
+                                          qos_profile_sensor_data)
 
     def _on_mr(self, msg) -> None:
         stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         self.mr_slots.add(round(stamp_s / SLOT_S))
+        self.heard.add("/mr/image")
 
     def _on_lap(self, msg) -> None:
         if msg.data >= 1 and self.lap_done_at_s is None:
@@ -151,6 +172,7 @@ class TestSimLaunch(unittest.TestCase):
             refuse, refuse_box = _in_background("param", "set", "--no-daemon", "/gsrmr_scheduler", "loss_threshold",
                                                 "-1.0", ok="Setting parameter")
             probe.spin_until(lambda: probe.lap_done_at_s is not None, ROUND_TIMEOUT_S)
+            probe.spin_until(lambda: probe.heard >= set(GSRMR_TOPICS), 10.0)
             replan.join(60)
             refuse.join(60)
             # every process still running at the end of the round (none died, not even with code 0)
@@ -161,6 +183,7 @@ class TestSimLaunch(unittest.TestCase):
         finally:
             probe.close()
         self.assertIsNotNone(probe.moved_at_s, "the robot never moved")
+        self.assertEqual(sorted(set(GSRMR_TOPICS) - probe.heard), [], "topics with no message during the round")
         self.assertIsNotNone(probe.lap_done_at_s, f"the route lap did not complete within {ROUND_TIMEOUT_S} s")
         first = int(probe.moved_at_s / SLOT_S) + 1
         last = int(probe.lap_done_at_s / SLOT_S) - 1
@@ -186,10 +209,6 @@ class TestSimLaunch(unittest.TestCase):
         self.assertTrue((folder / "run" / "slots.csv").is_file())
 
 
-# Every topic a gsrmr node publishes in this stack (README "Use it from ROS 2": `ros2 topic echo`).
-GSRMR_TOPICS = ("/uplink/pose_key", "/uplink/image_raw/compressed", "/uplink/camera_info", "/gsrmr/ledger",
-                "/gsrmr/schedule", "/gsrmr/loss_sample", "/mr/image", "/mr/image/compressed", "/odom", "/imu",
-                "/diagnostics", "/camera/image_raw", "/camera/camera_info", "/cmd_vel", "/sim/ground_truth/odom")
 
 
 class TestSimLaunchCli(unittest.TestCase):
@@ -201,8 +220,10 @@ class TestSimLaunchCli(unittest.TestCase):
             self.assertIn(f"gsrmr {exe}", executables)
         nodes = ros2_until("node", "list", "--no-daemon", ok="gsrmr_scheduler").stdout
         self.assertIn("/gsrmr_scheduler", nodes)
-        # every topic first: a higher L_th (below) lets the scheduler plan no image at all once the robot stands
-        for topic in GSRMR_TOPICS:
+        # The round's probe heard every topic; `ros2 topic echo` (README "Use it from ROS 2") on one topic of each
+        # side, before a higher L_th (below) lets the scheduler plan no image at all once the robot stands. (Each
+        # echo is a new CLI process: all 15 topics took 25-45 s of the suite.)
+        for topic in CLI_ECHO_TOPICS:
             echo = ros2_until("topic", "echo", "--once", "--no-arr", topic, ok="---", attempts=3, timeout_s=25.0)
             self.assertIn("---", echo.stdout, f"ros2 topic echo --once {topic}: {echo.stdout[-500:]}{echo.stderr}")
         set_ok = ros2_until("param", "set", "--no-daemon", "/gsrmr_scheduler", "loss_threshold", "0.04",
