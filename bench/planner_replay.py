@@ -78,8 +78,11 @@ def main() -> int:
     ap.add_argument("--vary", default="", help="key=v1,v2,... (one row per value)")
     ap.add_argument("--set", action="append", default=[], help="key=value for every row")
     ap.add_argument("--per-run", action="store_true", help="also print every run's figures")
-    ap.add_argument("--truth-loss", action="store_true",
-                    help="hindsight bound: the planner is given every slot's true L (never available live)")
+    ap.add_argument("--truth-loss", nargs="?", const="frame", choices=("frame", "samples"), default=None,
+                    help="hindsight bound: the planner is given every slot's L (never available live): against the "
+                    "true frame (default), or as the server's samples read it (against the decoded JPEG)")
+    ap.add_argument("--observe-keys", action="store_true",
+                    help="hindsight study: the forecast also learns every key slot's L, as if measured")
     args = ap.parse_args()
     fixed = {k: parse_value(v) for k, v in (s.split("=", 1) for s in args.set)}
     key, _, values = args.vary.partition("=")
@@ -90,18 +93,20 @@ def main() -> int:
         runs.append((report.name, params, recorded_slots(read_slots_csv(report / "slots.csv"))))
     print(f"# bench/planner_replay.py: {len(runs)} recorded runs ({os.cpu_count()} CPUs, load average "
           f"{os.getloadavg()[0]:.1f}); fixed {fixed or '{}'}"
-          + ("; HINDSIGHT BOUND: the planner knows every slot's true L" if args.truth_loss else ""))
+          + (f"; HINDSIGHT BOUND: the planner knows every slot's L ({args.truth_loss})" if args.truth_loss else "")
+          + ("; HINDSIGHT: the forecast learns every key slot's L" if args.observe_keys else ""))
     print("| setting | mean loss median (worst) | ≤ L_th | regret median (worst) | images median | ms per replan |")
     print("|---|---|---|---|---|---|")
     for setting in settings:
         results = []
         for name, params, slots in runs:
             run = params.with_values({k: v for k, v in setting.items() if SchedulerParameters.spec(k)})
-            planner = make_planner(run, setting, TruthLossPredictor(slots) if args.truth_loss else None)
+            planner = make_planner(run, setting, TruthLossPredictor(slots, as_sampled=args.truth_loss == "samples")
+                                   if args.truth_loss else None)
             lth = planner.config.loss_threshold
             r = replay(slots, planner, loss_threshold=lth,
                        replan_every=int(setting.get("replan_every", round(run.replan_period_s / run.slot_s))),
-                       measurement_delay=int(setting.get("measurement_delay", 1)))
+                       measurement_delay=int(setting.get("measurement_delay", 1)), observe_keys=args.observe_keys)
             results.append((name, lth, r))
             if args.per_run:
                 print(f"|   {name} | {r.mean_loss:.4f} | {int(r.mean_loss <= lth)} | {r.regret:.2f} | "

@@ -13,12 +13,14 @@ Input: the trained model (3DGS .ply) and a nerfstudio dataset of the robot's fra
    aspect kept, never enlarged, ``cv2.INTER_AREA`` as the trainer downscales: :func:`frame_at_width`) and scored
    by :func:`gsrmr_server.frame_loss.frame_loss` with the server's composer rendering at the frame's own camera
    (the frame's mount relative to its ``gsrmr_pose``, :func:`frame_mount`): the key slot's GS loss L and the
-   image slot's loss J (the frame's JPEG at the robot's quality), with the MR content at the frame's content time.
+   image slot's loss J (the frame's JPEG at the robot's quality) and its sample bias (what the live server's loss
+   sample reads above the loss against the frame), with the MR content at the frame's content time.
 3. **Content time** (:func:`route_time_s`): the time since the round start at which a robot driving the route
    from its start at the nominal speed — the scheduler's own prediction of a round (route file) — passes the
    route point nearest the frame: the slot time the simulator's survey and the live server compose such a view at.
 4. **The map** (:func:`seed_loss_map`): L keyed by ``gsrmr_pose`` in the scheduler's
-   :class:`~gsrmr_server.loss_map.LossMap` and the mean J as its ``image_loss``; a CSV of every frame
+   :class:`~gsrmr_server.loss_map.LossMap`, the mean J as its ``image_loss`` and the mean sample bias as its
+   ``sample_offset``; a CSV of every frame
    (:func:`write_frames_csv`).
 
 Units: metres, radians (degrees where named ``_deg``), seconds; losses are the MR loss 0.8·L1 + 0.2·(1 − SSIM).
@@ -57,7 +59,7 @@ PINHOLE_MODELS = frozenset({"OPENCV", "PINHOLE", "SIMPLE_PINHOLE"})
 DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2")
 #: The per-frame CSV's columns (``<out>.frames.csv``).
 CSV_COLUMNS = ("file", "a_m", "b_m", "theta_rad", "split", "content_time_s", "width_px", "height_px", "loss",
-               "psnr_db", "ssim", "image_loss", "camera_vs_mount_m", "camera_vs_mount_deg")
+               "psnr_db", "ssim", "image_loss", "sample_bias", "camera_vs_mount_m", "camera_vs_mount_deg")
 
 
 class SurveyInputError(ValueError):
@@ -299,23 +301,28 @@ def survey_frames(selected: Sequence[SelectedFrame], base: MRComposer, *, datase
 
 
 def seed_loss_map(poses: Sequence[Sequence[float]], losses: Sequence[float], image_losses: Sequence[float] = (),
-                  **settings: Any) -> LossMap:
+                  sample_biases: Sequence[float] = (), **settings: Any) -> LossMap:
     """A :class:`~gsrmr_server.loss_map.LossMap` (``settings``: its cell size, heading bins, radius, prior,
-    forgetting) holding each loss at its pose (a_m, b_m, theta_rad), in order, and the mean of the finite
-    ``image_losses`` as its ``image_loss`` (None without one)."""
+    forgetting) holding each loss at its pose (a_m, b_m, theta_rad), in order, the mean of the finite
+    ``image_losses`` as its ``image_loss`` and the mean of the finite ``sample_biases`` as its ``sample_offset``
+    (None without any)."""
     lm = LossMap(**settings)
     for pose, loss in zip(poses, losses, strict=True):
         lm.add(float(pose[0]), float(pose[1]), float(pose[2]), float(loss))
     measured = [v for v in image_losses if np.isfinite(v)]
     if measured:
         lm.image_loss = float(np.mean(measured))
+    biases = [v for v in sample_biases if np.isfinite(v)]
+    if biases:
+        lm.sample_offset = float(np.mean(biases))
     return lm
 
 
 def survey_loss_map(surveyed: Sequence[SurveyedFrame], **settings: Any) -> LossMap:
-    """:func:`seed_loss_map` of the surveyed frames: L at each ``gsrmr_pose``, the mean J as ``image_loss``."""
+    """:func:`seed_loss_map` of the surveyed frames: L at each ``gsrmr_pose``, the mean J as ``image_loss``, the
+    mean sample bias as ``sample_offset``."""
     return seed_loss_map([s.pose for s in surveyed], [s.score.loss for s in surveyed],
-                         [s.score.image_loss for s in surveyed], **settings)
+                         [s.score.image_loss for s in surveyed], [s.score.sample_bias for s in surveyed], **settings)
 
 
 def write_frames_csv(path: str | Path, surveyed: Sequence[SurveyedFrame]) -> Path:
@@ -328,5 +335,6 @@ def write_frames_csv(path: str | Path, surveyed: Sequence[SurveyedFrame]) -> Pat
             q = s.score
             writer.writerow([s.file_path, *(f"{v:.6f}" for v in s.pose), s.split, f"{s.content_time_s:.3f}",
                              s.width_px, s.height_px, f"{q.loss:.6f}", f"{q.psnr_db:.3f}", f"{q.ssim:.6f}",
-                             f"{q.image_loss:.6f}", f"{s.camera_vs_mount_m:.4f}", f"{s.camera_vs_mount_deg:.3f}"])
+                             f"{q.image_loss:.6f}", f"{q.sample_bias:.6f}", f"{s.camera_vs_mount_m:.4f}",
+                             f"{s.camera_vs_mount_deg:.3f}"])
     return path

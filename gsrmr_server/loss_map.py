@@ -14,8 +14,12 @@ the metric's maximum counts as 20× its cell, not as 60×, while a lasting chang
 do not reach the bound: a loss sample lay at most 13.0× from its cell's mean in the 2146 image slots of 20 recorded
 rounds (``bench/plausibility_replay.py --seed-map``; a bound of 4× would have clipped about one sample in eight).
 ``image_loss`` (optional) is the mean MR loss an *image* slot leaves — its JPEG — measured where the map
-was made (the mapping-round survey encodes each frame at the robot's quality). Pure Python/numpy; JSON
-save/load so a run can seed the next one.
+was made (the mapping-round survey encodes each frame at the robot's quality). ``sample_offset`` (optional) is
+the mean by which the live server's loss samples read above the loss the map holds, measured there too: the
+server scores its render against the composite of the decoded JPEG (it has no other), the map and the loss budget
+against the camera's frame, and the JPEG's error adds to every sample
+(:func:`gsrmr_server.frame_loss.frame_loss`). The map's cells, like the samples the scheduler adds to them, are
+losses against the frame. Pure Python/numpy; JSON save/load so a run can seed the next one.
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ class LossMap:
     cells: dict[tuple[int, int, int], _Cell] = field(default_factory=dict)
     outlier_factor: float = 20.0  # a sample counts at most this factor away from its cell's mean
     image_loss: float | None = None  # mean MR loss an image slot leaves (its JPEG), where it was measured
+    sample_offset: float | None = None  # mean (server's loss sample − loss against the frame), where measured
 
     def __post_init__(self) -> None:
         if not (self.cell_m > 0 and math.isfinite(self.cell_m)):
@@ -58,6 +63,9 @@ class LossMap:
             raise ValueError("loss map: prior must be a finite loss >= 0")
         if self.image_loss is not None and not (self.image_loss >= 0 and math.isfinite(self.image_loss)):
             raise ValueError("loss map: image_loss must be a finite loss >= 0")
+        if self.sample_offset is not None and not (math.isfinite(self.sample_offset) and
+                                                   abs(self.sample_offset) <= 1.0):
+            raise ValueError("loss map: sample_offset must be a finite loss difference in [-1, 1]")
         if not (self.outlier_factor >= 1 and math.isfinite(self.outlier_factor)):
             raise ValueError("loss map: outlier_factor must be a finite factor >= 1")
 
@@ -116,15 +124,18 @@ class LossMap:
                "cells": [[*k, c.mean, c.count] for k, c in sorted(self.cells.items())]}
         if self.image_loss is not None:
             out["image_loss"] = self.image_loss
+        if self.sample_offset is not None:
+            out["sample_offset"] = self.sample_offset
         return out
 
     @classmethod
     def from_json(cls, data: dict) -> LossMap:
         """Inverse of :meth:`to_json`."""
-        image_loss = data.get("image_loss")
+        image_loss, offset = data.get("image_loss"), data.get("sample_offset")
         out = cls(float(data["cell_m"]), int(data["heading_bins"]), float(data["radius_m"]),
                   float(data["prior"]), float(data["forgetting"]),
-                  image_loss=None if image_loss is None else float(image_loss))
+                  image_loss=None if image_loss is None else float(image_loss),
+                  sample_offset=None if offset is None else float(offset))
         for i, j, h, mean, count in data["cells"]:
             if math.isfinite(mean) and mean >= 0:
                 out.cells[(int(i), int(j), int(h))] = _Cell(float(mean), int(count))

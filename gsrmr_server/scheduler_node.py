@@ -423,6 +423,7 @@ class SchedulerNode(Node):
                   "loss_spent": round(budget.loss_spent, 6), "slots_accounted": budget.slots_done,
                   # what L_t is predicted by: the burst model, or the loss map as it is (the oracle's survey)
                   "loss_model": "map" if lp is None else "burst", "image_slot_loss": round(cfg.image_slot_loss, 6),
+                  "loss_sample_offset": round(cfg.loss_sample_offset, 6),
                   # the image fraction the last plan was held to because the robot held images back (-1: none)
                   "link_image_cap": -1 if p.last_image_cap is None else round(p.last_image_cap, 4),
                   "images_held_back": p.link_cap.images_held_back(),

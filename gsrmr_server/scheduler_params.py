@@ -104,6 +104,12 @@ class SchedulerParameters(NodeParameters):
     image_slot_loss: float = ros_parameter(
         -1.0, "MR loss an image slot leaves (its JPEG); −1 = the seed loss map's image_loss (measured on the "
         "mapping round), 0 without one", min_value=-1.0, max_value=1.0, read_only=True)
+    loss_sample_offset: float = ros_parameter(
+        0.0, "Subtracted from every loss sample before the planner uses it: what the server's samples (its render "
+        "against the decoded JPEG) read above the loss against the camera's frame that loss_threshold bounds; "
+        "−1 = the seed loss map's sample_offset (measured by its survey; 0 without one); 0 = samples as measured "
+        "(their JPEG bias then acts as a reserve: docs/scheduling.md)", min_value=-1.0, max_value=1.0,
+        read_only=True)
     margin_quantile: float = ros_parameter(
         0.6, "Learned margin: predictions × this quantile of measured / predicted L over the last 30 image "
         "slots (0 = off)", min_value=0.0, max_value=1.0, read_only=True)
@@ -162,7 +168,8 @@ class SchedulerParameters(NodeParameters):
     def planner_config(self, loss_map: LossMap) -> PlannerConfig:
         """The planner's configuration: the one place that maps these parameters onto
         :class:`~gsrmr_server.planner.PlannerConfig`'s fields. ``image_slot_loss`` −1 takes the seed ``loss_map``'s
-        measured ``image_loss`` (0 without one); ``oracle_channel`` also plans on the loss map as it is
+        measured ``image_loss`` (0 without one), ``loss_sample_offset`` −1 its ``sample_offset`` (0 without one);
+        ``oracle_channel`` also plans on the loss map as it is
         (``trust_loss_map``: the oracle's map is a survey of the scored round). Raises ValueError for values the
         planner refuses (e.g. ``image_bits`` ≤ ``pose_bits``)."""
         return PlannerConfig(
@@ -173,5 +180,7 @@ class SchedulerParameters(NodeParameters):
             in_slot_decision=self.in_slot_decision, explore_image_fraction=self.explore_image_fraction,
             startup_explore_samples=STARTUP_EXPLORE_SAMPLES, probe_gap_slots=self.probe_gap_slots,
             image_slot_loss=(self.image_slot_loss if self.image_slot_loss >= 0 else loss_map.image_loss or 0.0),
+            loss_sample_offset=(self.loss_sample_offset if self.loss_sample_offset != -1.0
+                                else loss_map.sample_offset or 0.0),
             burst_time_constant_slots=self.burst_time_constant_slots, margin_quantile=self.margin_quantile,
             round_slots=self.round_slots)

@@ -173,10 +173,13 @@ def train_split(args: argparse.Namespace) -> TrainSplit | None:
 
 def summary_line(selection: Selection, surveyed: list[SurveyedFrame], loss_map: LossMap, args: argparse.Namespace,
                  csv_path: Path) -> str:
-    """The one-line summary: frames, cells, loss statistics, image_loss, the cameras' offset, the files."""
+    """The one-line summary: frames, cells, loss statistics, image_loss and sample_offset, the cameras' offset, the
+    files."""
     loss = np.array([s.score.loss for s in surveyed])
     size = f"{surveyed[0].width_px}×{surveyed[0].height_px}"
     image = "not measured" if loss_map.image_loss is None else f"{loss_map.image_loss:.4f} (JPEG q{args.jpeg_quality})"
+    if loss_map.sample_offset is not None:
+        image += f", sample_offset {loss_map.sample_offset:+.4f}"
     offset_m = max(s.camera_vs_mount_m for s in surveyed)
     turn_deg = max(s.camera_vs_mount_deg for s in surveyed)
     return (f"{PROG}: {len(surveyed)} frames surveyed ({selection.rule}; {selection.without_pose} without gsrmr_pose "

@@ -102,8 +102,10 @@ class TruthLossPredictor:
     burst_factor = 1.0
     samples = 1_000_000
 
-    def __init__(self, slots: list[RecordedSlot], default: float = 0.05) -> None:
-        self._truth = {s.slot: s.gs_truth_loss for s in slots}
+    def __init__(self, slots: list[RecordedSlot], default: float = 0.05, *, as_sampled: bool = False) -> None:
+        """``as_sampled``: each slot's L as the server's loss sample reads it (``measured_gs_loss``: against the
+        decoded JPEG) instead of against the true frame."""
+        self._truth = {s.slot: s.measured_gs_loss if as_sampled else s.gs_truth_loss for s in slots}
         self._default = default
 
     def observe(self, *_args, **_kwargs) -> None:
@@ -119,12 +121,15 @@ class TruthLossPredictor:
 
 
 def replay(slots: list[RecordedSlot], planner: OnlinePlanner, *, loss_threshold: float, replan_every: int = 20,
-           measurement_delay: int = 1, on_plan: Callable[[int, object], None] | None = None) -> ReplayResult:
-    """Play ``slots`` through ``planner`` (a fresh :class:`OnlinePlanner`); see the module docstring."""
+           measurement_delay: int = 1, on_plan: Callable[[int, object], None] | None = None,
+           observe_keys: bool = False) -> ReplayResult:
+    """Play ``slots`` through ``planner`` (a fresh :class:`OnlinePlanner`); see the module docstring.
+    ``observe_keys`` (a hindsight study, never live): the L_t forecast also learns every *key* slot's loss sample,
+    as if each slot had been measured — what knowing the past exactly is worth."""
     if replan_every < 1 or measurement_delay < 0:
         raise ValueError("replay: replan_every ≥ 1 and measurement_delay ≥ 0")
     x = np.zeros(len(slots), np.int8)
-    pending: list[tuple[int, RecordedSlot]] = []  # (index when it arrives, slot measured)
+    pending: list[tuple[int, RecordedSlot, bool]] = []  # (index when it arrives, slot measured, an image slot)
     pose: tuple[float, float, float] | None = None
     replan_due, replans, plan_time = True, 0, 0.0
     since_plan = 0
@@ -132,8 +137,11 @@ def replay(slots: list[RecordedSlot], planner: OnlinePlanner, *, loss_threshold:
         for item in [p for p in pending if p[0] <= i]:
             pending.remove(item)
             m = item[1]
-            if planner.observe(m.slot, *m.pose, m.measured_gs_loss):
-                replan_due = True
+            if item[2]:
+                if planner.observe(m.slot, *m.pose, m.measured_gs_loss):
+                    replan_due = True
+            else:  # observe_keys: the forecast learns the key slot's L (no ledger, link or drift effect)
+                planner.forecast.observe(m.slot, m.pose, planner.forecast.corrected(m.measured_gs_loss))
         if replan_due or since_plan >= replan_every or planner.active is None:
             t0 = time.perf_counter()
             result = planner.plan(s.slot - 1, pose)
@@ -154,8 +162,8 @@ def replay(slots: list[RecordedSlot], planner: OnlinePlanner, *, loss_threshold:
         pose = s.pose
         planner.record_pose(s.slot, *s.pose)
         planner.record_action(s.slot, int(x[i]))
-        if x[i]:
-            pending.append((i + measurement_delay, s))
+        if x[i] or observe_keys:
+            pending.append((i + measurement_delay, s, bool(x[i])))
     scored = np.array([s.scored for s in slots], bool)
     e_img = np.array([s.energy_image_j for s in slots])
     e_key = np.array([s.energy_key_j for s in slots])

@@ -23,7 +23,7 @@ from gsrmr_sim.offline_server import REPORTED, TRUE, OfflineServer
 from gsrmr_sim.world.recorder import Round2Record
 
 #: Bump when what :func:`gs_losses` measures changes (cached seed maps and loss files carry it).
-SURVEY_VERSION = 2
+SURVEY_VERSION = 3
 
 
 @dataclass
@@ -36,6 +36,7 @@ class SlotLoss:
     psnr_db: float
     ssim: float
     image_loss: float = float("nan")  # J_t: MR loss of the frame's JPEG composite (with ``jpeg_quality``)
+    sample_bias: float = float("nan")  # the image slot's loss sample minus its loss against the true frame
 
 
 def gs_losses(record: Round2Record, model: GaussianModel, background=(0.0, 0.0, 0.0), *, mr_content: str,
@@ -52,7 +53,7 @@ def gs_losses(record: Round2Record, model: GaussianModel, background=(0.0, 0.0, 
         q = frame_loss(composer, srv.frame_u8(t), srv.key(t, TRUE), content_time_s=float(times[t]),
                        jpeg_quality=quality, image_pose=srv.key(t, REPORTED))
         out.append(SlotLoss(t, (float(pose[0]), float(pose[1]), float(pose[2])), q.loss, q.psnr_db, q.ssim,
-                            q.image_loss))
+                            q.image_loss, q.sample_bias))
     return out
 
 
@@ -60,4 +61,4 @@ def loss_map_from(losses: list[SlotLoss], **kwargs) -> LossMap:
     """A loss map holding every surveyed slot (and, where measured, the mean image-slot loss): the deployment
     survey's :func:`~gsrmr_server.deployment_survey.seed_loss_map`; ``kwargs`` are :class:`LossMap` settings."""
     return seed_loss_map([s.pose for s in losses], [s.loss for s in losses], [s.image_loss for s in losses],
-                         **kwargs)
+                         [s.sample_bias for s in losses], **kwargs)

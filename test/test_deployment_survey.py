@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 from dataclasses import replace
 import json
+import math
 from pathlib import Path
 
 import cv2
@@ -112,6 +113,12 @@ def test_perfect_model_loses_nothing_an_untrained_one_clearly_more(surveys):
         assert float(p["loss"]) < float(p["image_loss"]) < float(u["loss"])
     maps = {n: LossMap.load(surveys[n]) for n in surveys}
     assert maps["perfect"].image_loss == pytest.approx(np.mean([float(r["image_loss"]) for r in perfect]), abs=1e-6)
+    # the live server's sample reads the JPEG's error above the loss against the frame: for a perfect model nearly
+    # all of the sample is that error; the map keeps the mean as its sample_offset
+    for r in perfect:
+        assert 0.5 * float(r["image_loss"]) < float(r["sample_bias"]) <= float(r["image_loss"]) + 0.002
+    for name, got in (("perfect", perfect), ("untrained", untrained)):
+        assert maps[name].sample_offset == pytest.approx(np.mean([float(r["sample_bias"]) for r in got]), abs=1e-6)
 
 
 def test_cells_are_keyed_by_gsrmr_pose_and_hold_the_frames_losses(site, surveys):
@@ -135,6 +142,8 @@ def test_the_scheduler_takes_the_map(site, surveys):
     params = SchedulerParameters()
     config = params.planner_config(lm)
     assert config.image_slot_loss == lm.image_loss > 0  # image_slot_loss −1: the map's measured image loss
+    assert lm.sample_offset is not None  # loss_sample_offset −1: the map's measured sample offset
+    assert params.with_values({"loss_sample_offset": -1.0}).planner_config(lm).loss_sample_offset == lm.sample_offset
     planner = OnlinePlanner(config, route_from_file(default_config_path("sandbox", "routes")), lm, params.link)
     held = read_dataset(site["dataset"], load_images=False)[HOLDOUT_EVERY - 1]
     surveyed = {r["file"]: float(r["loss"]) for r in rows(surveys["untrained"])}
@@ -247,9 +256,11 @@ def test_the_simulators_survey_is_the_deployment_function(tmp_path):
         assert d.pose == pytest.approx(s.pose, abs=1e-12)
         assert d.score.loss == pytest.approx(s.loss, abs=1e-6) and s.loss > 0.01
         assert d.score.image_loss == pytest.approx(s.image_loss, abs=1e-6) and s.image_loss > 0
+        assert d.score.sample_bias == pytest.approx(s.sample_bias, abs=1e-6) and math.isfinite(s.sample_bias)
         assert d.camera_vs_mount_m < 1e-9
     # the frame-level function both call: the record's own frame, pose and mount give gs_losses' numbers exactly
     composer = MRComposer(model, base.virtual, record.intrinsics, record.mount, tuple(scene.background))
     direct = frame_loss(composer, np.clip(np.rint(record[1].image * 255), 0, 255).astype(np.uint8),
                         PoseKey(1, *poses[1]), content_time_s=float(record.times_s[1]), jpeg_quality=80)
-    assert (direct.loss, direct.psnr_db, direct.image_loss) == (sim[1].loss, sim[1].psnr_db, sim[1].image_loss)
+    assert (direct.loss, direct.psnr_db, direct.image_loss, direct.sample_bias) == \
+        (sim[1].loss, sim[1].psnr_db, sim[1].image_loss, sim[1].sample_bias)

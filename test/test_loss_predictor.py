@@ -159,6 +159,15 @@ def test_loss_map_carries_the_image_slot_loss_through_json():
         LossMap(image_loss=float("nan"))
 
 
+def test_loss_map_carries_the_sample_offset_through_json():
+    lm = LossMap(sample_offset=0.0031)
+    assert LossMap.from_json(lm.to_json()).sample_offset == 0.0031
+    assert LossMap.from_json(LossMap().to_json()).sample_offset is None and "sample_offset" not in LossMap().to_json()
+    for bad in (float("nan"), float("inf"), 1.5):
+        with pytest.raises(ValueError, match="sample_offset"):
+            LossMap(sample_offset=bad)
+
+
 def _rows(n: int = 120, burst: slice = slice(40, 70), seed: int = 0) -> list[dict]:
     rng = np.random.default_rng(seed)
     link = LinkBudget()
@@ -192,3 +201,21 @@ def test_replay_plays_the_in_slot_rule_and_scores_like_the_demo():
     again = replay(recorded_slots(_rows()), _planner(loss_map=_flat_map(0.02), horizon_slots=40, probe_gap_slots=8),
                    loss_threshold=0.03, replan_every=5)
     np.testing.assert_array_equal(again.x, result.x)  # deterministic
+
+
+def test_replay_hindsight_studies_know_the_past_or_every_slot():
+    """``observe_keys``: the forecast also learns the key slots' L (the planner's link and drift see only images);
+    ``TruthLossPredictor(as_sampled=True)``: the L the server's samples read, not the L against the true frame."""
+    from gsrmr_sim.replay import TruthLossPredictor
+
+    rows = _rows()
+    for r in rows:
+        r["gs_loss"] = r["gs_truth_loss"] + 0.003  # every slot sampled live, 0.003 above the truth
+    slots = recorded_slots(rows)
+    planner = _planner(loss_map=_flat_map(0.02), horizon_slots=40, probe_gap_slots=8, loss_sample_offset=0.003)
+    result = replay(slots, planner, loss_threshold=0.03, replan_every=5, observe_keys=True)
+    assert planner.forecast.samples == len(slots) - 1  # every slot but the last (its sample arrives after the run)
+    assert planner.forecast.key_loss(5045, (0.0, 0.0, 0.0)) == pytest.approx(0.09)  # corrected: against the frame
+    assert 0 < result.images < len(slots)
+    assert TruthLossPredictor(slots, as_sampled=True).estimate(5045, POSE) == pytest.approx(0.093)
+    assert TruthLossPredictor(slots).estimate(5045, POSE) == 0.09

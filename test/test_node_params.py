@@ -67,6 +67,7 @@ SCHEDULER_DECLARED = {
     "explore_image_fraction": (0.1, (0.0, 1.0), True),
     "oracle_channel": (False, None, True),
     "image_slot_loss": (-1.0, (-1.0, 1.0), True),
+    "loss_sample_offset": (0.0, (-1.0, 1.0), True),
     "margin_quantile": (0.6, (0.0, 1.0), True),
     "burst_time_constant_slots": (25.0, (0.1, 1e6), True),
     "probe_gap_slots": (16, (0, 100_000), True),
@@ -212,7 +213,7 @@ def test_scheduler_with_values_and_derived_values():
 def test_planner_config_is_the_one_mapping_of_the_scheduler_parameters():
     """Each parameter lands in its PlannerConfig field; image_slot_loss −1 takes the seed map's measured image
     loss; the oracle also plans on the loss map as it is; a value the planner refuses raises ValueError."""
-    seed = LossMap(image_loss=0.0067)
+    seed = LossMap(image_loss=0.0067, sample_offset=0.0031)
     p = SchedulerParameters().with_values({
         "slot_s": 0.2, "loss_threshold": 0.025, "horizon": 60, "method": "ranking",
         "solver_options": '{"time_limit_s": 0.5}', "image_bits": 50_000.0, "pose_bits": 200.0, "drift_threshold": 0.03,
@@ -226,6 +227,11 @@ def test_planner_config_is_the_one_mapping_of_the_scheduler_parameters():
                                0.2, 0.5, 12.0, 8, 288)
     assert c.image_slot_loss == 0.0067 and p.planner_config(LossMap()).image_slot_loss == 0.0
     assert p.with_values({"image_slot_loss": 0.01}).planner_config(seed).image_slot_loss == 0.01
+    # loss_sample_offset: 0 by default (samples as measured), −1 the seed map's (0 without one), else as given
+    assert c.loss_sample_offset == 0.0
+    assert p.with_values({"loss_sample_offset": -1.0}).planner_config(seed).loss_sample_offset == 0.0031
+    assert p.with_values({"loss_sample_offset": -1.0}).planner_config(LossMap()).loss_sample_offset == 0.0
+    assert p.with_values({"loss_sample_offset": 0.002}).planner_config(seed).loss_sample_offset == 0.002
     assert not c.oracle_channel and not c.trust_loss_map and c.startup_explore_samples == STARTUP_EXPLORE_SAMPLES
     oracle = p.with_values({"oracle_channel": True}).planner_config(seed)
     assert oracle.oracle_channel and oracle.trust_loss_map

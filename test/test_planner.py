@@ -251,6 +251,26 @@ def test_burst_forecast_corrects_a_frozen_seed_and_the_live_map_keeps_learning()
     assert forecast.predicted(10) is None and forecast.predicted(1500) == 0.5
 
 
+def test_loss_samples_are_corrected_by_the_sample_offset_before_anything_learns_from_them():
+    """A server's sample reads its JPEG's error above the loss against the frame: the planner subtracts
+    ``loss_sample_offset`` (floored at 0) before the burst model, the live map, the margin and the drift test."""
+    pose = (0.0, 0.0, 0.0)
+    forecast = LossForecast(LossMap(prior=0.02), sample_offset=0.003)
+    assert forecast.corrected(0.013) == pytest.approx(0.010) and forecast.corrected(0.001) == 0.0
+    assert math.isnan(forecast.corrected(math.nan))
+    plain = OnlinePlanner(replace(BASE, drift_window_samples=1, drift_threshold=0.0025), RoutePredictor(ROUTE, 0.3),
+                          LossMap(prior=0.02), LinkBudget())
+    offset = OnlinePlanner(replace(BASE, drift_window_samples=1, drift_threshold=0.0025, loss_sample_offset=0.003),
+                           RoutePredictor(ROUTE, 0.3), LossMap(prior=0.02), LinkBudget())
+    for planner in (plain, offset):
+        planner.forecast.remember(5, np.array([0.02]), 4)
+    assert plain.observe(5, *pose, 0.023) is True  # |0.023 − 0.02| > 0.0025: a drift alarm
+    assert offset.observe(5, *pose, 0.023) is False  # 0.020 against the frame: as predicted
+    assert plain.loss_map.predict(*pose) == pytest.approx(0.023)
+    assert offset.loss_map.predict(*pose) == pytest.approx(0.020)  # the live map holds losses against the frame
+    assert offset.forecast.key_loss(6, pose) == pytest.approx(0.020)  # a key slot there is charged so
+
+
 def test_drift_needs_a_full_window_and_follows_a_live_window_change():
     drift = DriftMonitor(0.02, 3)
     assert drift.add(0.1) is False and drift.add(0.1) is False and drift.add(0.0) is True  # mean 0.067 > 0.02

@@ -48,6 +48,7 @@ class PlannerConfig:
     startup_explore_samples: int = 0  # in-slot rule: images in the better half of fades until this many L_t
     probe_gap_slots: int = 0  # in-slot rule: this long without an image → any fade ≥ the median one (0 = off)
     image_slot_loss: float = 0.0  # J: the MR loss an image slot leaves (its JPEG)
+    loss_sample_offset: float = 0.0  # subtracted from every loss sample: its JPEG's bias (LossMap.sample_offset)
     burst_time_constant_slots: float = 25.0  # burst model: how fast a measured burst fades into the average
     margin_quantile: float = 0.75  # burst model: learned margin = this quantile of measured / predicted (0 = off)
     margin_window_samples: int = 30  # burst model: … over this many recent measurements
@@ -97,6 +98,7 @@ class PlannerConfig:
             (self.startup_explore_samples >= 0, "startup_explore_samples must be >= 0"),
             (self.probe_gap_slots >= 0, "probe_gap_slots must be >= 0"),
             (self.image_slot_loss >= 0, "image_slot_loss must be a loss >= 0"),
+            (abs(self.loss_sample_offset) <= 1, "loss_sample_offset must be in [-1, 1]"),
             (self.burst_time_constant_slots > 0, "burst_time_constant_slots must be > 0"),
             (0 <= self.margin_quantile <= 1, "margin_quantile must be in [0, 1]"),
             (self.margin_window_samples >= 1, "margin_window_samples must be >= 1"),

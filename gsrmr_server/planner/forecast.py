@@ -9,6 +9,10 @@ Two sources:
 * ``trust_loss_map``: the loss map as it stands — its cells, each updated by the measured samples — with no
   correction and no margin. The oracle plans so: its map is a survey of the very round being scored.
 
+Every sample is first corrected to the loss the budget counts (:meth:`LossForecast.corrected`): the server scores
+its render against the decoded JPEG, whose error adds ``sample_offset`` (the seed map's survey measures it,
+:attr:`gsrmr_server.loss_map.LossMap.sample_offset`) to what the render loses against the camera's frame.
+
 Either way every measured sample also goes into the live loss map (which the scheduler saves for later runs),
 and :class:`LossForecast` keeps what each plan predicted per slot (the margin not included): the burst model's
 margin and the drift test compare measurements with it.
@@ -47,10 +51,11 @@ class LossForecast:
 
     def __init__(self, loss_map: LossMap, *, trust_loss_map: bool = False, burst_time_constant_slots: float = 25.0,
                  margin_quantile: float = 0.75, margin_window_samples: int = 30,
-                 model: SlotLossModel | None = None) -> None:
+                 model: SlotLossModel | None = None, sample_offset: float = 0.0) -> None:
         if trust_loss_map and model is not None:
             raise ValueError("loss forecast: a loss model and trust_loss_map exclude each other")
         self.loss_map = loss_map  # keeps learning from the measured samples (saved for later runs)
+        self.sample_offset = float(sample_offset)  # a loss sample minus the loss against the frame
         self._burst = {"burst_time_constant_slots": burst_time_constant_slots, "margin_quantile": margin_quantile,
                        "margin_window": margin_window_samples}
         self._own_model = not trust_loss_map and model is None
@@ -67,6 +72,11 @@ class LossForecast:
         if self._own_model:
             self.model = LossPredictor(LossMap.from_json(loss_map.to_json()), **self._burst)
         self._measured = 0
+
+    def corrected(self, sample: float) -> float:
+        """A server's loss sample as the loss against the camera's frame: ``sample − sample_offset``, floored at
+        0 (a non-finite sample passes unchanged: the plausibility checks and observe refuse it)."""
+        return max(sample - self.sample_offset, 0.0) if math.isfinite(sample) else sample
 
     @property
     def samples(self) -> int:

@@ -99,6 +99,7 @@ class OnlinePlanner:
         self.config = config
         self.route, self.link = route, link
         self.forecast = LossForecast(loss_map, trust_loss_map=config.trust_loss_map,
+                                     sample_offset=config.loss_sample_offset,
                                      burst_time_constant_slots=config.burst_time_constant_slots,
                                      margin_quantile=config.margin_quantile,
                                      margin_window_samples=config.margin_window_samples, model=loss_model)
@@ -175,9 +176,10 @@ class OnlinePlanner:
         self.budget.record_pose(slot, (a_m, b_m, theta_rad))
 
     def observe(self, slot: int, a_m: float, b_m: float, theta_rad: float, loss: float) -> bool:
-        """An image slot's measured L_t (the server's loss sample); True when the prediction error says a
-        replan is due."""
+        """An image slot's measured L_t (the server's loss sample, corrected by ``loss_sample_offset``: the loss
+        against the frame); True when the prediction error says a replan is due."""
         self.link_cap.record_sample(slot)
+        loss = self.forecast.corrected(loss)
         predicted = self.forecast.observe(slot, (a_m, b_m, theta_rad), loss)
         if predicted is None or not math.isfinite(loss):
             return False
