@@ -1,8 +1,9 @@
 """``gsrmr-demo --hosts 2`` itself (root only): interrupted mid-round with Ctrl-C, it removes everything it made.
 
-A tiny model (12 round-1 frames, 30 training steps, uncompacted) and a 100-slot round keep this to about a
-minute; the demo is interrupted (SIGINT, as a terminal's Ctrl-C) once round 2 runs. Afterwards no namespace of
-its, no veth, no process of its ROS domain and no truth-frame folder may be left.
+A tiny model (12 round-1 frames, 30 training steps, uncompacted) and a 50-slot round (its survey, before round 2,
+takes about 0.16 s a slot: 16 s of the test at 100 slots) keep this to about half a minute; the demo is interrupted
+(SIGINT, as a terminal's Ctrl-C) once round 2 runs. Afterwards no namespace of its, no veth, no process of its ROS
+domain and no truth-frame folder may be left.
 """
 
 from __future__ import annotations
@@ -20,6 +21,10 @@ from gsrmr_sim.netns import NETNS_PREFIX, namespaces, unavailable_reason
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow,
               pytest.mark.skipif(unavailable_reason() is not None, reason=f"two hosts: {unavailable_reason()}")]
+
+
+#: Round 2's slots: 5 s of real time, its Ctrl-C comes within about 0.5 s of the round's start line
+ROUND_SLOTS = 50
 
 
 def _gsrmr_processes(marker: str) -> list[str]:
@@ -43,7 +48,7 @@ def test_ctrl_c_mid_round_removes_namespaces_links_and_processes(tmp_path):
     exe = Path(sys.executable).parent / "gsrmr-demo"
     log = (tmp_path / "demo.log").open("w")
     proc = subprocess.Popen([str(exe), "--hosts", "2", "--uplink-mbit", "2", "--frames", "12", "--train-iterations",
-                             "30", "--train-width", "80", "--no-compact", "--slots", "100", "--cache",
+                             "30", "--train-width", "80", "--no-compact", "--slots", str(ROUND_SLOTS), "--cache",
                              str(tmp_path / "cache"), "--out", str(out)],
                             stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     try:
@@ -51,7 +56,7 @@ def test_ctrl_c_mid_round_removes_namespaces_links_and_processes(tmp_path):
         text = ""
         while time.monotonic() < deadline and proc.poll() is None:
             text = (tmp_path / "demo.log").read_text()
-            if "round 2: " in text and "/100 slots" in text:
+            if "round 2: " in text and f"/{ROUND_SLOTS} slots" in text:
                 break
             time.sleep(0.5)
         assert proc.poll() is None, text[-3000:]

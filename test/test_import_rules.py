@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import ast
+from concurrent.futures import Future, ThreadPoolExecutor
 from importlib.metadata import entry_points
 import json
 import os
@@ -30,6 +31,8 @@ HEAVY = ("numba", "llvmlite", "cvxpy", "scipy", "torch", "plyfile", "matplotlib"
 # Console scripts that run on the LIMO, with the module their entry point imports.
 ROBOT_SIDE = {"gsrmr-robot": "gsrmr_robot.robot_node", "gsrmr-limo-base": "gsrmr_robot.limo.node",
               "gsrmr-link-probe": "gsrmr_common.link_check"}
+# What a console script enters through before its node module: its package and the Ctrl-C guard's module.
+LIGHT_ENTRY_MODULES = ("gsrmr_common.interrupts", "gsrmr_common", "gsrmr_robot", "gsrmr_server", "gsrmr_sim")
 # The ROS nodes among the console scripts: each enters through its node module's main, a console_main.
 NODE_SCRIPTS = frozenset({"gsrmr-link-echo", "gsrmr-link-probe", "gsrmr-limo-base", "gsrmr-robot", "gsrmr-server",
                           "gsrmr-scheduler", "gsrmr-mock-limo", "gsrmr-mock-camera", "gsrmr-route-follower",
@@ -38,7 +41,15 @@ NODE_SCRIPTS = frozenset({"gsrmr-link-echo", "gsrmr-link-probe", "gsrmr-limo-bas
 
 def module_facts(module: str, attr: str | None = None) -> tuple[set[str], bool]:
     """``sys.modules`` after importing ``module`` in a new interpreter, and whether its ``attr`` is a
-    :func:`~gsrmr_common.interrupts.console_main`."""
+    :func:`~gsrmr_common.interrupts.console_main` (run ahead by :func:`_fresh_interpreters` where it is one of
+    :func:`_facts_wanted`)."""
+    future = _FACTS.get((module, attr))
+    modules, mark = future.result() if future is not None else _fresh_interpreter_facts(module, attr)
+    return set(modules), mark
+
+
+def _fresh_interpreter_facts(module: str, attr: str | None) -> tuple[set[str], bool]:
+    """:func:`module_facts`, from a new interpreter that imports ``module`` (each time it is called)."""
     code = ("import importlib, json, sys; m = importlib.import_module(sys.argv[1]); "
             f"mark = bool(sys.argv[2]) and getattr(getattr(m, sys.argv[2]), {CONSOLE_MAIN_MARK!r}, False); "
             "print(json.dumps([sorted(sys.modules), mark]))")
@@ -47,6 +58,34 @@ def module_facts(module: str, attr: str | None = None) -> tuple[set[str], bool]:
     assert result.returncode == 0, result.stderr
     modules, mark = json.loads(result.stdout.splitlines()[-1])
     return set(modules), bool(mark)
+
+
+#: ``(module, attr) → future`` of :func:`_fresh_interpreter_facts`, while this module's tests run
+_FACTS: dict[tuple[str, str | None], Future] = {}
+
+
+def _facts_wanted() -> list[tuple[str, str | None]]:
+    """Every ``(module, attr)`` the tests below ask :func:`module_facts` about, in the order they ask."""
+    wanted: list[tuple[str, str | None]] = [(ROBOT_SIDE[script], None) for script in sorted(ROBOT_SIDE)]
+    wanted += [(m, None) for m in ("gsrmr_server.server_node", "gsrmr_server.scheduler_node",
+                                   "gsrmr_sim.world.camera_node", *LIGHT_ENTRY_MODULES)]
+    wanted += [(value.split(":")[0], value.split(":")[1].strip()) for _, value in sorted(console_scripts().items())]
+    return list(dict.fromkeys(wanted))
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _fresh_interpreters():
+    """Run the new interpreters of :func:`module_facts` ahead of the tests, a few at once (each only imports; one
+    after the other, and the same module again for each test that asks, they took 40 s of the suite): every test
+    still reads a fresh interpreter's ``sys.modules`` for its module."""
+    with ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 1)) as pool:
+        try:
+            for key in _facts_wanted():
+                _FACTS[key] = pool.submit(_fresh_interpreter_facts, *key)
+            yield
+        finally:
+            _FACTS.clear()
+            pool.shutdown(cancel_futures=True)
 
 
 def loaded_modules(module: str) -> set[str]:
@@ -90,8 +129,7 @@ def test_the_check_can_fail():
     assert "gsrmr_sim.world.scene" in loaded_modules("gsrmr_sim.world.camera_node")
 
 
-@pytest.mark.parametrize("module", ["gsrmr_common.interrupts", "gsrmr_common", "gsrmr_robot", "gsrmr_server",
-                                    "gsrmr_sim"])
+@pytest.mark.parametrize("module", LIGHT_ENTRY_MODULES)
 def test_what_a_console_script_loads_before_its_guard_is_light(module):
     """A console script enters through its package (whose ``__init__`` arms the Ctrl-C guard) and the guard's
     module: neither loads anything slow, so the guard is in place before the node module's heavy imports."""

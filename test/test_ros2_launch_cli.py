@@ -7,6 +7,7 @@ exit code of every process is read from the launch log: all must be 0.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 import os
 from pathlib import Path
 import re
@@ -171,16 +172,22 @@ def test_ros2_launch_server_arguments_and_ctrl_c(tmp_path):
     """``ros2 launch gsrmr server.launch.py`` with the README's arguments; Ctrl-C ends both nodes with 0."""
     isolate_this_process()
     model = make_point_model(tmp_path, n=1000)
-    shown = ros2("launch", "gsrmr", "server.launch.py", "--show-args")
-    for name in ("model_path", "mr_content", "route_file", "loss_threshold", "method", "record_dir", "namespace"):
-        assert f"'{name}'" in shown.stdout, shown.stdout
     run = start_ros2_launch(tmp_path, "gsrmr", "server.launch.py", f"model_path:={model}", "loss_threshold:=0.035",
                             "mr_content:=sandbox", "method:=exact", f"record_dir:={tmp_path / 'record'}")
     try:
-        got = ros2_until("param", "get", "--no-daemon", "/gsrmr_scheduler", "loss_threshold", ok="value is",
-                         attempts=20)
+        # three independent CLI calls at once (each mostly waits: interpreter start, discovery of its node)
+        with ThreadPoolExecutor(max_workers=3) as pool:
+            showing = pool.submit(ros2, "launch", "gsrmr", "server.launch.py", "--show-args")
+            threshold = pool.submit(ros2_until, "param", "get", "--no-daemon", "/gsrmr_scheduler", "loss_threshold",
+                                    ok="value is", attempts=20)
+            model_path = pool.submit(ros2_until, "param", "get", "--no-daemon", "/gsrmr_server", "model_path",
+                                     ok="value is", attempts=20)
+        shown = showing.result()
+        for name in ("model_path", "mr_content", "route_file", "loss_threshold", "method", "record_dir", "namespace"):
+            assert f"'{name}'" in shown.stdout, shown.stdout
+        got = threshold.result()
         assert got.stdout.strip() == "Double value is: 0.035", got.stdout + got.stderr
-        got = ros2_until("param", "get", "--no-daemon", "/gsrmr_server", "model_path", ok="value is", attempts=20)
+        got = model_path.result()
         assert got.stdout.strip() == f"String value is: {model}", got.stdout + got.stderr
         rc = run.ctrl_c()
     finally:
@@ -196,8 +203,11 @@ def test_every_launch_file_shows_its_arguments():
     expected = {"sim.launch.py": ("model_path", "scene", "record_dir", "loss_threshold", "method", "laps",
                                   "serial_link", "namespace"),
                 "robot.launch.py": ("port", "camera_image_topic", "camera_info_topic", "jpeg_quality", "namespace")}
+    with ThreadPoolExecutor(max_workers=len(expected)) as pool:  # independent CLI calls: at once
+        shows = dict(zip(expected, pool.map(lambda name: ros2("launch", "gsrmr", name, "--show-args"), expected),
+                         strict=True))
     for name, args in expected.items():
-        shown = ros2("launch", "gsrmr", name, "--show-args")
+        shown = shows[name]
         assert shown.returncode == 0, shown.stderr
         for arg in args:
             assert f"'{arg}'" in shown.stdout, (name, arg, shown.stdout)

@@ -8,6 +8,7 @@ that a node-keyed YAML also set was silently ignored (rcl applies node-name keys
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 import sys
 import tempfile
@@ -61,6 +62,9 @@ def generate_test_description():
 
 
 ANSWERS = ("value is:", "values are:")
+#: ``ros2 param get`` commands run at once: each is a CLI process that mostly waits (interpreter start, discovery of
+#: the node), so a few overlap well even on two cores: one after the other the 11 took 30-40 s, 6 at a time 7-12 s.
+PARALLEL_GETS = 6
 
 
 def param_get(node: str, name: str) -> str:
@@ -92,8 +96,10 @@ class TestServerLaunchArguments(unittest.TestCase):
             ("gsrmr_scheduler", "bandwidth_hz"): "Double value is: 1000000.0",
             ("gsrmr_server", "camera_mount.height_m"): "Double value is: 0.15",  # config/camera_mount.yaml
         }
+        with ThreadPoolExecutor(max_workers=PARALLEL_GETS) as pool:
+            answers = dict(zip(expected, pool.map(lambda key: param_get(*key), expected), strict=True))
         for (node, name), answer in expected.items():
-            self.assertEqual(param_get(node, name), answer, f"{node}.{name}")
+            self.assertEqual(answers[(node, name)], answer, f"{node}.{name}")
         exited = [n for n in proc_info.process_names() if getattr(proc_info[n], "returncode", None) is not None]
         self.assertEqual(exited, [], "a node died")
         self.assertTrue(Path(args["record_dir"]).is_dir(), "the server did not open the record_dir it was given")

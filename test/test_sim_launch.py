@@ -14,6 +14,7 @@ process's exit code 0 when launch stops them with SIGINT.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 import itertools
 from pathlib import Path
 import sys
@@ -215,16 +216,26 @@ class TestSimLaunchCli(unittest.TestCase):
     """After the round (the stack keeps running): the CLI commands of the README, as typed there."""
 
     def test_ros2_cli_after_the_round(self, proc_info):
-        executables = ros2_until("pkg", "executables", "gsrmr", ok="gsrmr-server").stdout
-        for exe in ("gsrmr-robot", "gsrmr-server", "gsrmr-scheduler", "gsrmr-limo-base", "gsrmr-demo"):
-            self.assertIn(f"gsrmr {exe}", executables)
-        nodes = ros2_until("node", "list", "--no-daemon", ok="gsrmr_scheduler").stdout
-        self.assertIn("/gsrmr_scheduler", nodes)
+        # The commands up to the `param set` below are independent of each other: each is a CLI process that mostly
+        # waits (interpreter start, discovery, a message), so they run 3 at once (one after the other: 15-20 s).
+        calls = {"executables": (("pkg", "executables", "gsrmr"), {"ok": "gsrmr-server"}),
+                 "nodes": (("node", "list", "--no-daemon"), {"ok": "gsrmr_scheduler"})}
         # The round's probe heard every topic; `ros2 topic echo` (README "Use it from ROS 2") on one topic of each
         # side, before a higher L_th (below) lets the scheduler plan no image at all once the robot stands. (Each
         # echo is a new CLI process: all 15 topics took 25-45 s of the suite.)
+        calls.update({topic: (("topic", "echo", "--once", "--no-arr", topic), {"ok": "---", "attempts": 3,
+                                                                               "timeout_s": 25.0})
+                      for topic in CLI_ECHO_TOPICS})
+        with ThreadPoolExecutor(max_workers=3) as pool:  # 3 at once: the stack keeps composing on the same 2 cores
+            futures = {key: pool.submit(ros2_until, *args, **kwargs) for key, (args, kwargs) in calls.items()}
+            done = {key: future.result() for key, future in futures.items()}
+        executables = done["executables"].stdout
+        for exe in ("gsrmr-robot", "gsrmr-server", "gsrmr-scheduler", "gsrmr-limo-base", "gsrmr-demo"):
+            self.assertIn(f"gsrmr {exe}", executables)
+        nodes = done["nodes"].stdout
+        self.assertIn("/gsrmr_scheduler", nodes)
         for topic in CLI_ECHO_TOPICS:
-            echo = ros2_until("topic", "echo", "--once", "--no-arr", topic, ok="---", attempts=3, timeout_s=25.0)
+            echo = done[topic]
             self.assertIn("---", echo.stdout, f"ros2 topic echo --once {topic}: {echo.stdout[-500:]}{echo.stderr}")
         set_ok = ros2_until("param", "set", "--no-daemon", "/gsrmr_scheduler", "loss_threshold", "0.04",
                             ok="Set parameter successful")
