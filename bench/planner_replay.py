@@ -12,7 +12,9 @@ are no parameter (:class:`~gsrmr_server.planner.PlannerConfig`: refine_slots, ro
 margin_window_samples, startup_explore_samples) plus ``replan_every`` (slots between timer replans) and
 ``measurement_delay`` (slots before an image's L_t reaches the planner). The planner is configured as the
 scheduler node configures it (:meth:`~gsrmr_server.scheduler_params.SchedulerParameters.planner_config`), always
-without the oracle.
+without the oracle. The images the run's robot sent for a scene change (``gsrmr_robot.scene_change``; its log
+``logs/gsrmr_robot.log`` names the slots, which depend on its camera only) are replayed at the recorded gains with
+the robot's rule, unless ``--no-scene-changes``.
 """
 
 from __future__ import annotations
@@ -22,12 +24,14 @@ from dataclasses import fields, replace
 import json
 import os
 from pathlib import Path
+import re
 import statistics
 import sys
 
 import yaml
 
 from gsrmr_common.link_model import LinkBudget
+from gsrmr_robot.scene_change import ChangeProbe
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.planner import OnlinePlanner, PlannerConfig, RoutePredictor, SlotLossModel
 from gsrmr_server.recording import read_slots_csv
@@ -64,6 +68,21 @@ def make_planner(params: SchedulerParameters, overrides: dict,
                          loss_model=loss_model)
 
 
+SCENE_CHANGE_LINE = re.compile(r"scene change in slot (\d+)")
+
+
+def scene_changes(report: Path) -> tuple[list[int], int]:
+    """(the slots in which the run's robot found a scene change, as its log names them; the robot's
+    ``scene_change_wait_slots``: config/robot.yaml overlaid with the run's robot parameters)."""
+    log = report / "logs" / "gsrmr_robot.log"
+    slots = [int(m.group(1)) for m in SCENE_CHANGE_LINE.finditer(log.read_text())] if log.exists() else []
+    wait = 5
+    for path in (REPO / "config" / "robot.yaml", report / "params" / "gsrmr_robot.yaml"):
+        if path.exists():
+            wait = int(yaml.safe_load(path.read_text())["/**"]["ros__parameters"].get("scene_change_wait_slots", wait))
+    return slots, wait
+
+
 def parse_value(text: str):
     """``key=value`` values: JSON where it parses (numbers, true/false, objects), else the string."""
     try:
@@ -83,6 +102,9 @@ def main() -> int:
                     "true frame (default), or as the server's samples read it (against the decoded JPEG)")
     ap.add_argument("--observe-keys", action="store_true",
                     help="hindsight study: the forecast also learns every key slot's L, as if measured")
+    ap.add_argument("--no-scene-changes", action="store_true",
+                    help="leave out the images the run's robot sent for scene changes (its log names the slots; "
+                    "by default they are replayed at the recorded gains)")
     args = ap.parse_args()
     fixed = {k: parse_value(v) for k, v in (s.split("=", 1) for s in args.set)}
     key, _, values = args.vary.partition("=")
@@ -90,23 +112,27 @@ def main() -> int:
     runs = []
     for report in args.reports:
         params = scheduler_params(report)
-        runs.append((report.name, params, recorded_slots(read_slots_csv(report / "slots.csv"))))
+        changes = ([], 5) if args.no_scene_changes else scene_changes(report)
+        runs.append((report.name, params, recorded_slots(read_slots_csv(report / "slots.csv")), changes))
     print(f"# bench/planner_replay.py: {len(runs)} recorded runs ({os.cpu_count()} CPUs, load average "
           f"{os.getloadavg()[0]:.1f}); fixed {fixed or '{}'}"
           + (f"; HINDSIGHT BOUND: the planner knows every slot's L ({args.truth_loss})" if args.truth_loss else "")
-          + ("; HINDSIGHT: the forecast learns every key slot's L" if args.observe_keys else ""))
+          + ("; HINDSIGHT: the forecast learns every key slot's L" if args.observe_keys else "")
+          + f"; scene changes replayed: {sum(len(c[0]) for *_, c in runs)}")
     print("| setting | mean loss median (worst) | ≤ L_th | regret median (worst) | images median | ms per replan |")
     print("|---|---|---|---|---|---|")
     for setting in settings:
         results = []
-        for name, params, slots in runs:
+        for name, params, slots, (changes, wait) in runs:
             run = params.with_values({k: v for k, v in setting.items() if SchedulerParameters.spec(k)})
             planner = make_planner(run, setting, TruthLossPredictor(slots, as_sampled=args.truth_loss == "samples")
                                    if args.truth_loss else None)
             lth = planner.config.loss_threshold
             r = replay(slots, planner, loss_threshold=lth,
                        replan_every=int(setting.get("replan_every", round(run.replan_period_s / run.slot_s))),
-                       measurement_delay=int(setting.get("measurement_delay", 1)), observe_keys=args.observe_keys)
+                       measurement_delay=int(setting.get("measurement_delay", 1)), observe_keys=args.observe_keys,
+                       scene_changes=changes, change_probe=ChangeProbe(planner.link.rician_k, wait),
+                       mean_gain=lambda pose, link=planner.link: link.mean_gain(pose[:2]))
             results.append((name, lth, r))
             if args.per_run:
                 print(f"|   {name} | {r.mean_loss:.4f} | {int(r.mean_loss <= lth)} | {r.regret:.2f} | "

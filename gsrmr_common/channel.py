@@ -69,6 +69,13 @@ class ChannelModel:
         return self.gains(np.linalg.norm(pos - srv, axis=1))
 
 
+def rician_power_samples(k_factor: float, n: int = 4096, seed: int = 0) -> np.ndarray:
+    """Sorted draws of the Rician small-scale power |h|² (factor ``k_factor``), normalised to mean 1 — the
+    channel model above at unit path loss (the server's in-slot rule prices its fades on them)."""
+    p = np.sort(ChannelModel(rho0_db=0.0, alpha=0.0, k_factor=float(k_factor), seed=seed).gains(np.ones(n)))
+    return p / p.mean()
+
+
 def paper_route_distances(slots: int, server_m: tuple[float, float] = (10.0, 0.0), radius_m: float = 1.5) -> np.ndarray:
     """Robot–server distances (m) for a robot lapping a circle of ``radius_m`` about the map origin once in
     ``slots`` slots, the server at ``server_m`` (the paper's ~10 m sandbox geometry)."""

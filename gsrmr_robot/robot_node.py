@@ -122,6 +122,7 @@ from gsrmr_common.writer_admission import SeqTracker, join_node_name, resolve_wr
 from gsrmr_robot.camera_rectify import UplinkCamera
 from gsrmr_robot.dds_profile import use_uplink_profile
 from gsrmr_robot.robot_params import RobotParameters
+from gsrmr_robot.scene_change import SceneChangeDetector
 from gsrmr_robot.uplink_backlog import UplinkBacklog
 from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, covering_schedule, odom_to_map
 
@@ -155,7 +156,10 @@ class RobotNode(Node):
         self._schedule: ScheduleMsg | None = None
         self._schedule_before: ScheduleMsg | None = None  # the previous schedule, for slots the newest does not cover
         self.schedule_misses = self.no_frame = self.no_pose = 0
-        self.core = UplinkCore(self.link, self.slot_s, self.params.jpeg_quality, self.params.default_upload_image)
+        detector = (SceneChangeDetector(ratio=self.params.scene_change_ratio)
+                    if self.params.scene_change_ratio > 0 else None)
+        self.core = UplinkCore(self.link, self.slot_s, self.params.jpeg_quality, self.params.default_upload_image,
+                               detector, self.params.scene_change_wait_slots)
         self.ledger = self.core.ledger
         self.backlog = UplinkBacklog(stale_after_s=self.params.uplink_ack_stale_s)
 
@@ -384,6 +388,11 @@ class RobotNode(Node):
                                                      sched.threshold(slot) if sched is not None else None,
                                                      round_slot, queued, self.backlog.rate_bps))
         self.channel_unmeasured += int(gain is None)
+        if decision.scene_changed:
+            det = self.core.scene_change
+            self.get_logger().info(f"scene change in slot {slot} (frame difference {det.last_score:.4f}, recent "
+                                   f"median {det.baseline():.4f}): an image goes at the first fair fade within "
+                                   f"{self.params.scene_change_wait_slots} slots")
         self.schedule_misses += int(not decision.scheduled)
         self.no_frame += int(raw is None)
         self.frames_uncalibrated += int(raw is not None and frame is None)
@@ -451,6 +460,8 @@ class RobotNode(Node):
                      self.get_clock().now().nanoseconds / 1e9), 1),
                  "image_readers_unknown": ",".join(self.stranger_readers) or "none",
                  "images_delivered_by_model": self.backlog.model_deliveries,
+                 "scene_changes": self.core.scene_change.changes if self.core.scene_change else -1,
+                 "scene_change_images": self.core.change_images,
                  "implausible": json.dumps(self.implausible.values_for_diagnostics()),
                  **{k: json.dumps(v) if isinstance(v, dict) else v
                     for k, v in {**self.inputs.diagnostic_values(), **self.audit.diagnostic_values()}.items()}}

@@ -53,6 +53,14 @@ class RobotParameters(NodeParameters):
         "is still unacknowledged by the server (queued on the link)")
     uplink_ack_stale_s: float = ros_parameter(1.0, "An image unacknowledged this long no longer holds the next one "
                                               "back [s]", min_value=0.05, max_value=60.0)
+    scene_change_ratio: float = ros_parameter(
+        4.0, "Send an image when the camera's view changes suddenly: a slot's frame differs from the previous slot's "
+        "by more than this many times the recent median difference (gsrmr_robot.scene_change; 0 = off)",
+        min_value=0.0, max_value=100.0, read_only=True)
+    scene_change_wait_slots: int = ros_parameter(
+        5, "After a scene change, the slots (that one included) in which an image goes at the first fair fade "
+        "(above the 30 % quantile of fades at once, the 10 % one in the last slot)", min_value=1, max_value=100,
+        read_only=True)
     odom_frame_id: str = ros_parameter(ODOM_FRAME, "Odometry frame (child of map in TF)", read_only=True)
     base_frame_id: str = ros_parameter(BASE_FRAME, "Robot body frame (parent of the camera in TF)", read_only=True)
     live_parameter_changes: bool = ros_parameter(
@@ -83,6 +91,8 @@ class RobotParameters(NodeParameters):
         """``map_from_odom`` is 3 finite numbers; ``camera_frame_id`` is not empty; a writer list names nodes."""
         if name == "map_from_odom" and (len(value) != 3 or not all(math.isfinite(v) for v in value)):
             return "map_from_odom must be 3 finite numbers [a_m, b_m, theta_rad]"
+        if name == "scene_change_ratio" and 0.0 < value <= 1.0:
+            return "scene_change_ratio must be 0 (off) or > 1"
         if name == "camera_frame_id" and not value:
             return "camera_frame_id must not be empty"
         if name in WRITER_LISTS:

@@ -8,6 +8,12 @@ The channel gain of the slot is the radio's measurement (``radio/channel_gain``;
 odometry position. The node (:mod:`gsrmr_robot.robot_node`) only gathers the inputs and publishes the decision;
 ``bench/soak.py``-style drivers and tests call the core directly.
 
+**Scene changes** (:mod:`gsrmr_robot.scene_change`, optional): when a slot's frame differs suddenly from the
+previous slot's and the rule sent only the key, the core sends an image in the first of the next
+``change_wait_slots`` slots (that one included) whose measured gain is fair
+(:class:`gsrmr_robot.scene_change.ChangeProbe`). The server then measures the change now instead of at the
+schedule's next image. An image sent for any reason ends the wait.
+
 Frames and units: poses are ``base_link`` in ``map`` — ``(a_m, b_m, theta_rad)``, REP-103 (x forward,
 y left, θ counter-clockwise); stamps are ROS time in integer nanoseconds; powers in W, energies in J.
 """
@@ -24,6 +30,7 @@ from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.link_model import LinkBudget
 from gsrmr_common.wire import LedgerRow, PoseKey, ScheduleMsg
 from gsrmr_robot.ledger import EnergyLedger
+from gsrmr_robot.scene_change import ChangeProbe, SceneChangeDetector
 
 Pose = tuple[float, float, float]  # (a_m, b_m, theta_rad) of base_link in map
 
@@ -99,6 +106,7 @@ class SlotDecision:
     row: LedgerRow  # the energy ledger's row for this slot
     scheduled: bool  # a schedule covered the slot
     publish_row: bool  # False when nothing at all was sent (no pose and no image)
+    scene_changed: bool = False  # the slot's frame differed suddenly from the previous slot's (module docstring)
 
 
 def covering_schedule(slot: int, newest: ScheduleMsg | None, before: ScheduleMsg | None) -> ScheduleMsg | None:
@@ -114,11 +122,15 @@ class UplinkCore:
     """Decides each slot's upload and books its energy (see the module docstring)."""
 
     def __init__(self, link: LinkBudget, slot_s: float, jpeg_quality: int = 80,
-                 default_upload_image: bool = True) -> None:
+                 default_upload_image: bool = True, scene_change: SceneChangeDetector | None = None,
+                 change_wait_slots: int = 5) -> None:
         self.link = link
         self.jpeg_quality = int(jpeg_quality)
         self.default_upload_image = bool(default_upload_image)
         self.ledger = EnergyLedger(link.required_power_w, slot_s, link.bandwidth_hz, link.noise_w)
+        self.scene_change = scene_change
+        self.change_probe = ChangeProbe(link.rician_k, change_wait_slots)
+        self.change_images = 0  # images sent for a scene change the rule would not have sent
 
     def run_slot(self, inputs: SlotInputs) -> SlotDecision:
         """The upload of one slot; every slot is booked in the ledger, whatever was sent."""
@@ -135,11 +147,23 @@ class UplinkCore:
             # decided in the slot at the gain just measured (the expected one when the radio said nothing:
             # the rule, with its probing, keeps working; the plan's own x assumed the rule would run)
             x = int(gain >= inputs.gain_threshold)
+        changed = self.scene_change is not None and self.scene_change.update(inputs.frame, inputs.frame_stamp_ns)
+        if changed:
+            self.change_probe.changed(inputs.slot)
+        if (x == 0 and inputs.entry is not None and inputs.frame is not None and self.change_probe.wants_image(
+                inputs.slot, gain, self.link.mean_gain(pose[:2] if pose is not None else None))):
+            x = 1  # the view changed: let the server measure it now (module docstring, "Scene changes")
+            for_change = True
+        else:
+            for_change = False
         # an image asked for while the last one is still queued on the link is held back (key only): on a link
         # slower than one image per slot, images then leave as fast as it delivers them instead of piling up
         held_back = int(x == 1 and inputs.uplink_queued and inputs.frame is not None)
         if held_back:
             x = 0
+        elif x == 1:
+            self.change_probe.image_sent()
+            self.change_images += int(for_change)
         frame = inputs.frame
         # Encoded in key slots too: the ledger books what an image would have cost (upload-all baseline).
         jpeg = encode_jpeg(frame, self.jpeg_quality) if frame is not None else None
@@ -151,4 +175,4 @@ class UplinkCore:
                                  len(jpeg) if jpeg is not None else None, stamp_s, inputs.round_slot, held_back,
                                  inputs.uplink_rate_bps)
         return SlotDecision(inputs.slot, x, key, upload, row, inputs.entry is not None,
-                            publish_row=key is not None or upload is not None)
+                            publish_row=key is not None or upload is not None, scene_changed=changed)

@@ -105,7 +105,7 @@ class SchedulerParameters(NodeParameters):
         -1.0, "MR loss an image slot leaves (its JPEG); −1 = the seed loss map's image_loss (measured on the "
         "mapping round), 0 without one", min_value=-1.0, max_value=1.0, read_only=True)
     loss_sample_offset: float = ros_parameter(
-        0.0, "Subtracted from every loss sample before the planner uses it: what the server's samples (its render "
+        -1.0, "Subtracted from every loss sample before the planner uses it: what the server's samples (its render "
         "against the decoded JPEG) read above the loss against the camera's frame that loss_threshold bounds; "
         "−1 = the seed loss map's sample_offset (measured by its survey; 0 without one); 0 = samples as measured "
         "(their JPEG bias then acts as a reserve: docs/scheduling.md)", min_value=-1.0, max_value=1.0,

@@ -21,16 +21,9 @@ import math
 import numpy as np
 
 from gsrmr_common import link_model as link
-from gsrmr_common.channel import ChannelModel
+from gsrmr_common.channel import rician_power_samples  # noqa: F401 (re-exported: the fades the rule prices)
 
 DEEP_FADE_FRACTION = 0.02  # slots in the worst 2 % of fades never send an image
-
-
-def rician_power_samples(k_factor: float, n: int = 4096, seed: int = 0) -> np.ndarray:
-    """Sorted draws of the Rician small-scale power |h|² (factor ``k_factor``), normalised to mean 1 — the
-    channel model of :mod:`gsrmr_common.channel` at unit path loss."""
-    p = np.sort(ChannelModel(rho0_db=0.0, alpha=0.0, k_factor=float(k_factor), seed=seed).gains(np.ones(n)))
-    return p / p.mean()
 
 
 def saving_coefficient_j(image_bits: float, key_bits: float, slot_s: float, bandwidth_hz: float,

@@ -11,7 +11,9 @@ horizon, replan cadence, predictor or margin — slot by slot, with the informat
   with the last reported pose, as the scheduler node does on its timer;
 * in slot t the robot sends an image iff the gain it measured reaches the schedule's threshold for t
   (or, without thresholds, iff the schedule says image); the planner learns what it did (the ledger) and
-  the pose it reported;
+  the pose it reported; where the run's robot found a scene change (``scene_changes``, the slots its log names:
+  they depend on the camera's frames only, not on the planner) the robot's change probe
+  (:class:`gsrmr_robot.scene_change.ChangeProbe`) adds its image at the recorded gains, as the robot did live;
 * an image slot's L_t reaches the planner ``measurement_delay`` slots later (the server composes, then
   publishes the sample); its value is the L_t the server measured live where the run sent an image there
   (``gs_loss``), else the truth loss scaled by the run's median measured/truth ratio (the server compares
@@ -26,13 +28,14 @@ mid-slot) are not replayed.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 import math
 import time
 
 import numpy as np
 
+from gsrmr_robot.scene_change import ChangeProbe
 from gsrmr_server.planner import OnlinePlanner
 from gsrmr_sim.hindsight import hindsight_optimum
 
@@ -122,12 +125,19 @@ class TruthLossPredictor:
 
 def replay(slots: list[RecordedSlot], planner: OnlinePlanner, *, loss_threshold: float, replan_every: int = 20,
            measurement_delay: int = 1, on_plan: Callable[[int, object], None] | None = None,
-           observe_keys: bool = False) -> ReplayResult:
+           observe_keys: bool = False, scene_changes: Collection[int] = (),
+           change_probe: ChangeProbe | None = None,
+           mean_gain: Callable[[tuple[float, float, float]], float] | None = None) -> ReplayResult:
     """Play ``slots`` through ``planner`` (a fresh :class:`OnlinePlanner`); see the module docstring.
     ``observe_keys`` (a hindsight study, never live): the L_t forecast also learns every *key* slot's loss sample,
-    as if each slot had been measured — what knowing the past exactly is worth."""
+    as if each slot had been measured — what knowing the past exactly is worth. ``scene_changes``: the slots in
+    which the run's robot found a scene change; with ``change_probe`` (fresh) and ``mean_gain`` (the expected
+    gain at a reported pose) the robot's image for each is replayed."""
     if replan_every < 1 or measurement_delay < 0:
         raise ValueError("replay: replan_every ≥ 1 and measurement_delay ≥ 0")
+    if scene_changes and (change_probe is None or mean_gain is None):
+        raise ValueError("replay: scene_changes need a change_probe and a mean_gain")
+    changes = frozenset(int(k) for k in scene_changes)
     x = np.zeros(len(slots), np.int8)
     pending: list[tuple[int, RecordedSlot, bool]] = []  # (index when it arrives, slot measured, an image slot)
     pose: tuple[float, float, float] | None = None
@@ -159,6 +169,13 @@ def replay(slots: list[RecordedSlot], planner: OnlinePlanner, *, loss_threshold:
             x[i] = int(s.gain >= threshold)
         else:
             x[i] = int(entry[0]) if entry is not None else 1
+        if change_probe is not None and changes:
+            if s.slot in changes:
+                change_probe.changed(s.slot)
+            if x[i] == 0 and entry is not None and change_probe.wants_image(s.slot, s.gain, mean_gain(s.pose)):
+                x[i] = 1
+            if x[i]:
+                change_probe.image_sent()
         pose = s.pose
         planner.record_pose(s.slot, *s.pose)
         planner.record_action(s.slot, int(x[i]))

@@ -219,3 +219,29 @@ def test_replay_hindsight_studies_know_the_past_or_every_slot():
     assert 0 < result.images < len(slots)
     assert TruthLossPredictor(slots, as_sampled=True).estimate(5045, POSE) == pytest.approx(0.093)
     assert TruthLossPredictor(slots).estimate(5045, POSE) == 0.09
+
+
+def test_replay_adds_the_robot_s_scene_change_images_at_the_recorded_gains():
+    """A slot the run's robot found a change in: its change probe sends an image at the first fair fade of the
+    wait, where the schedule's rule alone sent a key; without ``scene_changes`` nothing is added."""
+    from gsrmr_robot.scene_change import ChangeProbe
+
+    def run(changes=(), probe=None):
+        planner = _planner(loss_map=_flat_map(0.02), horizon_slots=40, probe_gap_slots=8)
+        return replay(recorded_slots(_rows()), planner, loss_threshold=0.03, replan_every=5, scene_changes=changes,
+                      change_probe=probe, mean_gain=lambda pose: planner.link.mean_gain(pose[:2]))
+
+    slots = recorded_slots(_rows())
+    plain = run()
+    keys = [i for i in range(20, len(slots) - 6) if not plain.x[i:i + 5].any()]
+    assert keys, "the rule must leave a run of 5 key slots to test on"
+    i = keys[0]
+    wait = 5
+    fades = ChangeProbe(LinkBudget().rician_k, wait).fades
+    fair = [k for k in range(wait) if slots[i + k].gain >= LinkBudget().mean_gain(slots[i + k].pose[:2]) * fades[k]]
+    assert fair, "the recorded gains must hold a fair fade in the wait"
+    changed = run((slots[i].slot,), ChangeProbe(LinkBudget().rician_k, wait))
+    np.testing.assert_array_equal(changed.x[:i], plain.x[:i])  # nothing changes before the change
+    assert changed.x[i + fair[0]] == 1 and not changed.x[i:i + fair[0]].any()
+    with pytest.raises(ValueError, match="change_probe"):
+        replay(slots, _planner(loss_map=_flat_map(0.02)), loss_threshold=0.03, scene_changes=(slots[i].slot,))

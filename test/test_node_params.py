@@ -67,7 +67,7 @@ SCHEDULER_DECLARED = {
     "explore_image_fraction": (0.1, (0.0, 1.0), True),
     "oracle_channel": (False, None, True),
     "image_slot_loss": (-1.0, (-1.0, 1.0), True),
-    "loss_sample_offset": (0.0, (-1.0, 1.0), True),
+    "loss_sample_offset": (-1.0, (-1.0, 1.0), True),
     "margin_quantile": (0.6, (0.0, 1.0), True),
     "burst_time_constant_slots": (25.0, (0.1, 1e6), True),
     "probe_gap_slots": (16, (0, 100_000), True),
@@ -227,8 +227,9 @@ def test_planner_config_is_the_one_mapping_of_the_scheduler_parameters():
                                0.2, 0.5, 12.0, 8, 288)
     assert c.image_slot_loss == 0.0067 and p.planner_config(LossMap()).image_slot_loss == 0.0
     assert p.with_values({"image_slot_loss": 0.01}).planner_config(seed).image_slot_loss == 0.01
-    # loss_sample_offset: 0 by default (samples as measured), −1 the seed map's (0 without one), else as given
-    assert c.loss_sample_offset == 0.0
+    # loss_sample_offset: −1 by default, the seed map's (0 without one); 0 = samples as measured; else as given
+    assert c.loss_sample_offset == 0.0031 and p.planner_config(LossMap()).loss_sample_offset == 0.0
+    assert p.with_values({"loss_sample_offset": 0.0}).planner_config(seed).loss_sample_offset == 0.0
     assert p.with_values({"loss_sample_offset": -1.0}).planner_config(seed).loss_sample_offset == 0.0031
     assert p.with_values({"loss_sample_offset": -1.0}).planner_config(LossMap()).loss_sample_offset == 0.0
     assert p.with_values({"loss_sample_offset": 0.002}).planner_config(seed).loss_sample_offset == 0.002

@@ -45,6 +45,13 @@ ROBOT_DECLARED = {
                                  "(queued on the link)"),
     "uplink_ack_stale_s": (1.0, (0.05, 60.0), False,
                            "An image unacknowledged this long no longer holds the next one back [s]"),
+    # issue 25: images for sudden changes of the camera's view
+    "scene_change_ratio": (4.0, (0.0, 100.0), True, "Send an image when the camera's view changes suddenly: a slot's "
+                           "frame differs from the previous slot's by more than this many times the recent median "
+                           "difference (gsrmr_robot.scene_change; 0 = off)"),
+    "scene_change_wait_slots": (5, (1, 100), True, "After a scene change, the slots (that one included) in which an "
+                                "image goes at the first fair fade (above the 30 % quantile of fades at once, the 10 % "
+                                "one in the last slot)"),
     "odom_frame_id": ("odom", None, True, "Odometry frame (child of map in TF)"),
     "base_frame_id": ("base_link", None, True, "Robot body frame (parent of the camera in TF)"),
     # issue 28: live changes off unless started so; the known-writer lists; the radio's maximum power
@@ -104,6 +111,8 @@ def test_robot_live_and_nested_parameters():
     ("uplink_ack_stale_s", 0.01, "in [0.05, 60.0]"),
     ("uplink_width_px", 8, "uplink_width_px must be in [16, 4096]"),
     ("default_upload_image", 1, "must be a bool"),
+    ("scene_change_ratio", 1.0, "scene_change_ratio must be 0 (off) or > 1"),
+    ("scene_change_wait_slots", 0, "in [1, 100]"),
 ])
 def test_robot_problem_refuses_with_a_reason(name, value, reason):
     got = RobotParameters.problem(name, value)
