@@ -16,8 +16,9 @@ horizon, replan cadence, predictor or margin — slot by slot, with the informat
   (:class:`gsrmr_robot.scene_change.ChangeProbe`) adds its image at the recorded gains, as the robot did live;
 * an image slot's L_t reaches the planner ``measurement_delay`` slots later (the server composes, then
   publishes the sample); its value is the L_t the server measured live where the run sent an image there
-  (``gs_loss``), else the truth loss scaled by the run's median measured/truth ratio (the server compares
-  the render with the decoded JPEG, not with the truth).
+  (``gs_loss``), else the truth loss plus the run's median measured − truth difference (the server compares
+  the render with the decoded JPEG, not with the truth, and the JPEG's error adds to every sample: additive,
+  docs/scheduling.md item 7; a ratio, used until 2026-11-27, read low at low L).
 
 The replay scores the outcome as the demo does (energy, mean MR loss over the scored slots, regret against
 the hindsight optimum). It answers "what would this planner have done on that run" in milliseconds per
@@ -60,13 +61,12 @@ def recorded_slots(rows: list[dict]) -> list[RecordedSlot]:
     hindsight value (a slot the server did not compose) are skipped."""
     need = ("channel_gain", "energy_image_j", "energy_key_j", "image_truth_loss", "gs_truth_loss", "pose_a_m")
     ok = [r for r in rows if all(r.get(c) is not None and r.get(c) != "" for c in need)]
-    ratios = [float(r["gs_loss"]) / float(r["gs_truth_loss"]) for r in ok
-              if r.get("gs_loss") not in (None, "") and float(r["gs_truth_loss"]) > 1e-6]
-    ratio = float(np.median(ratios)) if ratios else 1.0
+    biases = [float(r["gs_loss"]) - float(r["gs_truth_loss"]) for r in ok if r.get("gs_loss") not in (None, "")]
+    bias = float(np.median(biases)) if biases else 0.0
     out = []
     for r in ok:
         measured = r.get("gs_loss")
-        measured = float(measured) if measured not in (None, "") else ratio * float(r["gs_truth_loss"])
+        measured = float(measured) if measured not in (None, "") else float(r["gs_truth_loss"]) + bias
         out.append(RecordedSlot(int(r["slot"]), (float(r["pose_a_m"]), float(r["pose_b_m"]),
                                                  float(r["pose_theta_rad"])),
                                 float(r["channel_gain"]), float(r["energy_image_j"]), float(r["energy_key_j"]),

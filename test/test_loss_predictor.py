@@ -184,7 +184,7 @@ def _rows(n: int = 120, burst: slice = slice(40, 70), seed: int = 0) -> list[dic
 
 def test_replay_plays_the_in_slot_rule_and_scores_like_the_demo():
     slots = recorded_slots(_rows())
-    assert len(slots) == 120 and slots[0].measured_gs_loss == 0.02  # no live sample: the truth (ratio 1)
+    assert len(slots) == 120 and slots[0].measured_gs_loss == 0.02  # no live sample in the run: the truth
     seen = []
     planner = _planner(loss_map=_flat_map(0.02), horizon_slots=40, probe_gap_slots=8)
     result = replay(slots, planner, loss_threshold=0.03, replan_every=5,
@@ -201,6 +201,18 @@ def test_replay_plays_the_in_slot_rule_and_scores_like_the_demo():
     again = replay(recorded_slots(_rows()), _planner(loss_map=_flat_map(0.02), horizon_slots=40, probe_gap_slots=8),
                    loss_threshold=0.03, replan_every=5)
     np.testing.assert_array_equal(again.x, result.x)  # deterministic
+
+
+def test_a_slot_without_a_live_sample_reads_the_run_s_additive_jpeg_bias():
+    """The JPEG's error adds to every sample (docs/scheduling.md, item 7): a slot the run did not sample is replayed at
+    its truth + the run's median sample − truth, at low and high L alike (a ratio would read low at low L)."""
+    rows = _rows()
+    for r in rows[::3]:
+        r["gs_loss"] = r["gs_truth_loss"] + 0.003  # sampled live: 0.02 → 0.023 and 0.09 → 0.093
+    slots = {s.slot: s for s in recorded_slots(rows)}
+    assert slots[5001].measured_gs_loss == pytest.approx(0.023)  # L = 0.02, not sampled live
+    assert slots[5041].measured_gs_loss == pytest.approx(0.093)  # L = 0.09 (the burst), not sampled live
+    assert slots[5003].measured_gs_loss == pytest.approx(0.023)  # sampled live: as measured
 
 
 def test_replay_hindsight_studies_know_the_past_or_every_slot():
