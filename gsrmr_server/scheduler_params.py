@@ -117,7 +117,7 @@ class SchedulerParameters(NodeParameters):
         25.0, "How fast a measured burst of L fades into the run's average in the prediction [slots]",
         min_value=0.1, max_value=1e6, read_only=True)
     probe_gap_slots: int = ros_parameter(
-        16, "In-slot rule: after this many slots without an image any fade at or above the median one sends an "
+        20, "In-slot rule: after this many slots without an image any fade at or above the median one sends an "
         "image (0 = off)", min_value=0, max_value=100_000, read_only=True)
     round_slots: int = ros_parameter(
         0, "Slots of an operating round (T) whose mean loss must meet L_th: the round starts when the reported "

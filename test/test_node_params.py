@@ -70,7 +70,7 @@ SCHEDULER_DECLARED = {
     "loss_sample_offset": (-1.0, (-1.0, 1.0), True),
     "margin_quantile": (0.6, (0.0, 1.0), True),
     "burst_time_constant_slots": (25.0, (0.1, 1e6), True),
-    "probe_gap_slots": (16, (0, 100_000), True),
+    "probe_gap_slots": (20, (0, 100_000), True),
     "round_slots": (0, (0, 10_000_000), True),
     # issue 28: the known-writer lists, live changes off unless started so, pose-key check, replan rate limit
     "live_parameter_changes": (False, None, True),
