@@ -67,6 +67,7 @@ from gsrmr_common.slot_clock import SlotClock
 from gsrmr_common.wire import CHANNEL_TOPIC, LossSample, ScheduleMsg
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.planner import OnlinePlanner, PlanResult, RoutePredictor
+from gsrmr_server.planner.cadence import SampleAlignedCadence
 from gsrmr_server.scheduler_params import PLANNING_PARAMETERS, SchedulerParameters
 from gsrmr_server.scheduling import Problem, exact, solve
 
@@ -143,7 +144,8 @@ class SchedulerNode(Node):
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._apply)
         self._restore()
-        self._replan_timer = self.create_timer(p.replan_period_s, lambda: self._request("period"))
+        self.cadence = SampleAlignedCadence(p.replan_on_loss_sample)
+        self._replan_timer = self.create_timer(p.replan_period_s, self._on_period)
         self.create_timer(0.02, self._tick)
         self.create_timer(1.0, self._publish_diagnostics)
 
@@ -273,8 +275,18 @@ class SchedulerNode(Node):
             return
         with self._lock:
             drift = self.planner.observe(sample.slot, sample.a_m, sample.b_m, sample.theta_rad, sample.loss)
-        if drift:
-            self._request("drift")
+            period = self.cadence.sample_taken()
+        if drift or period:
+            self._request("drift" if drift else "period")
+            if self.cadence.aligned:  # now, not at the next tick: the plan should reach the robot for the next slot
+                self._tick()
+
+    def _on_period(self) -> None:
+        """The replan timer: a replan now, or right after the next loss sample (:class:`SampleAlignedCadence`)."""
+        with self._lock:
+            due = self.cadence.timer_fired()
+        if due:
+            self._request("period")
 
     def _expire_waiting_loss(self) -> None:
         """Loss samples whose ledger row did not come within ``_LOSS_WAIT_SLOTS`` are refused."""
@@ -313,6 +325,7 @@ class SchedulerNode(Node):
         slots changed x."""
         with self._lock:
             self._replan_reason = None
+            self.cadence.replanned()
             recent = sorted(self.plan_times_s[-20:])
             expected_ns = int(1e9 * recent[int(0.9 * (len(recent) - 1))]) if recent else 0
             now_slot = self.clock.slot_at(self.get_clock().now().nanoseconds + expected_ns)

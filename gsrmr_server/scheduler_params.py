@@ -74,6 +74,10 @@ class SchedulerParameters(NodeParameters):
                                       max_value=1e9)
     pose_bits: float = ros_parameter(KEY_BITS, "Pose-key size S [bit]", min_value=1.0, max_value=1e6)
     replan_period_s: float = ros_parameter(2.0, "Replan this often [s]", min_value=0.1, max_value=3600.0)
+    replan_on_loss_sample: bool = ros_parameter(
+        True, "The periodic replan waits for the next loss sample (a whole period at most) and runs right after it, "
+        "as does a drift replan: the plan holds the newest measurement (false: at the timer's phase of the slot)",
+        read_only=True)
     drift_threshold: float = ros_parameter(0.02, "Replan when the mean |measured − predicted| loss over "
                                            "drift_window samples exceeds this", min_value=0.0, max_value=1.0)
     drift_window: int = ros_parameter(3, "Samples in the drift test", min_value=1, max_value=1000)

@@ -49,6 +49,39 @@ def hindsight_summary(rows: list[dict], loss_threshold: float) -> dict:
             "regret": run_energy / h.energy_j if h.energy_j > 0 else math.nan}
 
 
+@dataclass(frozen=True)
+class RegretSplit:
+    """A run's regret split in two factors (computed after the run: an evaluation, never used live).
+
+    ``regret`` = run energy / E*(L_th) = ``placement`` × ``unspent``, with E*(L) the hindsight optimum's energy at
+    a mean-loss budget L: ``placement`` = run energy / E*(the run's own mean loss) — how well the run placed its
+    images for the loss it ended with (1 = no schedule leaving that loss costs less) — and ``unspent`` =
+    E*(own loss) / E*(L_th) — what ending the round below L_th cost (1 when the run used the whole budget; < 1 when
+    it went over)."""
+
+    regret: float
+    placement: float
+    unspent: float
+    mean_loss: float  # the run's mean loss over the slots used (image slots: image_loss, key slots: gs_loss)
+    images: int  # the run's images over the slots used
+    images_at_own_loss: int  # the hindsight optimum's at the run's own mean loss
+
+
+def regret_split(x, energy_j, energy_image_j, energy_key_j, image_loss, gs_loss,
+                 loss_threshold: float) -> RegretSplit:
+    """Split a run's regret (see :class:`RegretSplit`); per-slot arrays of one length: what the run did (``x``, 1 =
+    image) and spent (``energy_j``), and the hindsight columns of :data:`HINDSIGHT_COLUMNS`."""
+    x = np.asarray(x, np.int8)
+    l_img, l_gs = np.asarray(image_loss, float), np.asarray(gs_loss, float)
+    run_energy = math.fsum(np.asarray(energy_j, float).tolist())
+    own_loss = math.fsum(np.where(x == 1, l_img, l_gs).tolist()) / max(x.size, 1)
+    at_lth = hindsight_optimum(energy_image_j, energy_key_j, l_img, l_gs, loss_threshold)
+    # the run's own schedule meets its own loss exactly: a hair of tolerance keeps it feasible through the rounding
+    at_own = hindsight_optimum(energy_image_j, energy_key_j, l_img, l_gs, own_loss * (1 + 1e-9) + 1e-15)
+    return RegretSplit(run_energy / at_lth.energy_j, run_energy / at_own.energy_j, at_own.energy_j / at_lth.energy_j,
+                       own_loss, int(x.sum()), at_own.images)
+
+
 def hindsight_optimum(energy_image_j, energy_key_j, image_loss, gs_loss, loss_threshold: float) -> Hindsight:
     """Exact 0/1 optimum (see the module docstring); inputs are per-slot arrays of one length."""
     e_img, e_key = np.asarray(energy_image_j, float), np.asarray(energy_key_j, float)

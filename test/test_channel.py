@@ -17,7 +17,7 @@ from gsrmr_robot.uplink_core import SlotInputs, UplinkCore, covering_schedule
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.planner import OnlinePlanner, PlannerConfig, RoutePredictor
 from gsrmr_server.slot_price import DEEP_FADE_FRACTION, gain_thresholds, rician_power_samples, saving_coefficient_j
-from gsrmr_sim.hindsight import hindsight_optimum
+from gsrmr_sim.hindsight import hindsight_optimum, regret_split
 from gsrmr_sim.world.true_channel import TrueChannel
 
 
@@ -175,3 +175,29 @@ def test_a_newer_schedule_that_starts_after_the_slot_leaves_it_to_the_plan_befor
     assert covering_schedule(99, newest, before) is newest  # neither covers it: the default upload (lookup None)
     assert covering_schedule(104, newest, None) is newest
     assert covering_schedule(104, None, before) is None
+
+
+def test_regret_split_separates_image_placement_from_the_budget_left_unspent():
+    rng = np.random.default_rng(11)
+    n = 40
+    g = rng.uniform(2e-7, 5e-6, n)
+    e_key = 0.1 * 1e-9 / g * (2 ** (192 / 1e5) - 1)
+    e_img = 0.1 * 1e-9 / g * (2 ** (rng.uniform(5e4, 9e4, n) / 1e5) - 1)
+    l_img, l_gs = rng.uniform(0.0, 0.01, n), rng.uniform(0.0, 0.08, n)
+    lth = 0.03
+
+    def split(x):
+        return regret_split(x, np.where(x == 1, e_img, e_key), e_img, e_key, l_img, l_gs, lth)
+
+    best = hindsight_optimum(e_img, e_key, l_img, l_gs, lth)
+    at_best = split(best.x)  # the optimum itself: nothing to split
+    assert at_best.regret == pytest.approx(1.0) and at_best.placement == pytest.approx(1.0)
+    assert at_best.unspent == pytest.approx(1.0)
+    careful = split(hindsight_optimum(e_img, e_key, l_img, l_gs, 0.8 * lth).x)  # optimal, but for a tighter budget
+    assert careful.placement == pytest.approx(1.0) and careful.unspent > 1.0
+    assert careful.regret == pytest.approx(careful.unspent) and careful.mean_loss <= 0.8 * lth + 1e-12
+    wasteful = split(np.ones(n, np.int8))  # every slot an image: the loss is the images', placed at any cost
+    assert wasteful.placement > 1.0 and wasteful.images == n
+    for s in (at_best, careful, wasteful):
+        assert s.regret == pytest.approx(s.placement * s.unspent, rel=1e-12)
+        assert s.images_at_own_loss <= n

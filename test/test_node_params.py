@@ -55,6 +55,7 @@ SCHEDULER_DECLARED = {
     "image_bits": (67200.0, (1.0, 1e9), False),
     "pose_bits": (192.0, (1.0, 1e6), False),
     "replan_period_s": (2.0, (0.1, 3600.0), False),
+    "replan_on_loss_sample": (True, None, True),
     "drift_threshold": (0.02, (0.0, 1.0), False),
     "drift_window": (3, (1, 1000), False),
     "loss_margin": (0.0, (0.0, 0.99), False),
