@@ -32,8 +32,9 @@ from gsrmr_sim.hindsight import HINDSIGHT_COLUMNS, RegretSplit, regret_split
 
 def split_of(report: Path, loss_threshold: float) -> RegretSplit:
     """The regret split of one report's scored slots that carry every hindsight value."""
+    needed = ("energy_j", *HINDSIGHT_COLUMNS)
     rows = [r for r in read_slots_csv(report / "slots.csv")
-            if r.get("scored") and r.get("energy_j") is not None and all(r.get(c) is not None for c in HINDSIGHT_COLUMNS)]
+            if r.get("scored") and all(r.get(c) is not None for c in needed)]
     if not rows:
         raise SystemExit(f"regret_split: {report} has no scored slot with the hindsight columns")
     cols = [np.array([r[c] for r in rows], float) for c in ("x", "energy_j", *HINDSIGHT_COLUMNS)]

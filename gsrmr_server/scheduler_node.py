@@ -2,7 +2,9 @@
 
 Replans (see :class:`~gsrmr_server.planner.OnlinePlanner`) every ``replan_period_s``, on
 ``/gsrmr/replan`` (``std_srvs/Trigger``, relative name ``gsrmr/replan``), after any accepted parameter
-change, and by itself when measured losses drift from the prediction by more than ``drift_threshold``.
+change, and by itself when measured losses drift from the prediction by more than ``drift_threshold``. With
+``replan_on_loss_sample`` the periodic replan waits for the next loss sample (a period at most) and runs right after
+it, as a drift replan does (:class:`~gsrmr_server.planner.cadence.SampleAlignedCadence`).
 
 Subscribes: ``uplink/pose_key`` (geometry_msgs/Vector3Stamped: the robot's pose in ``map``),
 ``gsrmr/loss_sample`` (std_msgs/Float64MultiArray ``[slot, a_m, b_m, theta_rad, loss]`` from the server).

@@ -22,6 +22,7 @@ from gsrmr_server.planner import (
     PlannerConfig,
     RoutePredictor,
 )
+from gsrmr_server.planner.cadence import SampleAlignedCadence
 from gsrmr_server.slot_price import DEEP_FADE_FRACTION, gain_thresholds, rician_power_samples, saving_coefficient_j
 
 ROUTE = [(0.0, 0.0), (2.0, 0.0), (2.0, 2.0), (0.0, 2.0)]
@@ -371,3 +372,19 @@ def test_a_deficit_is_not_repaid_in_a_deep_fade_when_a_plan_is_published_before_
     assert uncovered == []  # every schedule covers the slot it may arrive before
     assert planner.budget.round_remaining(219) == 1
     assert math.fsum(loss.values()) / len(loss) <= config.loss_threshold  # the deficit repaid within the round
+
+
+def test_the_periodic_replan_waits_for_the_next_loss_sample_and_at_most_a_period():
+    cadence = SampleAlignedCadence()
+    assert not cadence.sample_taken()  # a sample before the period is over: no replan of its own
+    assert not cadence.timer_fired()  # the period is over: wait for the next sample
+    assert cadence.waiting
+    assert cadence.sample_taken() and not cadence.waiting  # ... and replan right after it
+    assert not cadence.sample_taken()  # once per period
+    assert not cadence.timer_fired()
+    assert cadence.timer_fired() and cadence.waited_out == 1  # no sample for a whole period: replan at the timer
+    assert not cadence.timer_fired()
+    cadence.replanned()  # a drift or service replan satisfies the period
+    assert not cadence.waiting and not cadence.sample_taken()
+    unaligned = SampleAlignedCadence(aligned=False)  # the timer's phase, as before
+    assert unaligned.timer_fired() and unaligned.timer_fired() and not unaligned.sample_taken()

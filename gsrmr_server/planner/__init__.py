@@ -9,10 +9,12 @@
 * :class:`LossBudget` (``budget.py``) — booked slots, rounds, the Σ loss each block of a plan may leave;
 * :class:`LinkCap` (``link_cap.py``) — the image fraction the uplink carries;
 * :class:`InSlotPricing` (``pricing.py``) — the in-slot rule's gain thresholds, exploration and probing;
-* :class:`DriftMonitor` (``drift.py``) — when measured losses call for a replan.
+* :class:`DriftMonitor` (``drift.py``) — when measured losses call for a replan;
+* :class:`SampleAlignedCadence` (``cadence.py``) — when the periodic replan runs: right after the next loss sample.
 """
 
 from gsrmr_server.planner.budget import LossBudget
+from gsrmr_server.planner.cadence import SampleAlignedCadence
 from gsrmr_server.planner.config import LIVE_FIELDS, PlannerConfig
 from gsrmr_server.planner.drift import DriftMonitor
 from gsrmr_server.planner.forecast import LossForecast, SlotLossModel
@@ -22,4 +24,4 @@ from gsrmr_server.planner.pricing import InSlotPricing
 from gsrmr_server.planner.route import RoutePredictor
 
 __all__ = ["LIVE_FIELDS", "DriftMonitor", "InSlotPricing", "LinkCap", "LossBudget", "LossForecast", "OnlinePlanner",
-           "PlanResult", "PlannerConfig", "RoutePredictor", "SlotLossModel"]
+           "PlanResult", "PlannerConfig", "RoutePredictor", "SampleAlignedCadence", "SlotLossModel"]

@@ -1,9 +1,10 @@
 """When the periodic replan runs (pure): right after a loss sample, not at the timer's arbitrary phase of the slot.
 
 The scheduler's replan timer fires every ``replan_period_s`` at a phase of the slot fixed by when the node started.
-The server's loss sample of slot t reaches the scheduler some 30–100 ms into slot t (it composes the slot first:
-docs/scheduling.md, "Sample timing"). A timer replan that fires before it plans without slot t's sample, and the robot
-decides slot t + 1 with that plan: the planner then reacts to what an image showed one slot later than it could.
+The server's loss sample of slot t reaches the scheduler 60–120 ms into slot t here (it composes the slot first:
+docs/scheduling.md, "Sample timing and the probe gap: measured"). A timer replan that fires before it plans without
+slot t's sample, and the robot decides slot t + 1 with that plan: the planner then reacts to what an image showed one
+slot later than it could.
 Replayed on 15 recorded runs, a sample that counts from the next slot instead of the one after it is worth 0.08 of
 regret (``bench/planner_replay.py … --vary measurement_delay=1,2``: 1.45 against 1.53).
 
