@@ -73,7 +73,8 @@ def ledger_problem(row: LedgerRow, now_slot: int, max_skew_slots: int = 50) -> s
     if abs(row.slot - now_slot) > max_skew_slots:
         return "ledger_slot"
     rate_ok = math.isnan(row.uplink_rate_bps) or (math.isfinite(row.uplink_rate_bps) and row.uplink_rate_bps >= 0)
-    if row.x not in (0, 1) or row.held_back not in (0, 1) or row.bits_sent < 0 or not rate_ok:
+    if row.x not in (0, 1) or row.held_back not in (0, 1) or row.scene_change not in (0, 1) or row.bits_sent < 0 \
+            or not rate_ok:
         return "ledger_values"
     return None
 

@@ -9,7 +9,7 @@ module only maps fields:
 * schedule ↔ ``std_msgs/Float64MultiArray``: ``layout.dim = [meta(4), x(n), power_w(n)]``, plus
   ``gain_threshold(n)`` when it carries the in-slot rule (+inf sent as −1).
 * ledger row, loss sample, channel sample and MR slot info ↔ ``std_msgs/Float64MultiArray``: ``layout.dim =
-  [ledger(13)]`` / ``[loss_sample(5)]`` / ``[channel_sample(3)]`` / ``[mr_slot_info(6)]`` (an empty layout is
+  [ledger(14)]`` / ``[loss_sample(5)]`` / ``[channel_sample(3)]`` / ``[mr_slot_info(6)]`` (an empty layout is
   accepted too).
 * raw image ↔ ``sensor_msgs/Image``: our in-process images are H×W×3 ``uint8`` RGB; the pixel work
   is :mod:`gsrmr_common.image_bridge` (``cv_bridge`` where a ROS install has it, else the project's
@@ -174,7 +174,7 @@ def _check_flat_layout(msg: Float64MultiArray, label: str) -> None:
 
 
 def ledger_to_msg(row: wire.LedgerRow) -> Float64MultiArray:
-    """Ledger row → ``Float64MultiArray`` (``layout.dim = [ledger(13)]``, fields in ``LEDGER_FIELDS`` order)."""
+    """Ledger row → ``Float64MultiArray`` (``layout.dim = [ledger(14)]``, fields in ``LEDGER_FIELDS`` order)."""
     return _flat_record_msg("ledger", wire.ledger_row_to_data(row))
 
 

@@ -30,10 +30,12 @@ absolute slot index (exact in float64 up to 2^53).
 Ledger row (one per slot, robot → server and scheduler, ``gsrmr/ledger``): ``std_msgs/Float64MultiArray``
 whose ``data`` are the fields of :class:`LedgerRow` in :data:`LEDGER_FIELDS` order: ``[slot, x,
 scheduled_power_w, bits_sent, gain, power_w, energy_j, upload_all_bits, upload_all_energy_j, frame_stamp_s,
-round_slot, held_back, uplink_rate_bps]`` (W, J, s, bit/s; ``round_slot`` the radio's index of the slot in
-the round, −1 unknown; ``held_back`` 1 when an image was asked for and only the key was sent, the last image
-still unacknowledged; ``uplink_rate_bps`` the robot's throughput estimate from image acknowledgements, NaN
-without one).
+round_slot, held_back, uplink_rate_bps, scene_change]`` (W, J, s, bit/s; ``round_slot`` the radio's index of
+the slot in the round, −1 unknown; ``held_back`` 1 when an image was asked for and only the key was sent, the
+last image still unacknowledged; ``uplink_rate_bps`` the robot's throughput estimate from image
+acknowledgements, NaN without one; ``scene_change`` 1 when the robot's scene-change test fired on the slot's
+frame, :mod:`gsrmr_robot.scene_change`: the scheduler then knows in which slot the world changed between two
+images).
 
 Channel sample (the radio → robot, ``radio/channel_gain``, before the slot starts): ``std_msgs/Float64MultiArray``
 with ``data = [slot, round_slot, gain]`` (:class:`ChannelSample`).
@@ -174,6 +176,7 @@ class LedgerRow:
     round_slot: int = -1  # the radio's index of the slot in the round (ChannelSample.round_slot; −1: unknown)
     held_back: int = 0  # 1: an image was asked for and the robot sent the key only (its last image still queued)
     uplink_rate_bps: float = float("nan")  # the robot's estimate of the uplink's throughput from image acks, bit/s
+    scene_change: int = 0  # 1: the robot's scene-change test fired on this slot's frame (the view changed suddenly)
 
 
 # Order of the values in a ``gsrmr/ledger`` Float64MultiArray (one message per slot).
@@ -303,7 +306,7 @@ def ledger_row_from_data(data: list[float] | np.ndarray) -> LedgerRow:
     if arr.shape != (len(LEDGER_FIELDS),):
         raise ValueError(f"ledger row: expected {len(LEDGER_FIELDS)} values {LEDGER_FIELDS}, got {arr.size}")
     row = dict(zip(LEDGER_FIELDS, arr.tolist(), strict=True))
-    integers = ("slot", "x", "bits_sent", "upload_all_bits", "round_slot", "held_back")
+    integers = ("slot", "x", "bits_sent", "upload_all_bits", "round_slot", "held_back", "scene_change")
     if not all(math.isfinite(row[k]) for k in integers):
         raise ValueError(f"ledger row: {', '.join(integers)} must be finite")
     for k in integers:

@@ -173,6 +173,6 @@ class UplinkCore:
             else float("nan")
         row = self.ledger.record(inputs.slot, x, power_w, len(upload) if upload is not None else None, gain,
                                  len(jpeg) if jpeg is not None else None, stamp_s, inputs.round_slot, held_back,
-                                 inputs.uplink_rate_bps)
+                                 inputs.uplink_rate_bps, int(changed))
         return SlotDecision(inputs.slot, x, key, upload, row, inputs.entry is not None,
                             publish_row=key is not None or upload is not None, scene_changed=changed)

@@ -45,6 +45,7 @@ class SlotRow:
     round_slot: int | None = None  # the radio's index of the slot in the round (its ledger; −1 before it)
     held_back: int | None = None  # 1: an image was asked for, the robot sent the key (its last image still queued)
     uplink_rate_bps: float | None = None  # the robot's estimate of the uplink throughput from image acks
+    scene_change: int | None = None  # 1: the robot's scene-change test fired on this slot's frame (its ledger)
 
 
 SLOT_ROW_COLUMNS = tuple(f.name for f in fields(SlotRow))

@@ -149,9 +149,12 @@ def test_a_change_sends_an_image_at_the_first_fair_fade():
     good, deep = 1.2 * core.change_probe.fades[0], 0.9 * core.change_probe.fades[-1]
     assert all(_key_slot(core, k, f, good).x == 0 for k, f in enumerate(before))
     slot = len(before)
-    assert _key_slot(core, slot, after[0], deep).x == 0  # the change, in a deep fade: wait
+    changed = _key_slot(core, slot, after[0], deep)
+    assert changed.x == 0  # the change, in a deep fade: wait
+    assert changed.scene_changed and changed.row.scene_change == 1  # the ledger tells the scheduler where
     sent = _key_slot(core, slot + 1, after[1], good)
     assert sent.x == 1 and sent.jpeg is not None and core.change_images == 1
+    assert sent.row.scene_change == 0  # the image of the change is not the change's slot
     assert _key_slot(core, slot + 2, after[2], good).x == 0  # one image per change
     assert core.scene_change.changes == 1
 

@@ -15,7 +15,7 @@ from gsrmr_server.slot_row import SLOT_ROW_COLUMNS
 
 CSV_COLUMNS = SLOT_ROW_COLUMNS  # the fields of gsrmr_server.slot_row.SlotRow, in order
 CSV_NAME = "slots.csv"
-_INT_COLUMNS = frozenset({"slot", "x", "bytes_sent", "scored", "round_slot", "held_back"})
+_INT_COLUMNS = frozenset({"slot", "x", "bytes_sent", "scored", "round_slot", "held_back", "scene_change"})
 _STR_COLUMNS = frozenset({"source", "faults"})
 SOURCES = tuple(s.value for s in RealSource)  # the source column: where r̂_t came from
 
@@ -56,15 +56,17 @@ def read_slots_csv(path: str | os.PathLike[str], columns: tuple[str, ...] = CSV_
     """Rows of a ``slots.csv`` as dicts: ints for slot/x/bytes_sent, str for source/faults, float
     otherwise, ``None`` for empty cells. A last line without its newline (torn write) is dropped.
     ``columns``: the header the file must have (a file of some of these columns, e.g. the simulation's
-    ``scores.csv``, is read with the same cell rules)."""
+    ``scores.csv``, is read with the same cell rules). A file recorded before the last columns were added (its
+    header the first of ``columns``: ``scene_change`` came on 2026-11-27) reads with those cells ``None``."""
     with Path(path).open(newline="", encoding="utf-8") as f:
         text = f.read()
     if text and not text.endswith("\n"):
         text = text[: text.rfind("\n") + 1]
     reader = csv.DictReader(text.splitlines(keepends=True))
-    if tuple(reader.fieldnames or ()) != columns:
+    header = tuple(reader.fieldnames or ())
+    if not header or header != columns[:len(header)]:
         raise ValueError(f"{path}: header {reader.fieldnames} is not {list(columns)}")
-    return [{c: _parse_cell(c, row[c]) for c in columns} for row in reader]
+    return [{c: _parse_cell(c, row[c]) if c in header else None for c in columns} for row in reader]
 
 
 def csv_line(row: dict[str, Any], columns: tuple[str, ...] = CSV_COLUMNS) -> str:
