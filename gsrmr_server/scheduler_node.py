@@ -7,7 +7,9 @@ change, and by itself when measured losses drift from the prediction by more tha
 it, as a drift replan does (:class:`~gsrmr_server.planner.cadence.SampleAlignedCadence`).
 
 Subscribes: ``uplink/pose_key`` (geometry_msgs/Vector3Stamped: the robot's pose in ``map``),
-``gsrmr/loss_sample`` (std_msgs/Float64MultiArray ``[slot, a_m, b_m, theta_rad, loss]`` from the server).
+``gsrmr/loss_sample`` (std_msgs/Float64MultiArray ``[slot, a_m, b_m, theta_rad, loss]`` from the server),
+``gsrmr/ledger`` (the robot's ledger rows) and ``mr/slot_info`` (the server's :class:`~gsrmr_common.wire.MRSlotInfo`:
+what it composed each slot from — an image that did not reach it in time is charged as the render it used).
 Publishes: ``gsrmr/schedule`` (std_msgs/Float64MultiArray, layout in :mod:`gsrmr_common.wire`;
 reliable, transient local, depth 1), ``/diagnostics``.
 The last schedule and the loss map are saved in ``state_dir`` (when set) after every plan, and loaded
@@ -15,9 +17,10 @@ at start, so a restarted scheduler resumes from its last schedule.
 
 Nothing on the graph is taken blindly (``docs/security.md``, "Application checks"): every input is admitted by its
 writer (:class:`gsrmr_common.ros_admission.GatedInputs`: ``robot_writers`` for the pose keys and the ledger,
-``loss_writers``, ``channel_writers`` for the oracle; each writer endpoint rate-limited); pose keys must move within
-``max_speed_mps``; a ledger row must name a slot near now, once; a loss sample must lie in the metric's range, come
-once per slot, for a slot the ledger says carried an image, at the pose the robot reported for it
+``loss_writers`` for the loss samples and the slot info, ``channel_writers`` for the oracle; each writer endpoint
+rate-limited); pose keys must move within ``max_speed_mps``; a ledger row must name a slot near now, once; a loss
+sample must lie in the metric's range, come once per slot, for a slot the ledger says carried an image, at the pose
+the robot reported for it
 (:class:`gsrmr_common.plausibility.LossSampleCheck`; a sample that comes before its slot's ledger row waits for it,
 20 slots at most; one for a slot before the first ledger row heard is not used, counted ``loss_samples_unverified``).
 ``gsrmr/replan`` answers at most once per ``replan_min_interval_s``. Refusals are counted by writer and by reason on
@@ -62,11 +65,12 @@ from gsrmr_common.ros_wire import (
     channel_sample_from_msg,
     ledger_from_msg,
     loss_sample_from_msg,
+    mr_slot_info_from_msg,
     pose_key_from_msg,
     schedule_to_msg,
 )
 from gsrmr_common.slot_clock import SlotClock
-from gsrmr_common.wire import CHANNEL_TOPIC, LossSample, ScheduleMsg
+from gsrmr_common.wire import CHANNEL_TOPIC, MR_SLOT_INFO_TOPIC, LossSample, ScheduleMsg
 from gsrmr_server.loss_map import LossMap
 from gsrmr_server.planner import OnlinePlanner, PlanResult, RoutePredictor
 from gsrmr_server.planner.cadence import SampleAlignedCadence
@@ -75,6 +79,7 @@ from gsrmr_server.scheduling import Problem, exact, solve
 
 #: Slots whose ledger rows and pose keys the loss-sample check remembers.
 _MEMORY_SLOTS = 2000
+_SLOT_INFO_SKEW_SLOTS = 50  # an mr/slot_info names a slot within this many of now (as a ledger row does)
 #: A loss sample waits this many slots for its slot's ledger row, then it is refused (``loss_unledgered``).
 _LOSS_WAIT_SLOTS = 20
 
@@ -142,6 +147,8 @@ class SchedulerNode(Node):
                                   rate_hz=40.0, burst=40.0)
         self.inputs.subscribe(Float64MultiArray, "gsrmr/ledger", self._on_ledger, UPLINK_QOS, p.robot_writers,
                               rate_hz=40.0, burst=60.0)
+        self.inputs.subscribe(Float64MultiArray, MR_SLOT_INFO_TOPIC, self._on_slot_info, UPLINK_QOS, p.loss_writers,
+                              rate_hz=40.0, burst=60.0)
         self.create_service(Trigger, "gsrmr/replan", self._on_replan)
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._apply)
@@ -170,7 +177,8 @@ class SchedulerNode(Node):
         first = self._first_ledger_slot
         self._first_ledger_slot = row.slot if first is None else min(row.slot, first)
         with self._lock:
-            self.planner.record_action(row.slot, row.x, row.held_back, row.uplink_rate_bps, row.upload_all_bits)
+            self.planner.record_action(row.slot, row.x, row.held_back, row.uplink_rate_bps, row.upload_all_bits,
+                                       row.scene_change)
         waiting = self._waiting_loss.pop(row.slot, None)
         if waiting is not None:
             self._take_loss(waiting)
@@ -253,6 +261,21 @@ class SchedulerNode(Node):
         _remember(self._key_poses, key.slot, self._pose)
         with self._lock:
             self.planner.record_pose(key.slot, *self._pose)
+
+    def _on_slot_info(self, msg: Float64MultiArray, _gid: bytes = b"") -> None:
+        """What the server composed a slot from: the budget charges the slot by it (an image it did not have in time
+        left a render's loss, not the JPEG's). One per slot near now."""
+        try:
+            info = mr_slot_info_from_msg(msg)
+        except ValueError:
+            self.implausible["slot_info_malformed"] += 1
+            return
+        now_slot = self.clock.slot_at(self.get_clock().now().nanoseconds)
+        if abs(info.slot - now_slot) > _SLOT_INFO_SKEW_SLOTS:
+            self.implausible["slot_info_slot"] += 1
+            return
+        with self._lock:
+            self.planner.record_composed(info.slot, str(info.source))
 
     def _on_loss(self, msg: Float64MultiArray, _gid: bytes = b"") -> None:
         try:

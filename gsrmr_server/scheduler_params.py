@@ -81,8 +81,10 @@ class SchedulerParameters(NodeParameters):
     drift_threshold: float = ros_parameter(0.02, "Replan when the mean |measured − predicted| loss over "
                                            "drift_window samples exceeds this", min_value=0.0, max_value=1.0)
     drift_window: int = ros_parameter(3, "Samples in the drift test", min_value=1, max_value=1000)
-    loss_margin: float = ros_parameter(0.0, "Plan for loss_threshold·(1 − loss_margin): a fixed back-off on top "
-                                       "of the learned margin (margin_quantile)", min_value=0.0, max_value=0.99)
+    loss_margin: float = ros_parameter(0.01, "Plan for loss_threshold·(1 − loss_margin): a fixed back-off on top "
+                                       "of the learned margin (margin_quantile); 0.01 covers the key slots' "
+                                       "estimated loss running low (docs/scheduling.md)", min_value=0.0,
+                                       max_value=0.99)
     route_waypoints_m: tuple[float, ...] = ros_parameter(
         (0.0,), "The robot's route loop, predicted along: [x0, y0, x1, y1, ...] in map [m], ≥ 3 points "
         "(config/routes/*.yaml)", read_only=True)
@@ -132,8 +134,8 @@ class SchedulerParameters(NodeParameters):
     robot_writers: tuple[str, ...] = ros_parameter(
         ("gsrmr_robot",), "Nodes whose uplink/pose_key and gsrmr/ledger are taken: the robot (and a relay between; "
         "relative names resolve in the scheduler's namespace)", read_only=True)
-    loss_writers: tuple[str, ...] = ros_parameter(("gsrmr_server",), "Nodes whose gsrmr/loss_sample is taken",
-                                                  read_only=True)
+    loss_writers: tuple[str, ...] = ros_parameter(("gsrmr_server",), "Nodes whose gsrmr/loss_sample and "
+                                                  "mr/slot_info are taken", read_only=True)
     channel_writers: tuple[str, ...] = ros_parameter(
         ("gsrmr_sim_channel",), "Nodes whose radio/channel_gain the oracle reads (oracle_channel only)", read_only=True)
     max_speed_mps: float = ros_parameter(

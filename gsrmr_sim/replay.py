@@ -13,7 +13,8 @@ horizon, replan cadence, predictor or margin — slot by slot, with the informat
   (or, without thresholds, iff the schedule says image); the planner learns what it did (the ledger) and
   the pose it reported; where the run's robot found a scene change (``scene_changes``, the slots its log names:
   they depend on the camera's frames only, not on the planner) the robot's change probe
-  (:class:`gsrmr_robot.scene_change.ChangeProbe`) adds its image at the recorded gains, as the robot did live;
+  (:class:`gsrmr_robot.scene_change.ChangeProbe`) adds its image at the recorded gains, as the robot did live,
+  and its ledger row tells the planner of the change (``scene_change``);
 * an image slot's L_t reaches the planner ``measurement_delay`` slots later (the server composes, then
   publishes the sample); its value is the L_t the server measured live where the run sent an image there
   (``gs_loss``), else the truth loss plus the run's median measured − truth difference (the server compares
@@ -122,6 +123,9 @@ class TruthLossPredictor:
         """The recorded truth of ``slot``."""
         return self._truth.get(int(slot), self._default)
 
+    def note_change(self, _slot: int) -> None:
+        """The truth needs no change slots."""
+
 
 def replay(slots: list[RecordedSlot], planner: OnlinePlanner, *, loss_threshold: float, replan_every: int = 20,
            measurement_delay: int = 1, on_plan: Callable[[int, object], None] | None = None,
@@ -178,7 +182,7 @@ def replay(slots: list[RecordedSlot], planner: OnlinePlanner, *, loss_threshold:
                 change_probe.image_sent()
         pose = s.pose
         planner.record_pose(s.slot, *s.pose)
-        planner.record_action(s.slot, int(x[i]))
+        planner.record_action(s.slot, int(x[i]), scene_change=int(s.slot in changes))
         if x[i] or observe_keys:
             pending.append((i + measurement_delay, s, bool(x[i])))
     scored = np.array([s.scored for s in slots], bool)

@@ -58,6 +58,46 @@ def test_past_key_slots_are_estimated_between_the_measurements_around_them():
     assert lp.estimate(15, POSE) == pytest.approx(0.05)
 
 
+
+def test_a_change_the_robot_found_between_two_measurements_is_estimated_as_a_step_there():
+    lp = LossPredictor(_flat_map(0.02))
+    lp.observe(10, POSE, 0.10)  # a light on …
+    lp.observe(20, POSE, 0.02)  # … and off again by the next image
+    interpolated = [lp.estimate(k, POSE) for k in range(11, 20)]
+    assert all(0.02 < v < 0.10 for v in interpolated)  # without a change slot: a gradual fade
+    lp.note_change(16)  # the robot's change test fired on slot 16's frame: the light went off there
+    lp.note_change(16)  # a repeated row changes nothing
+    assert [lp.estimate(k, POSE) for k in range(11, 16)] == pytest.approx([0.10] * 5)  # still lit
+    assert [lp.estimate(k, POSE) for k in range(16, 20)] == pytest.approx([0.02] * 4)  # dark from the change on
+    assert lp.estimate(10, POSE) == pytest.approx(0.10) and lp.estimate(20, POSE) == pytest.approx(0.02)
+    lp.observe(30, POSE, 0.04)
+    lp.note_change(20)  # a change in the slot of a measurement: the gap after it is interpolated as before
+    assert lp.estimate(25, POSE) == pytest.approx(math.sqrt(0.02 * 0.04), rel=1e-9)
+    lp.note_change(24)
+    lp.note_change(22)  # two changes in one gap (notified out of order): the step is at the first
+    assert lp.estimate(21, POSE) == pytest.approx(0.02) and lp.estimate(22, POSE) == pytest.approx(0.04)
+    assert lp.estimate(40, POSE) == pytest.approx(0.04)  # after the last measurement: its value, as before
+    lp.note_change(35)
+    assert lp.estimate(40, POSE) == pytest.approx(0.04)
+
+
+def test_the_planner_charges_key_slots_by_the_change_slot_of_the_robot_s_ledger():
+    """The ledger's ``scene_change`` reaches the burst model through record_action: the key slots booked between
+    two images are charged as a step at the change, not as a fade."""
+    planner = _planner(loss_map=_flat_map(0.02))
+    for slot, x, change in [(10, 1, 0), *((k, 0, int(k == 13)) for k in range(11, 20)), (20, 1, 0)]:
+        planner.record_action(slot, x, scene_change=change)
+    planner.observe(10, *POSE, 0.02)
+    planner.observe(20, *POSE, 0.08)
+    charged = [planner.forecast.key_loss(k, POSE) for k in range(11, 20)]
+    assert charged == pytest.approx([0.02, 0.02] + [0.08] * 7)
+    unchanged = _planner(loss_map=_flat_map(0.02))
+    for slot in (10, 20):
+        unchanged.record_action(slot, 1)
+    unchanged.observe(10, *POSE, 0.02)
+    unchanged.observe(20, *POSE, 0.08)
+    assert 0.02 < unchanged.forecast.key_loss(12, POSE) < unchanged.forecast.key_loss(13, POSE) < 0.08
+
 def test_learned_margin_is_the_quantile_of_measured_over_predicted():
     lp = LossPredictor(_flat_map(0.02), margin_quantile=0.75)
     assert lp.margin == 1.0

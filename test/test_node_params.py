@@ -58,7 +58,7 @@ SCHEDULER_DECLARED = {
     "replan_on_loss_sample": (True, None, True),
     "drift_threshold": (0.02, (0.0, 1.0), False),
     "drift_window": (3, (1, 1000), False),
-    "loss_margin": (0.0, (0.0, 0.99), False),
+    "loss_margin": (0.01, (0.0, 0.99), False),
     "route_waypoints_m": ([0.0], None, True),
     "route_speed_mps": (0.3, (1e-3, 10.0), True),
     "loss_map_file": ("", None, False),  # issue 27: live (re-seeds the forecast after a model swap)

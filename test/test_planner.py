@@ -120,6 +120,30 @@ def test_a_ledger_row_or_pose_key_that_comes_after_its_slot_was_booked_rebooks_i
     assert budget.slots_done == 4 and budget.loss_spent == pytest.approx(0.02 + 0.05 + 0.007 + 0.007)
 
 
+def test_a_slot_is_charged_as_the_server_composed_it_not_as_the_robot_sent_it():
+    """An image that did not reach the server in time left the render's loss (its key came) or the fallback's
+    (neither came), not the JPEG's: the server's mr/slot_info says which, booked or not yet."""
+    from gsrmr_server.planner.budget import FALLBACK_LOSS_FACTOR
+
+    key = 0.04
+    budget = LossBudget(lambda _slot, _pose: key, image_slot_loss=0.005)
+    for slot in range(5):
+        budget.record_action(slot, 1)  # the robot sent an image in every slot
+    budget.record_composed(1, "render")  # … its key came in time, the image did not
+    budget.record_composed(2, "image")
+    budget.account_until(5, _schedule(0, [1] * 5))
+    assert budget.loss_spent == pytest.approx(4 * 0.005 + key)
+    budget.record_composed(3, "fallback")  # after the booking: still charged by it (neither upload in time)
+    budget.record_composed(4, "none")  # no pose at all: the fallback's charge too
+    assert budget.loss_spent == pytest.approx(2 * 0.005 + key + 2 * FALLBACK_LOSS_FACTOR * key)
+    keys = LossBudget(lambda _slot, _pose: key, image_slot_loss=0.005)
+    keys.record_composed(0, "render")  # a key slot composed from its key: charged as before
+    keys.record_composed(1, "fallback")  # a key slot whose key came too late
+    keys.account_until(2, _schedule(0, [0, 0]))
+    assert keys.loss_spent == pytest.approx(key + FALLBACK_LOSS_FACTOR * key)
+    assert FALLBACK_LOSS_FACTOR > 1.0
+
+
 def test_budget_refines_recent_estimates_and_freezes_old_ones():
     estimate = {k: 0.02 for k in range(100)}
     budget = LossBudget(lambda slot, _pose: estimate[slot], refine_slots=2)

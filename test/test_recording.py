@@ -159,6 +159,19 @@ def test_csv_value_rules(tmp_path: Path) -> None:
     assert json.loads(msg.data)["psnr_db"] is None and json.loads(msg.data)["faults"] == "a;b"
 
 
+def test_a_slots_csv_recorded_before_the_last_columns_still_reads(tmp_path: Path) -> None:
+    """A ``slots.csv`` written before ``scene_change`` was added (its header a prefix of today's) reads with the new
+    column None; a header that is not such a prefix is refused."""
+    old_columns = CSV_COLUMNS[:-1]
+    path = tmp_path / "slots.csv"
+    path.write_text(",".join(old_columns) + "\n" + "7,0.7,1" + "," * (len(old_columns) - 3) + "\n")
+    (row,) = read_slots_csv(path)
+    assert (row["slot"], row["x"], row["scene_change"]) == (7, 1, None)
+    path.write_text(",".join(reversed(old_columns)) + "\n")
+    with pytest.raises(ValueError, match="header"):
+        read_slots_csv(path)
+
+
 def test_extra_topics(tmp_path: Path) -> None:
     """Pose keys and schedules recorded with write_message land in the right segments and decode."""
     schedule = wire.ScheduleMsg(T0_SLOT, 0.1, 3, np.array([1, 0, 0], np.int8), np.array([0.1, 0.02, 0.02]))

@@ -214,3 +214,28 @@ def test_loss_samples_are_taken_once_per_image_slot_the_ledger_names(scheduler):
     loss(now - 3)  # after it, its row never comes: waits 20 slots, then implausible
     assert spin_until(lambda: node.implausible.get("loss_unledgered") == 1, timeout_s=10.0)
     assert node.loss_samples_unverified == 2 and node.planner.forecast.samples == samples + 1
+
+
+def test_the_server_s_slot_info_reaches_the_budget_and_a_far_slot_is_refused(scheduler):
+    """``mr/slot_info`` from the server (a ``loss_writers`` node) says what each slot was composed from: the budget
+    charges the slot by it (an image that missed its slot as the render used); a slot far from now is refused."""
+    from std_msgs.msg import Float64MultiArray
+
+    from gsrmr_common.ros_wire import UPLINK_QOS, mr_slot_info_to_msg
+    from gsrmr_common.wire import MR_SLOT_INFO_TOPIC, MRSlotInfo, PoseKey, RealSource
+
+    node, spin_until = scheduler
+    assert spin_until(lambda: node.last is not None)
+    server = rclpy.create_node("gsrmr_server", context=node.context)
+    try:
+        pub = server.create_publisher(Float64MultiArray, MR_SLOT_INFO_TOPIC, UPLINK_QOS)
+        assert spin_until(lambda: pub.get_subscription_count() == 1)
+        now = node.clock.slot_at(node.get_clock().now().nanoseconds)
+        pose = PoseKey(now - 2, -1.0, -1.1, 0.0)
+        pub.publish(mr_slot_info_to_msg(MRSlotInfo.of(now - 2, RealSource.FALLBACK, pose, 1.0)))
+        pub.publish(mr_slot_info_to_msg(MRSlotInfo.of(now - 500, RealSource.RENDER, pose, 1.0)))
+        assert spin_until(lambda: node.implausible.get("slot_info_slot") == 1
+                          and node.planner.budget._composed.get(now - 2) == "fallback")
+        assert now - 500 not in node.planner.budget._composed
+    finally:
+        server.destroy_node()

@@ -45,6 +45,8 @@ class SlotLossModel(Protocol):
 
     def estimate(self, slot: int, pose: Pose) -> float: ...
 
+    def note_change(self, slot: int) -> None: ...
+
 
 class LossForecast:
     """L_t predictions and estimates from the burst model or the loss map (see the module docstring)."""
@@ -110,6 +112,12 @@ class LossForecast:
         if self.model is None:
             return self.loss_map.predict(*pose)
         return self.model.estimate(slot, pose)
+
+    def note_change(self, slot: int) -> None:
+        """The robot's scene-change test fired in ``slot`` (its ledger row): the burst model estimates the key slots
+        around it as a step there (:meth:`~gsrmr_server.loss_predictor.LossPredictor.note_change`)."""
+        if self.model is not None:
+            self.model.note_change(slot)
 
     def observe(self, slot: int, pose: Pose, loss: float) -> float | None:
         """An image slot's measured L_t at ``pose``; returns what the plan had predicted for it (or None)."""

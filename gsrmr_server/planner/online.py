@@ -30,8 +30,9 @@ within ``now_slot`` covers a slot the robot has already decided; it is booked at
 slots before ``now_slot`` without an entry.)
 
 Between plans it takes in what happened — the robot's ledger (:meth:`record_action`), its pose keys
-(:meth:`record_pose`), the server's loss samples (:meth:`observe`, which also says when the prediction drifted
-enough for a replan, :class:`~.drift.DriftMonitor`). Why the node's settings: ``docs/scheduling.md`` ("The live
+(:meth:`record_pose`), what the server composed each slot from (:meth:`record_composed`), the server's loss samples
+(:meth:`observe`, which also says when the prediction drifted enough for a replan, :class:`~.drift.DriftMonitor`).
+Why the node's settings: ``docs/scheduling.md`` ("The live
 loop").
 """
 
@@ -161,15 +162,24 @@ class OnlinePlanner:
 
     # ------------------------------------------------------------------ what happened
     def record_action(self, slot: int, x: int, held_back: int = 0, uplink_rate_bps: float = math.nan,
-                      image_bits: float = math.nan) -> None:
+                      image_bits: float = math.nan, scene_change: int = 0) -> None:
         """What the robot did in ``slot`` (1 = image), from its ledger: key slots are charged by it.
         ``held_back`` = 1: an image was asked for and the robot sent the key, its last image still queued;
         ``uplink_rate_bps``: the robot's estimate of the uplink throughput (from its image acknowledgements);
-        ``image_bits``: the size of this slot's frame as a JPEG."""
+        ``image_bits``: the size of this slot's frame as a JPEG; ``scene_change`` = 1: the robot's scene-change
+        test fired on this slot's frame (the key slots around it are estimated as a step there)."""
         self.budget.record_action(slot, x)
+        if scene_change:
+            self.forecast.note_change(slot)
         self.link_cap.record(slot, x, held_back, uplink_rate_bps, image_bits)
         if x:
             self.pricing.record_image(slot)
+
+    def record_composed(self, slot: int, source: str) -> None:
+        """What the server composed ``slot`` from (its ``mr/slot_info`` source: ``image``, ``render``, ``fallback``,
+        ``none``): an image it did not have in time is charged as the render it used instead
+        (:meth:`~.budget.LossBudget.record_composed`)."""
+        self.budget.record_composed(slot, source)
 
     def record_pose(self, slot: int, a_m: float, b_m: float, theta_rad: float) -> None:
         """The pose the robot reported for ``slot`` (its pose key): key slots are charged at it."""
