@@ -124,7 +124,7 @@ from gsrmr_robot.dds_profile import use_uplink_profile
 from gsrmr_robot.robot_params import RobotParameters
 from gsrmr_robot.scene_change import SceneChangeDetector
 from gsrmr_robot.uplink_backlog import UplinkBacklog
-from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, covering_schedule, odom_to_map
+from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, covering_schedule, odom_to_map, stale
 
 
 def yaw_of(q) -> float:
@@ -373,7 +373,8 @@ class RobotNode(Node):
     def run_slot(self, slot: int, now_ns: int) -> None:
         """Gather the slot's inputs, let the core decide, publish (public for tests)."""
         with self._lock:
-            fresh = now_ns - self._frame_ns <= self.params.max_frame_age_s * 1e9
+            fresh = self._frame is not None and not stale(self._frame_stamp_ns, self._frame_ns, now_ns,
+                                                          round(self.params.max_frame_age_s * 1e9))
             raw = self._frame if fresh else None
             frame = self._uplink_frame(raw) if raw is not None else None
             frame_stamp_ns = self._frame_stamp_ns if frame is not None else None

@@ -42,19 +42,37 @@ def odom_to_map(map_from_odom: Pose, x_m: float, y_m: float, yaw_rad: float) -> 
     return (a0 + c * x_m - s * y_m, b0 + s * x_m + c * y_m, math.atan2(math.sin(t0 + yaw_rad), math.cos(t0 + yaw_rad)))
 
 
+#: A stamp within this of the node's clock is taken to be on it (a driver stamping on another clock — device time, a
+#: bag's — is judged by arrival only).
+SAME_CLOCK_NS = 60 * 1_000_000_000
+
+
+def stale(stamp_ns: int, arrival_ns: int, now_ns: int, max_age_ns: int) -> bool:
+    """Whether a sample stamped ``stamp_ns`` that arrived at ``arrival_ns`` is older than ``max_age_ns`` at ``now_ns``
+    (all on the node's clock): it arrived longer ago, or — its stamp on the node's clock (:data:`SAME_CLOCK_NS`) —
+    was taken longer ago. After a stall the oldest samples queued meanwhile (in the socket, on the executor) are
+    taken first, with a fresh arrival and a stamp from the stall's start."""
+    if now_ns - arrival_ns > max_age_ns:
+        return True
+    return abs(now_ns - stamp_ns) <= SAME_CLOCK_NS and now_ns - stamp_ns > max_age_ns
+
+
 class PoseHistory:
     """Recent odometry poses in ``map`` by stamp: the key of a slot is the pose when its frame was taken.
 
     Each pose also keeps when it arrived (the node's clock, ns): :meth:`at` with ``max_age_ns`` names no pose when
-    the newest one arrived longer ago than that. A node that stalled (a starved process, a blocked executor) would
-    otherwise key the slots after the stall with the pose from before it — up to the stall's length of driving
-    behind the robot, which the server's pose-continuity rule then sees jump ahead at the next fresh key (clean-clone
-    run 38: a pose_jump counted on a clean stack at load 12)."""
+    the newest one is older than that (:func:`stale`: by arrival, and by stamp when the stamp is on the node's clock).
+    A node that stalled (a starved process, a blocked executor) would otherwise key the slots after the stall with the
+    pose from before it — up to the stall's length of driving behind the robot, which the server's pose-continuity
+    rule then sees jump ahead at the next fresh key (clean-clone run 38: a pose_jump counted on a clean stack at load
+    12: the timer ran before the queued odometry; session 7's clean-clone run: the oldest queued odometry ran first,
+    arriving fresh with a stamp 2 s old)."""
 
     def __init__(self, maxlen: int = 100) -> None:
         self._poses: deque[tuple[int, Pose]] = deque(maxlen=maxlen)
         self.latest: Pose | None = None
         self.latest_arrival_ns: int | None = None
+        self.latest_stamp_ns: int | None = None
 
     def add(self, stamp_ns: int, pose: Pose, arrival_ns: int | None = None) -> bool:
         """Keep a pose (``arrival_ns``: when it arrived, default its stamp); a non-finite one is refused (returns
@@ -63,16 +81,18 @@ class PoseHistory:
             return False
         self.latest = pose
         self.latest_arrival_ns = int(stamp_ns if arrival_ns is None else arrival_ns)
+        self.latest_stamp_ns = int(stamp_ns)
         self._poses.append((int(stamp_ns), pose))
         return True
 
     def at(self, stamp_ns: int | None, now_ns: int | None = None, max_age_ns: int | None = None) -> Pose | None:
         """The pose nearest in time to ``stamp_ns`` (the latest one when ``stamp_ns`` is None); None when there is none
         or — given ``now_ns`` and ``max_age_ns`` — the newest pose arrived more than ``max_age_ns`` before ``now_ns``
-        (the odometry, or this node, stalled: no pose is known for now)."""
+        (the odometry, or this node, stalled: no pose is known for now; :func:`stale`)."""
         if self.latest is None:
             return None
-        if now_ns is not None and max_age_ns is not None and now_ns - self.latest_arrival_ns > max_age_ns:
+        if now_ns is not None and max_age_ns is not None and stale(self.latest_stamp_ns, self.latest_arrival_ns,
+                                                                   now_ns, max_age_ns):
             return None
         if stamp_ns is None or not self._poses:
             return self.latest

@@ -122,16 +122,20 @@ def test_uplink_core_decides_each_slot_and_books_it():
     assert (a, b) == pytest.approx((1.0, 3.0)) and t == pytest.approx(-math.pi / 2)
 
 
-def _keys_across_a_stall(max_age_ns: int | None) -> list[tuple[int, tuple[float, float, float] | None]]:
+def _keys_across_a_stall(max_age_ns: int | None, queued_first_ms: int = 0) -> list[tuple[int, tuple[float, float,
+                                                                                                 float] | None]]:
     """The robot's no-frame keys (slot, pose) with odometry at 50 Hz, 0.3 m/s along x, and the node stalled from
-    2.0 s to 4.0 s: its executor then runs the slot timer first, the queued odometry after it."""
+    2.0 s to 4.0 s: its executor then runs the slot timer first, the queued odometry after it — after the oldest
+    ``queued_first_ms`` of it (taken before the timer: they arrive now, stamped at the stall's start)."""
     history, keys, ms = PoseHistory(), [], 1_000_000
     for t_ms in range(0, 6000, 20):
         stalled = 2000 <= t_ms < 4000
         if not stalled:
             if t_ms == 4000:  # back: the timer's slot runs before the odometry queued meanwhile is taken
+                for queued_ms in range(2000, 2000 + queued_first_ms, 20):
+                    history.add(queued_ms * ms, (0.3 * queued_ms / 1000, 0.0, 0.0), 4000 * ms)
                 keys.append((40, history.at(None, 4000 * ms, max_age_ns)))
-                for queued_ms in range(2000, 4000, 20):
+                for queued_ms in range(2000 + queued_first_ms, 4000, 20):
                     history.add(queued_ms * ms, (0.3 * queued_ms / 1000, 0.0, 0.0), 4000 * ms)
             history.add(t_ms * ms, (0.3 * t_ms / 1000, 0.0, 0.0), t_ms * ms)
             if t_ms % 100 == 0 and t_ms != 4000:
@@ -156,6 +160,14 @@ def test_a_stalled_robot_sends_no_key_from_before_the_stall():
     assert dict(fresh)[40] is None and dict(fresh)[41] == pytest.approx((0.3 * 4.1, 0.0, 0.0))
     assert refused(fresh) == []
     assert PoseHistory().at(None, 0, 1) is None
+    # the oldest queued odometry taken before the timer: fresh by arrival, 1.9 s old by its stamp — no key either
+    first_in_queue = _keys_across_a_stall(500_000_000, queued_first_ms=100)
+    assert dict(first_in_queue)[40] is None and refused(first_in_queue) == []
+    # a driver stamping on another clock (more than a minute off the node's) is judged by arrival alone
+    other_clock = PoseHistory()
+    other_clock.add(5, (1.0, 2.0, 0.0), 1000 * 1_000_000_000)
+    assert other_clock.at(None, 1000_100_000_000, 500_000_000) == (1.0, 2.0, 0.0)
+    assert other_clock.at(None, 1000_600_000_000, 500_000_000) is None
 
 
 def test_route_predictor_follows_the_loop():
