@@ -10,8 +10,9 @@ What the server composed the slot from (its ``mr/slot_info``, :meth:`LossBudget.
 robot's x: an image the server did not have in time (late on a slow link or a loaded server) left the loss of a
 render, not J — a ``render`` is charged as a key, a ``fallback`` (neither key nor image in time: the render at the
 server's pose estimate) or ``none`` at :data:`FALLBACK_LOSS_FACTOR` × the key's estimate. Booked as images, such
-slots were the loss a loaded machine's runs spent without knowing it: 0.0003–0.0017 of the round's mean loss in
-the runs that had them (``docs/scheduling.md``, "Change slots, missed uploads and a 1 % back-off: measured").
+slots were the loss a loaded machine's runs spent without knowing it: 0.0002–0.0017 of the round's mean loss in
+the 25 of 118 recorded runs that had them (``docs/scheduling.md``, "Change slots, missed uploads and a 1 % back-off:
+measured").
 
 The budget a plan of H slots from slot ``first`` must meet (:meth:`LossBudget.caps`, Σ loss allowed per block):
 
