@@ -15,6 +15,11 @@ scheduler node configures it (:meth:`~gsrmr_server.scheduler_params.SchedulerPar
 without the oracle. The images the run's robot sent for a scene change (``gsrmr_robot.scene_change``; its log
 ``logs/gsrmr_robot.log`` names the slots, which depend on its camera only) are replayed at the recorded gains with
 the robot's rule, unless ``--no-scene-changes``.
+
+``--rest-forecast`` (hindsight, after the runs) adds a table per setting: at every replan inside a round, the mean L
+the planner planned with (its forecast, the learned margin included) over the round's slots left within the horizon,
+over the recorded truth L of a key in those slots (``gs_truth_loss``), binned by the slots left in the round — where
+in the round the forecast runs high (budget kept for losses that did not come) or low.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ import re
 import statistics
 import sys
 
+import numpy as np
 import yaml
 
 from gsrmr_common.link_model import LinkBudget
@@ -105,6 +111,8 @@ def main() -> int:
     ap.add_argument("--no-scene-changes", action="store_true",
                     help="leave out the images the run's robot sent for scene changes (its log names the slots; "
                     "by default they are replayed at the recorded gains)")
+    ap.add_argument("--rest-forecast", action="store_true",
+                    help="hindsight: also tabulate the planned L of the round's rest over its truth, by slots left")
     args = ap.parse_args()
     fixed = {k: parse_value(v) for k, v in (s.split("=", 1) for s in args.set)}
     key, _, values = args.vary.partition("=")
@@ -123,12 +131,14 @@ def main() -> int:
     print("|---|---|---|---|---|---|")
     for setting in settings:
         results = []
+        rest_ratios: dict[int, list[float]] = {}
         for name, params, slots, (changes, wait) in runs:
             run = params.with_values({k: v for k, v in setting.items() if SchedulerParameters.spec(k)})
             planner = make_planner(run, setting, TruthLossPredictor(slots, as_sampled=args.truth_loss == "samples")
                                    if args.truth_loss else None)
             lth = planner.config.loss_threshold
-            r = replay(slots, planner, loss_threshold=lth,
+            on_plan = rest_forecast_recorder(planner, slots, rest_ratios) if args.rest_forecast else None
+            r = replay(slots, planner, loss_threshold=lth, on_plan=on_plan,
                        replan_every=int(setting.get("replan_every", round(run.replan_period_s / run.slot_s))),
                        measurement_delay=int(setting.get("measurement_delay", 1)), observe_keys=args.observe_keys,
                        scene_changes=changes, change_probe=ChangeProbe(planner.link.rician_k, wait),
@@ -146,7 +156,41 @@ def main() -> int:
               f"{statistics.median(r.images for _, _, r in results):.0f} | "
               f"{1e3 * sum(r.plan_time_s for *_, r in results) / max(1, sum(r.replans for *_, r in results)):.1f} |",
               flush=True)
+        if args.rest_forecast:
+            print_rest_forecast(rest_ratios)
     return 0
+
+
+REST_BIN_SLOTS = 25  # --rest-forecast: slots left in the round per row
+
+
+def rest_forecast_recorder(planner: OnlinePlanner, slots: list, ratios: dict[int, list[float]]):
+    """An ``on_plan`` callback of :func:`gsrmr_sim.replay.replay` that appends, per bin of slots left in the round,
+    the planned mean L of the round's rest (within the horizon) over its recorded truth (hindsight)."""
+    truth = np.array([s.gs_truth_loss for s in slots])
+
+    def on_plan(i: int, result) -> None:
+        first = result.schedule.first_slot
+        left = planner.budget.round_remaining(first)
+        start = i - (slots[i].slot - first)  # the index of the plan's first slot (the one before slot i)
+        if not left or start < 0:
+            return
+        n = min(left, len(result.predicted_loss), len(slots) - start)
+        true_mean = float(truth[start:start + n].mean()) if n > 0 else 0.0
+        if true_mean > 0:
+            ratios.setdefault(left // REST_BIN_SLOTS, []).append(float(result.predicted_loss[:n].mean()) / true_mean)
+    return on_plan
+
+
+def print_rest_forecast(ratios: dict[int, list[float]]) -> None:
+    """The --rest-forecast table (hindsight)."""
+    print("\n| slots left in the round | replans | planned / true L of the rest: median | quartiles |")
+    print("|---|---|---|---|")
+    for b in sorted(ratios, reverse=True):
+        v = np.array(ratios[b])
+        print(f"| {b * REST_BIN_SLOTS}–{(b + 1) * REST_BIN_SLOTS - 1} | {v.size} | {np.median(v):.2f} | "
+              f"{np.quantile(v, 0.25):.2f} – {np.quantile(v, 0.75):.2f} |")
+    print()
 
 
 if __name__ == "__main__":

@@ -13,11 +13,17 @@ never available live):
 
 The table gives each factor's median and worst over the runs (``--per-run``: every run), with the run's mean
 loss, its images and the optimum's images at the run's loss.
+
+``--batch-bar BAR`` (e.g. 1.52, issue 25's bar on ``bench/demo.py --runs 5 --seeds 1``) adds how often a batch of
+one run per channel seed would have its median regret at or under BAR: over every combination of one report per
+channel seed (the reports grouped by their ``summary.json`` ``channel_seed``) — what the runs say of a single
+batch's chance, since a median of five moves with the run each seed happens to get.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 from pathlib import Path
@@ -47,18 +53,22 @@ def main() -> int:
     ap.add_argument("--loss-threshold", type=float, default=None,
                     help="L_th (default: each report's summary.json loss_threshold, else 0.03)")
     ap.add_argument("--per-run", action="store_true")
+    ap.add_argument("--batch-bar", type=float, default=None,
+                    help="also: the share of one-run-per-channel-seed batches whose median regret is <= this")
     args = ap.parse_args()
     print(f"# bench/regret_split.py: {len(args.reports)} reports ({os.cpu_count()} CPUs, load average "
           f"{os.getloadavg()[0]:.1f}); HINDSIGHT: computed after the runs")
     print("| run | channel seed | regret | placement | unspent | mean loss | images | optimum's images at that loss |")
     print("|---|---|---|---|---|---|---|---|")
     splits = []
+    by_seed: dict[object, list[float]] = {}
     for report in args.reports:
         summary_path = report / "summary.json"
         summary = json.loads(summary_path.read_text()) if summary_path.exists() else {}
         lth = args.loss_threshold if args.loss_threshold is not None else float(summary.get("loss_threshold", 0.03))
         s = split_of(report, lth)
         splits.append(s)
+        by_seed.setdefault(summary.get("channel_seed"), []).append(s.regret)
         if args.per_run:
             print(f"| {report.name} | {summary.get('channel_seed', '')} | {s.regret:.3f} | {s.placement:.3f} | "
                   f"{s.unspent:.3f} | {s.mean_loss:.4f} | {s.images} | {s.images_at_own_loss} |")
@@ -71,7 +81,19 @@ def main() -> int:
           f"{statistics.median(s.mean_loss for s in splits):.4f} ({max(s.mean_loss for s in splits):.4f}) | "
           f"{statistics.median(s.images for s in splits):.0f} | "
           f"{statistics.median(s.images_at_own_loss for s in splits):.0f} |")
+    if args.batch_bar is not None:
+        print(batch_pass_line(by_seed, args.batch_bar))
     return 0
+
+
+def batch_pass_line(by_seed: dict[object, list[float]], bar: float) -> str:
+    """How many batches of one run per channel seed (every combination of the runs) have a median regret <= bar."""
+    medians = [statistics.median(c) for c in itertools.product(*by_seed.values())]
+    seeds = ", ".join(f"{k}: {len(v)}" for k, v in sorted(by_seed.items(), key=lambda kv: str(kv[0])))
+    return (f"\nbatches of one run per channel seed (runs per seed {seeds}): {len(medians)}; median regret <= {bar}: "
+            f"{sum(m <= bar for m in medians)} ({100 * sum(m <= bar for m in medians) / len(medians):.0f} %); "
+            f"the batch medians' median {statistics.median(medians):.3f}, range "
+            f"{min(medians):.3f}–{max(medians):.3f}")
 
 
 if __name__ == "__main__":
