@@ -43,9 +43,11 @@ class SceneChangeDetector:
 
     def __init__(self, *, ratio: float = 4.0, min_score: float = 0.04, thumbnail_width_px: int = 32,
                  window: int = 30, max_shift_fraction: float = 0.2) -> None:
-        if not ratio > 1.0 or not 0.0 <= min_score <= 1.0 or thumbnail_width_px < 4 or window < MIN_BASELINE_SCORES:
-            raise ValueError("scene change: ratio must be > 1, min_score in [0, 1], thumbnail_width_px >= 4 and "
-                             f"window >= {MIN_BASELINE_SCORES}")
+        if (not ratio > 1.0 or not 0.0 <= min_score <= 1.0 or thumbnail_width_px < 4 or window < MIN_BASELINE_SCORES
+                or not 0.0 <= max_shift_fraction <= 0.5):
+            raise ValueError("scene change: ratio must be > 1, min_score in [0, 1], thumbnail_width_px >= 4, "
+                             f"window >= {MIN_BASELINE_SCORES} and max_shift_fraction in [0, 0.5] (a shift of half "
+                             "the thumbnail leaves too little overlap to compare)")
         self.ratio = float(ratio)
         self.min_score = float(min_score)
         self.thumbnail_width_px = int(thumbnail_width_px)
@@ -70,9 +72,10 @@ class SceneChangeDetector:
         of the width (sideways) and one pixel (up/down), over the part both cover: turning the camera shifts
         the view, a light or an object that changed does not go away with a shift."""
         h, w = thumb.shape[:2]
-        best = math.inf
-        for dy in range(-self._max_shift_y, self._max_shift_y + 1):
-            for dx in range(-self._max_shift_x, self._max_shift_x + 1):
+        shift_x, shift_y = min(self._max_shift_x, w // 2), min(self._max_shift_y, h // 2)  # a frame narrower than
+        best = math.inf  # the thumbnail width keeps its own width: its shifts stay within half of it
+        for dy in range(-shift_y, shift_y + 1):
+            for dx in range(-shift_x, shift_x + 1):
                 a = thumb[max(dy, 0):h + min(dy, 0), max(dx, 0):w + min(dx, 0)]
                 b = previous[max(-dy, 0):h + min(-dy, 0), max(-dx, 0):w + min(-dx, 0)]
                 best = min(best, float(np.mean(np.abs(a - b))))

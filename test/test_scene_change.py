@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+import warnings
+
 import numpy as np
 import pytest
 
@@ -87,7 +90,8 @@ def test_the_first_slots_only_fill_the_baseline():
 
 
 @pytest.mark.parametrize("kwargs", [{"ratio": 1.0}, {"min_score": -0.1}, {"thumbnail_width_px": 2},
-                                   {"window": MIN_BASELINE_SCORES - 1}])
+                                   {"window": MIN_BASELINE_SCORES - 1}, {"max_shift_fraction": -0.1},
+                                   {"max_shift_fraction": 0.6}])
 def test_bad_settings_are_refused(kwargs):
     with pytest.raises(ValueError):
         SceneChangeDetector(**kwargs)
@@ -178,3 +182,15 @@ def test_without_a_detector_or_a_schedule_nothing_changes():
     unscheduled = UplinkCore(LinkBudget(), 0.1, default_upload_image=False, scene_change=SceneChangeDetector())
     rows = [unscheduled.run_slot(SlotInputs(k, f, k, (0.0, 0.0, 0.0), None)) for k, f in enumerate(before + after)]
     assert all(r.x == 0 for r in rows) and unscheduled.scene_change.changes == 1
+
+
+def test_a_frame_narrower_than_the_thumbnail_is_compared_within_its_own_width():
+    """A 6-pixel-wide camera (thumbnail 32 wide, shifts up to 6 px): every shift still overlaps, so no empty
+    comparison (a NaN or a warning) decides the score."""
+    det = SceneChangeDetector()
+    rng = np.random.default_rng(3)
+    a = rng.integers(0, 255, (4, 6, 3), np.uint8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        score = det.aligned_difference(det.thumbnail(a), det.thumbnail(255 - a))
+    assert math.isfinite(score) and score > 0

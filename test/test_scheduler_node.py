@@ -218,7 +218,8 @@ def test_loss_samples_are_taken_once_per_image_slot_the_ledger_names(scheduler):
 
 def test_the_server_s_slot_info_reaches_the_budget_and_a_far_slot_is_refused(scheduler):
     """``mr/slot_info`` from the server (a ``loss_writers`` node) says what each slot was composed from: the budget
-    charges the slot by it (an image that missed its slot as the render used); a slot far from now is refused."""
+    charges the slot by it (an image that missed its slot as the render used); a slot far from now is refused, and
+    so is what a node not in ``loss_writers`` says (it could make the planner over-charge and send images)."""
     from std_msgs.msg import Float64MultiArray
 
     from gsrmr_common.ros_wire import UPLINK_QOS, mr_slot_info_to_msg
@@ -227,15 +228,26 @@ def test_the_server_s_slot_info_reaches_the_budget_and_a_far_slot_is_refused(sch
     node, spin_until = scheduler
     assert spin_until(lambda: node.last is not None)
     server = rclpy.create_node("gsrmr_server", context=node.context)
+    rogue = rclpy.create_node("gsrmr_rogue", context=node.context)
     try:
         pub = server.create_publisher(Float64MultiArray, MR_SLOT_INFO_TOPIC, UPLINK_QOS)
-        assert spin_until(lambda: pub.get_subscription_count() == 1)
+        forged = rogue.create_publisher(Float64MultiArray, MR_SLOT_INFO_TOPIC, UPLINK_QOS)
+        assert spin_until(lambda: pub.get_subscription_count() == 1 and forged.get_subscription_count() == 1)
         now = node.clock.slot_at(node.get_clock().now().nanoseconds)
         pose = PoseKey(now - 2, -1.0, -1.1, 0.0)
+        forged.publish(mr_slot_info_to_msg(MRSlotInfo.of(now - 3, RealSource.NONE, pose, 1.0)))
         pub.publish(mr_slot_info_to_msg(MRSlotInfo.of(now - 2, RealSource.FALLBACK, pose, 1.0)))
         pub.publish(mr_slot_info_to_msg(MRSlotInfo.of(now - 500, RealSource.RENDER, pose, 1.0)))
         assert spin_until(lambda: node.implausible.get("slot_info_slot") == 1
                           and node.planner.budget._composed.get(now - 2) == "fallback")
         assert now - 500 not in node.planner.budget._composed
+        # refused by its name ("unlisted"), or as "unknown" should the graph not name its writer within the hold
+        refused = node.inputs.gate.refused
+        assert spin_until(lambda: sum(n for (topic, _w, why), n in list(refused.items())
+                                      if topic == MR_SLOT_INFO_TOPIC and why in ("unlisted", "unknown")) == 1)
+        assert node.inputs.gate.refused_by_writer().get("/gsrmr_rogue", {}) in (
+            {f"{MR_SLOT_INFO_TOPIC} unlisted": 1}, {})
+        assert now - 3 not in node.planner.budget._composed
     finally:
+        rogue.destroy_node()
         server.destroy_node()
