@@ -35,9 +35,9 @@ is refused with one WARN per distinct problem and the last usable one kept.
 
 Before the first usable ``camera_info`` the robot uploads no image (the server cannot compose one without
 intrinsics, and a distorted frame of unknown geometry is no use to it): its slots send the pose key and the
-ledger row only, as slots without a frame do, and ``/diagnostics`` counts them in ``frames_uncalibrated`` and
-says ``waiting for camera_info``. A frame whose size is not the calibration's is withheld and counted the same
-way (WARN, throttled).
+ledger row only (the row says key, x = 0), as slots without a fresh frame do, and ``/diagnostics`` counts them
+in ``frames_uncalibrated`` and says ``waiting for camera_info``. A frame whose size is not the calibration's is
+withheld and counted the same way (WARN, throttled).
 
 TF (REP-105, frames of :mod:`gsrmr_common.tf_tree`): where ``tf2_ros`` imports (a ROS install,
 :func:`gsrmr_common.tf_ros.load_tf2_ros`) the node publishes on ``/tf_static`` ``map → odom`` from

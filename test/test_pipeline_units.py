@@ -111,7 +111,14 @@ def test_uplink_core_decides_each_slot_and_books_it():
     assert default.jpeg is not None and not default.scheduled and math.isnan(default.row.scheduled_power_w)
     blind = core.run_slot(SlotInputs(13, None, None, None, (1, 0.02)))
     assert blind.jpeg is None and blind.key is None and not blind.publish_row
-    assert core.ledger.slots == 4 and core.ledger.images == 2
+    # an image asked for without a fresh frame: the key goes alone, and the row says key (x = 0), not image
+    no_frame = core.run_slot(SlotInputs(14, None, None, pose, (1, 0.02)))
+    assert no_frame.jpeg is None and no_frame.key == PoseKey(14, *pose) and no_frame.publish_row
+    assert no_frame.x == 0 and no_frame.row.x == 0 and no_frame.row.held_back == 0
+    assert no_frame.row.bits_sent == POSE_KEY_BITS
+    unscheduled = core.run_slot(SlotInputs(15, None, None, pose, None))  # the default is an image: no frame, a key
+    assert unscheduled.x == 0 and unscheduled.row.x == 0 and unscheduled.jpeg is None
+    assert core.ledger.slots == 6 and core.ledger.images == 2
 
     history = PoseHistory()
     assert history.at(5) is None and not history.add(1, (math.nan, 0.0, 0.0))
