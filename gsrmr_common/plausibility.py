@@ -26,7 +26,7 @@ import math
 import numpy as np
 
 from gsrmr_common.metrics import MR_LOSS_LAMBDA
-from gsrmr_common.wire import LedgerRow, LossSample, ScheduleMsg
+from gsrmr_common.wire import POSE_KEY_BITS, LedgerRow, LossSample, ScheduleMsg
 
 #: The largest MR loss images in [0, 1] can have: (1 − λ)·1 + λ·(1 − (−1)).
 MR_LOSS_MAX = (1.0 - MR_LOSS_LAMBDA) * 1.0 + MR_LOSS_LAMBDA * 2.0
@@ -77,6 +77,13 @@ def ledger_problem(row: LedgerRow, now_slot: int, max_skew_slots: int = 50) -> s
             or not rate_ok:
         return "ledger_values"
     return None
+
+
+def ledger_image_sent(row: LedgerRow) -> int:
+    """1 when the row's slot carried an image: its x says so and it sent more than the pose key's bits. A robot
+    before 2026-11-28 wrote x = 1 for an image asked for with no fresh frame to send (the key alone left); read as an
+    image, such rows told the scheduler of images the server never composed (its uplink cap, its probe clock)."""
+    return int(row.x == 1 and row.bits_sent > POSE_KEY_BITS)
 
 
 @dataclass

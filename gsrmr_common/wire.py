@@ -30,9 +30,10 @@ absolute slot index (exact in float64 up to 2^53).
 Ledger row (one per slot, robot → server and scheduler, ``gsrmr/ledger``): ``std_msgs/Float64MultiArray``
 whose ``data`` are the fields of :class:`LedgerRow` in :data:`LEDGER_FIELDS` order: ``[slot, x,
 scheduled_power_w, bits_sent, gain, power_w, energy_j, upload_all_bits, upload_all_energy_j, frame_stamp_s,
-round_slot, held_back, uplink_rate_bps, scene_change]`` (W, J, s, bit/s; ``round_slot`` the radio's index of
-the slot in the round, −1 unknown; ``held_back`` 1 when an image was asked for and only the key was sent, the
-last image still unacknowledged; ``uplink_rate_bps`` the robot's throughput estimate from image
+round_slot, held_back, uplink_rate_bps, scene_change]`` (W, J, s, bit/s; ``x`` 1 when an image left in the
+slot, 0 for the key alone — an image asked for with no fresh frame to send is a 0; ``round_slot`` the radio's
+index of the slot in the round, −1 unknown; ``held_back`` 1 when an image was asked for and only the key was
+sent, the last image still unacknowledged; ``uplink_rate_bps`` the robot's throughput estimate from image
 acknowledgements, NaN without one; ``scene_change`` 1 when the robot's scene-change test fired on the slot's
 frame, :mod:`gsrmr_robot.scene_change`: the scheduler then knows in which slot the world changed between two
 images).
@@ -164,7 +165,7 @@ class LedgerRow:
     The wire contract of robot and server: the server records it beside the slot it composed."""
 
     slot: int
-    x: int
+    x: int  # 1: the robot sent an image in the slot; 0: the key only (also when no fresh frame was there to send)
     scheduled_power_w: float
     bits_sent: int
     gain: float

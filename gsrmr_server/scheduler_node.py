@@ -55,7 +55,14 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from gsrmr_common.interrupts import console_main
-from gsrmr_common.plausibility import REDELIVERED, Implausible, LossSampleCheck, PoseTrack, ledger_problem
+from gsrmr_common.plausibility import (
+    REDELIVERED,
+    Implausible,
+    LossSampleCheck,
+    PoseTrack,
+    ledger_image_sent,
+    ledger_problem,
+)
 from gsrmr_common.ros_admission import GatedInputs, ParameterAudit
 from gsrmr_common.ros_node import declare_link_budget, declare_parameters, diagnostics_msg, run_node
 from gsrmr_common.ros_wire import (
@@ -173,11 +180,12 @@ class SchedulerNode(Node):
         if reason:
             self.implausible[reason] += 1
             return
-        _remember(self._ledger_x, row.slot, row.x)
+        x = ledger_image_sent(row)  # what left, not what was asked for
+        _remember(self._ledger_x, row.slot, x)
         first = self._first_ledger_slot
         self._first_ledger_slot = row.slot if first is None else min(row.slot, first)
         with self._lock:
-            self.planner.record_action(row.slot, row.x, row.held_back, row.uplink_rate_bps, row.upload_all_bits,
+            self.planner.record_action(row.slot, x, row.held_back, row.uplink_rate_bps, row.upload_all_bits,
                                        row.scene_change)
         waiting = self._waiting_loss.pop(row.slot, None)
         if waiting is not None:

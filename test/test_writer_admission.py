@@ -28,10 +28,11 @@ from gsrmr_common.plausibility import (
     LossSampleCheck,
     PoseTrack,
     ScheduleLimits,
+    ledger_image_sent,
     ledger_problem,
     schedule_problem,
 )
-from gsrmr_common.wire import LedgerRow, LossSample, ScheduleMsg
+from gsrmr_common.wire import POSE_KEY_BITS, LedgerRow, LossSample, ScheduleMsg
 from gsrmr_common.writer_admission import (
     Endpoint,
     FloodBreaker,
@@ -238,6 +239,10 @@ def test_ledger_rows_name_a_slot_near_now_with_sane_values():
     assert ledger_problem(row, 1100) == "ledger_slot"
     assert ledger_problem(LedgerRow(1000, 2, 0.0, 0, 1e-6, 0, 0, 0, 0), 1000) == "ledger_values"
     assert ledger_problem(LedgerRow(1000, 0, 0.0, 0, 1e-6, 0, 0, 0, 0, uplink_rate_bps=-1.0), 1000) == "ledger_values"
+    # an image is what left: x = 1 with the pose key's bits only (no frame to send, an older robot) is a key
+    assert ledger_image_sent(row) == 1
+    assert ledger_image_sent(LedgerRow(1000, 1, 0.0, POSE_KEY_BITS, 1e-6, 1e-3, 1e-4, 64_000, 1e-4)) == 0
+    assert ledger_image_sent(LedgerRow(1000, 0, 0.0, 64_000, 1e-6, 1e-3, 1e-4, 64_000, 1e-4)) == 0
 
 
 def test_pose_keys_move_within_the_top_speed_a_relocalisation_needs_agreeing_keys():
