@@ -48,13 +48,21 @@ def module_facts(module: str, attr: str | None = None) -> tuple[set[str], bool]:
     return set(modules), mark
 
 
-def _fresh_interpreter_facts(module: str, attr: str | None) -> tuple[set[str], bool]:
-    """:func:`module_facts`, from a new interpreter that imports ``module`` (each time it is called)."""
+def _fresh_interpreter_facts(module: str, attr: str | None,
+                             env: dict[str, str] | None = None) -> tuple[set[str], bool]:
+    """:func:`module_facts`, from a new interpreter that imports ``module`` (each time it is called), started with
+    the environment ``env`` (default: a copy of this process's, taken now).
+
+    The child always gets an environment array of its own: started from a worker thread with the process's
+    (``env=None``), its exec read the C ``environ`` while pytest, in the main thread, set and removed
+    ``PYTEST_CURRENT_TEST`` for the next test — ``setenv`` reallocates that array, and the exec failed with
+    ``OSError: [Errno 14] Bad address`` (once in the 20 clean-clone runs on record; 500 of 1,934 spawns in a 20-s
+    reproduction with the environment changing beside them, none with a copy passed)."""
     code = ("import importlib, json, sys; m = importlib.import_module(sys.argv[1]); "
             f"mark = bool(sys.argv[2]) and getattr(getattr(m, sys.argv[2]), {CONSOLE_MAIN_MARK!r}, False); "
             "print(json.dumps([sorted(sys.modules), mark]))")
     result = subprocess.run([sys.executable, "-c", code, module, attr or ""], capture_output=True, text=True,
-                            timeout=120)
+                            timeout=120, env=dict(os.environ) if env is None else env)
     assert result.returncode == 0, result.stderr
     modules, mark = json.loads(result.stdout.splitlines()[-1])
     return set(modules), bool(mark)
@@ -78,10 +86,11 @@ def _fresh_interpreters():
     """Run the new interpreters of :func:`module_facts` ahead of the tests, a few at once (each only imports; one
     after the other, and the same module again for each test that asks, they took 40 s of the suite): every test
     still reads a fresh interpreter's ``sys.modules`` for its module."""
+    env = dict(os.environ)  # copied here, in the main thread (see _fresh_interpreter_facts)
     with ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 1)) as pool:
         try:
             for key in _facts_wanted():
-                _FACTS[key] = pool.submit(_fresh_interpreter_facts, *key)
+                _FACTS[key] = pool.submit(_fresh_interpreter_facts, *key, env)
             yield
         finally:
             _FACTS.clear()
