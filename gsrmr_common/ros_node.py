@@ -5,6 +5,7 @@ Imports rclpy; keep pure logic elsewhere.
 
 from __future__ import annotations
 
+import array
 from collections.abc import Callable, Sequence
 import math
 import sys
@@ -16,6 +17,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from gsrmr_common.camera import CameraMount
 from gsrmr_common.interrupts import CLEANUP, POLICY, RUNNING, START, arm_exit_deadline
@@ -80,12 +82,55 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, *, 
     return 0
 
 
+def _is_float_default(default: Any) -> bool:
+    """A DOUBLE or DOUBLE_ARRAY parameter's default (a float, or a non-empty list/tuple of floats)."""
+    if isinstance(default, float):
+        return True
+    return isinstance(default, (list, tuple)) and bool(default) and all(isinstance(v, float) for v in default)
+
+
+def _whole_numbers_as_float(value: Any) -> Any:
+    """An INTEGER (or INTEGER_ARRAY) value as the DOUBLE (DOUBLE_ARRAY) it stands for; any other value as is."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(value, (list, tuple, array.array)) and len(value) and all(
+            isinstance(v, int) and not isinstance(v, bool) for v in value):
+        return [float(v) for v in value]
+    return value
+
+
+def _coerce_whole_numbers_on_set(node: Node) -> None:
+    """Once per node: a later ``ros2 param set /node x 1`` (the CLI types ``1`` as INTEGER) of a DOUBLE
+    parameter sets 1.0 instead of being refused as the wrong type (an rclpy pre-set callback)."""
+    if getattr(node, "_gsrmr_coerces_whole_numbers", False):
+        return
+
+    kind = Parameter.Type
+    widen = {kind.INTEGER: kind.DOUBLE, kind.INTEGER_ARRAY: kind.DOUBLE_ARRAY}
+
+    def coerce(parameters: list[Parameter]) -> list[Parameter]:
+        out = []
+        for p in parameters:
+            if (p.type_ in widen and node.has_parameter(p.name)
+                    and node.get_parameter(p.name).type_ == widen[p.type_]):
+                p = Parameter(p.name, value=_whole_numbers_as_float(p.value))
+            out.append(p)
+        return out
+
+    node.add_pre_set_parameters_callback(coerce)
+    node._gsrmr_coerces_whole_numbers = True  # type: ignore[attr-defined]
+
+
 def declare(node: Node, name: str, default: Any, description: str, *, min_value: float | None = None,
             max_value: float | None = None, read_only: bool = False, constraints: str = "") -> Any:
     """Declare a parameter with a descriptor (description, range) and return its current value.
 
     Ranges are enforced by rclpy both for launch-time overrides and for later ``set_parameters``
     calls (the request is refused with a reason naming the range).
+
+    A DOUBLE parameter given a whole number (``-p loss_margin:=0``, ``loss_margin: 0`` in a YAML, ``ros2 param
+    set … 0``) takes it as that float; rclpy alone refuses it as the wrong type, which at start-up ends the node.
+    Any other type mismatch (a string for a number, a float for an INTEGER) is still refused.
     """
     descriptor = ParameterDescriptor(description=description, read_only=read_only,
                                      additional_constraints=constraints)
@@ -100,6 +145,15 @@ def declare(node: Node, name: str, default: Any, description: str, *, min_value:
             lo_f = float(min_value) if min_value is not None else -sys.float_info.max
             hi_f = float(max_value) if max_value is not None else sys.float_info.max
             descriptor.floating_point_range = [FloatingPointRange(from_value=lo_f, to_value=hi_f, step=0.0)]
+    if _is_float_default(default):
+        _coerce_whole_numbers_on_set(node)
+        # rclpy applies a start-up override before any callback could convert it: read it (rclpy keeps the
+        # overrides in ``_parameter_overrides``; no public accessor) and declare its float instead.
+        override = getattr(node, "_parameter_overrides", {}).get(name)
+        if override is not None:
+            as_float = _whole_numbers_as_float(override.value)
+            if as_float is not override.value:
+                return node.declare_parameter(name, as_float, descriptor, ignore_override=True).value
     return node.declare_parameter(name, default, descriptor).value
 
 

@@ -211,14 +211,14 @@ class ServerNode(Node):
         if swapped is not None:
             self.get_logger().info(f"model swapped in at slot {slot}: {swapped.path} "
                                    f"({swapped.model.num_gaussians} Gaussians, loaded in {swapped.load_s:.2f} s)")
+        if out.loss_sample is not None:  # first: the scheduler replans on it, for the robot's next slot
+            self._pub_loss.publish(loss_sample_to_msg(out.loss_sample))
         self._pub_mr.publish(image_to_msg(out.mr_u8, start_ns, CAMERA_OPTICAL_FRAME))
         latency_ms = (self.get_clock().now().nanoseconds - start_ns) / 1e6
         self._pub_info.publish(mr_slot_info_to_msg(out.info))
         compressed = compressed_to_msg(out.jpeg, start_ns, CAMERA_OPTICAL_FRAME)
         self._pub_mr_c.publish(compressed)
         self.stats.record(latency_ms, out.composed.source, out.composed.timings_ms)
-        if out.loss_sample is not None:
-            self._pub_loss.publish(loss_sample_to_msg(out.loss_sample))
         if self.recorder is not None:
             if out.composed.source == RealSource.IMAGE and uploads.key is not None and uploads.jpeg is not None:
                 self.recorder.write_received(uploads.jpeg, uploads.key, start_ns)  # training data for an update

@@ -11,6 +11,7 @@ from pathlib import Path
 from conftest import next_domain_id
 import pytest
 import rclpy
+from rclpy.exceptions import InvalidParameterValueException
 from rclpy.parameter import Parameter
 import yaml
 
@@ -181,6 +182,35 @@ def test_robot_node_declares_the_table_and_checks_changes(ros_context):
         assert node.set_parameters([Parameter("uplink_ack_stale_s", value=2.5)])[0].successful
         assert node.params.uplink_ack_stale_s == node.backlog.stale_after_s == 2.5
         assert not node.set_parameters([Parameter("bandwidth_hz", value=2e6)])[0].successful  # read-only
+    finally:
+        node.destroy_node()
+
+
+def test_a_whole_number_for_a_double_parameter_is_taken_as_that_float(ros_context):
+    """`-p uplink_ack_stale_s:=2` or `map_from_odom: [1, 2, 0]` in a YAML are INTEGER / INTEGER_ARRAY to ROS: rclpy
+    alone refuses them for a DOUBLE parameter, at start-up by ending the node. `declare` takes them as floats, at
+    start-up and in `ros2 param set` (the parameter service's atomic set); other type mismatches are still refused."""
+    node = RobotNode(context=ros_context, parameter_overrides=[Parameter("uplink_ack_stale_s", value=2),
+                                                              Parameter("map_from_odom", value=[1, 2, 0]),
+                                                              Parameter("rician_k", value=3),
+                                                              Parameter("live_parameter_changes", value=True)])
+    try:
+        assert node.get_parameter("uplink_ack_stale_s").type_ == Parameter.Type.DOUBLE
+        assert node.params.uplink_ack_stale_s == 2.0 and isinstance(node.params.uplink_ack_stale_s, float)
+        assert node.get_parameter("map_from_odom").type_ == Parameter.Type.DOUBLE_ARRAY
+        assert node.params.map_from_odom == (1.0, 2.0, 0.0)
+        assert node.link.rician_k == 3.0
+        assert node.set_parameters_atomically([Parameter("uplink_ack_stale_s", value=3)]).successful
+        assert node.params.uplink_ack_stale_s == node.backlog.stale_after_s == 3.0
+        assert node.get_parameter("uplink_ack_stale_s").type_ == Parameter.Type.DOUBLE
+        refused = node.set_parameters([Parameter("uplink_ack_stale_s", value="3"),
+                                       Parameter("jpeg_quality", value=60.0)])  # a string; a float for an INTEGER
+        assert [r.successful for r in refused] == [False, False]
+        assert "Wrong parameter type" in refused[0].reason and "Wrong parameter type" in refused[1].reason
+        assert node.params.uplink_ack_stale_s == 3.0 and node.params.jpeg_quality != 60.0
+        with pytest.raises(InvalidParameterValueException, match="uplink_ack_stale_s"):  # the range still applies
+            RobotNode(context=ros_context, parameter_overrides=[Parameter("uplink_ack_stale_s", value=-1)],
+                      namespace="range_probe")
     finally:
         node.destroy_node()
 

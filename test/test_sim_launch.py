@@ -237,11 +237,13 @@ class TestSimLaunchCli(unittest.TestCase):
         for topic in CLI_ECHO_TOPICS:
             echo = done[topic]
             self.assertIn("---", echo.stdout, f"ros2 topic echo --once {topic}: {echo.stdout[-500:]}{echo.stderr}")
-        set_ok = ros2_until("param", "set", "--no-daemon", "/gsrmr_scheduler", "loss_threshold", "0.04",
+        # `1` is an INTEGER to the CLI: the DOUBLE parameter takes it as 1.0 (gsrmr_common.ros_node.declare), where
+        # rclpy alone answers "Wrong parameter type"
+        set_ok = ros2_until("param", "set", "--no-daemon", "/gsrmr_scheduler", "loss_threshold", "1",
                             ok="Set parameter successful")
         self.assertIn("Set parameter successful", set_ok.stdout, set_ok.stdout + set_ok.stderr)
         got = ros2_until("param", "get", "--no-daemon", "/gsrmr_scheduler", "loss_threshold", ok="value is")
-        self.assertEqual(got.stdout.strip(), "Double value is: 0.04")
+        self.assertEqual(got.stdout.strip(), "Double value is: 1.0")
         exited = [n for n in proc_info.process_names() if getattr(proc_info[n], "returncode", None) is not None]
         self.assertEqual(exited, [], "a node died")
 
