@@ -14,12 +14,13 @@ uploaded image and the MR image with Φ(s_t) — the sample the scheduler's loss
 
 from __future__ import annotations
 
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 import time
 
 import numpy as np
 
-from gsrmr_common.camera import CameraMount, Intrinsics, camera_from_pose
+from gsrmr_common.camera import Camera, CameraMount, Intrinsics, camera_from_pose
 from gsrmr_common.jpeg import ImageRejected, decode_jpeg, jpeg_header
 from gsrmr_common.metrics import mr_loss
 from gsrmr_common.wire import MAX_IMAGE_PIXELS, PoseKey, RealSource, UplinkFault
@@ -59,6 +60,16 @@ class MRComposer:
         self.intrinsics = intrinsics
         self.mount = mount
         self.background_rgb = np.asarray(background_rgb, np.float32)
+        self._caster: ThreadPoolExecutor | None = None  # casts the virtual view beside the GS render
+
+    def _cast_beside(self, camera: Camera, time_s: float) -> Future | None:
+        """Start the virtual view's ray cast on a worker thread (it needs no real depth, and its kernel releases
+        the GIL), so it runs while this thread renders Φ; None when the source cannot be split (cast, occlude)."""
+        if not (hasattr(self.virtual, "cast") and hasattr(self.virtual, "occlude")):
+            return None
+        if self._caster is None:
+            self._caster = ThreadPoolExecutor(max_workers=1, thread_name_prefix="virtual-cast")
+        return self._caster.submit(self.virtual.cast, camera, time_s=time_s)
 
     def warm_up(self, model: GaussianModel) -> GaussianModel:
         """Render ``model`` once with this composer's view, content and intrinsics (one thread, on the caller's
@@ -93,12 +104,16 @@ class MRComposer:
                                 RealSource.IMAGE if image is not None else RealSource.NONE,
                                 None, None, faults, {"total": 1e3 * (time.perf_counter() - t0)})
         camera = camera_from_pose(pose.a_m, pose.b_m, pose.theta_rad, self.mount, k)
+        cast = self._cast_beside(camera, time_s)
         cpu0 = time.thread_time()
         out = render(self.model, camera, self.background_rgb, threads=self.render_threads)
         t_render = time.perf_counter()
         render_cpu_ms = 1e3 * (time.thread_time() - cpu0)  # this thread's CPU (wall − this = time waited)
         real_depth = np.where(out.alpha > 0.5, out.depth, np.inf).astype(np.float32)
-        v, d = self.virtual.render(camera, time_s=time_s, real_depth_m=real_depth)
+        if cast is not None:  # "virtual" is then what is left of the cast after the render, plus the occlusion
+            v, d = self.virtual.occlude(camera, cast.result(), real_depth)
+        else:
+            v, d = self.virtual.render(camera, time_s=time_s, real_depth_m=real_depth)
         gs_mr = mr_image(out.rgb, v, d)
         t_virtual = time.perf_counter()
         gs_loss = None

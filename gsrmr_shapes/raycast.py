@@ -307,7 +307,7 @@ def _occluded(boxes: np.ndarray, cyls: np.ndarray, ox: float, oy: float, oz: flo
     return False
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)  # the server casts the virtual view beside its GS render (compose.py)
 def render_kernel(origin: np.ndarray, dirs: np.ndarray, boxes: np.ndarray, cyls: np.ndarray,
                   box_rects: np.ndarray, cyl_rects: np.ndarray,
                   room: np.ndarray, has_room: bool, mats: np.ndarray, lights: np.ndarray,

@@ -120,3 +120,46 @@ def test_empty_content_shows_the_real_image_everywhere():
     assert np.all(d == 1.0) and np.all(v == 0.0)
     with pytest.raises(ValueError, match="real depth"):
         _ghost(1.0).render(cam, real_depth_m=np.zeros((2, 2), np.float32))
+
+
+class _RenderOnly:
+    """A virtual-view source with only ``render`` (the VirtualViewSource protocol): composed in sequence."""
+
+    def __init__(self, view: AgentsView) -> None:
+        self.view = view
+
+    def render(self, camera, *, time_s=0.0, real_depth_m=None):
+        return self.view.render(camera, time_s=time_s, real_depth_m=real_depth_m)
+
+
+def test_the_composer_casts_the_virtual_view_beside_the_render_and_gets_the_sequential_result():
+    """MRComposer starts AgentsView.cast on a worker thread before the GS render and occludes it by the render's
+    depth afterwards: every slot's MR image, mask, virtual view and loss equal those of the one-thread path."""
+    from gsrmr_common.jpeg import encode_jpeg
+    from gsrmr_common.wire import PoseKey
+    from gsrmr_server.compose import MRComposer
+    from gsrmr_server.splatting.model import GaussianModel
+    from gsrmr_server.uplink import SlotUploads
+
+    rng = np.random.default_rng(3)
+    model = GaussianModel.from_points(rng.uniform([0.5, -1, 0], [3, 1, 0.5], (800, 3)), rng.uniform(0, 1, (800, 3)),
+                                      scales_m=0.05, opacities=0.8)
+    view = AgentsView(parse_mr_content({"ambient": 1.0, "virtual_agents": [
+        {"id": "ghost", "shape": "cylinder", "position": [1.0, 0.0], "radius_m": 0.1,
+         "path": {"waypoints": [[1.0, -0.3], [1.0, 0.3]], "speed_mps": 0.5},
+         "height_m": 0.3, "material": {"texture": "flat", "color": [1, 0, 0]}}]}))
+    overlapped = MRComposer(model, view, K, MOUNT, (0.2, 0.2, 0.2), render_threads=1)
+    sequential = MRComposer(model, _RenderOnly(view), K, MOUNT, (0.2, 0.2, 0.2), render_threads=1)
+    jpeg = encode_jpeg(rng.integers(0, 255, (K.height, K.width, 3), np.uint8), 90)
+    shown = 0
+    for slot in range(6):
+        uploads = SlotUploads(slot, key=PoseKey(slot, -0.2 * slot, 0.05 * slot, 0.02 * slot),
+                              jpeg=jpeg if slot % 2 else None)
+        a = overlapped.compose(uploads, None, 0.4 * slot)
+        b = sequential.compose(uploads, None, 0.4 * slot)
+        for got, want in ((a.mr, b.mr), (a.mask, b.mask), (a.virtual, b.virtual), (a.gs_mr, b.gs_mr)):
+            np.testing.assert_array_equal(got, want)
+        assert (a.source, a.gs_loss) == (b.source, b.gs_loss)
+        shown += int((a.mask == 0).sum() > 0)
+    assert overlapped._caster is not None and sequential._caster is None
+    assert shown >= 3  # the agent was in view (not everywhere occluded): the test compares something

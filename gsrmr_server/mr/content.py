@@ -176,15 +176,27 @@ class AgentsView:
     def render(self, camera: Camera, *, time_s: float = 0.0,
                real_depth_m: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(v_t, d_t) at ``camera`` and round time ``time_s``; see :class:`VirtualViewSource`."""
+        return self.occlude(camera, self.cast(camera, time_s=time_s), real_depth_m)
+
+    def cast(self, camera: Camera, *, time_s: float = 0.0) -> tuple[np.ndarray, np.ndarray] | None:
+        """The agents alone at ``camera`` and ``time_s``: (rgb H×W×3 float32, depth H×W float32 in metres, +inf on
+        a miss), or None when no agent exists then. Needs no real depth, so it can run while the GS render does (its
+        ray-cast kernel releases the GIL)."""
+        shapes = agents_at(self.content, float(time_s))
+        return render_shapes(camera, shapes, self.content.lighting) if shapes else None
+
+    @staticmethod
+    def occlude(camera: Camera, cast: tuple[np.ndarray, np.ndarray] | None,
+                real_depth_m: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """(v_t, d_t) from a :meth:`cast` and the real depth (None = no real surface); see :meth:`render`."""
         if real_depth_m is None:
             real_depth_m = np.full((camera.height, camera.width), np.inf, np.float32)
         if real_depth_m.shape != (camera.height, camera.width):
             raise ValueError(f"real depth is {real_depth_m.shape}, camera is {camera.height}×{camera.width}")
-        shapes = agents_at(self.content, float(time_s))
-        if not shapes:
+        if cast is None:
             return (np.zeros((camera.height, camera.width, 3), np.float32),
                     np.ones((camera.height, camera.width), np.float32))
-        rgb, depth = render_shapes(camera, shapes, self.content.lighting)
+        rgb, depth = cast
         mask = compose_mask(depth, real_depth_m)
         v = np.where(mask[..., None] < 0.5, rgb, 0.0).astype(np.float32)
         return v, mask
