@@ -11,6 +11,9 @@ PY := $(VENV)/bin/python
 ROS_DOMAIN_ID ?= $(shell echo $$(( $$$$ % 100 + 1 )))
 export ROS_DOMAIN_ID
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+# The shared test data (the garden scene): tests and benches find it through GSRMR_DATA_DIR.
+GSRMR_DATA_DIR ?= $(abspath $(wildcard ../shared/data))
+export GSRMR_DATA_DIR
 PYTEST_ARGS ?=
 
 .PHONY: venv test test-long lint pytest demo bench clean

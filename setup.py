@@ -24,14 +24,14 @@ CONSOLE_SCRIPTS = [
     "gsrmr-link-echo = gsrmr_common.link_check:echo_main",
     "gsrmr-link-probe = gsrmr_common.link_check:probe_main",
     # scheduler (GSCLO): library CLI
-    "gsrmr-schedule = gsrmr_server.scheduling.cli:main",
+    "gsrmr-schedule = gsrmr_scheduler.cli:main",
     # Gaussian-splatting engine
-    "gsrmr-train = gsrmr_server.splatting.train_cli:train_main",
-    "gsrmr-render = gsrmr_server.splatting.cli:render_main",
-    "gsrmr-compact = gsrmr_server.splatting.train_cli:compact_main",
-    "gsrmr-align = gsrmr_server.splatting.align_cli:main",
+    "gsrmr-train = gsrmr_splat.train_cli:train_main",
+    "gsrmr-render = gsrmr_splat.cli:render_main",
+    "gsrmr-compact = gsrmr_splat.train_cli:compact_main",
+    "gsrmr-align = gsrmr_splat.align_cli:main",
     # a robot's recorded bag → a nerfstudio dataset in map (deployment tool, no ROS runtime)
-    "gsrmr-dataset = gsrmr_common.dataset_tool:main",
+    "gsrmr-dataset = gsrmr_offline.dataset_tool:main",
     # LIMO base: driver node and byte-exact mock base
     "gsrmr-limo-base = gsrmr_robot.limo.node:main",
     "gsrmr-mock-limo = gsrmr_sim.limo.mock_ros:main",
@@ -44,9 +44,9 @@ CONSOLE_SCRIPTS = [
     # node suite, experiments and the main job
     "gsrmr-robot = gsrmr_robot.robot_node:main",
     "gsrmr-server = gsrmr_server.server_node:main",
-    "gsrmr-scheduler = gsrmr_server.scheduler_node:main",
-    "gsrmr-survey = gsrmr_server.survey_cli:main",
-    "gsrmr-update = gsrmr_server.update_cli:main",
+    "gsrmr-scheduler = gsrmr_scheduler.scheduler_node:main",
+    "gsrmr-survey = gsrmr_offline.survey_cli:main",
+    "gsrmr-update = gsrmr_offline.update_cli:main",
     "gsrmr-experiments = gsrmr_sim.experiments.cli:main",
     "gsrmr-demo = gsrmr_sim.demo:main",
     "gsrmr-uplink-relay = gsrmr_sim.fault_relay_node:main",

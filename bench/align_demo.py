@@ -44,15 +44,15 @@ import numpy as np
 from gsrmr_common.camera import Camera, opencv_w2c_to_opengl_c2w
 from gsrmr_common.metrics import psnr
 from gsrmr_common.nerfstudio import holdout_split, read_dataset
-from gsrmr_server import survey_cli
-from gsrmr_server.splatting.align import Similarity, rotation_angle_deg, transform_model
-from gsrmr_server.splatting.align_cli import main as align_main
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.render import render
-from gsrmr_server.splatting.train_config import TrainConfig
+from gsrmr_offline import survey_cli
 from gsrmr_sim.demo import ensure_survey
 from gsrmr_sim.models import BuiltModel, ModelRecipe, build_model, live_model, live_recipe
 from gsrmr_sim.world.scene import load_scene
+from gsrmr_splat.align import Similarity, rotation_angle_deg, transform_model
+from gsrmr_splat.align_cli import main as align_main
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.render import render
+from gsrmr_splat.train_config import TrainConfig
 
 REPO = Path(__file__).resolve().parents[1]
 SCENE = "sandbox"

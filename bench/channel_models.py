@@ -23,7 +23,8 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from gsrmr_common.channel import ChannelModel  # noqa: E402
-from gsrmr_server.scheduling import Problem, solve  # noqa: E402
+from gsrmr_scheduler.problem import Problem  # noqa: E402
+from gsrmr_scheduler.solve import solve  # noqa: E402
 from gsrmr_sim.experiments.data import DataSettings, build_scene_data, channel_gains  # noqa: E402
 from gsrmr_sim.sim_stack import config_dir, link_budget  # noqa: E402
 

@@ -36,10 +36,10 @@ sys.path.insert(0, str(REPO))
 
 from gsrmr_common.camera import Camera, Intrinsics  # noqa: E402
 from gsrmr_common.nerfstudio import holdout_split  # noqa: E402
-from gsrmr_server.splatting.compact import CompactConfig, Compactor  # noqa: E402
-from gsrmr_server.splatting.model import GaussianModel  # noqa: E402
-from gsrmr_server.splatting.render import render  # noqa: E402
-from gsrmr_server.splatting.train import TrainConfig, Trainer  # noqa: E402
+from gsrmr_splat.compact import CompactConfig, Compactor  # noqa: E402
+from gsrmr_splat.model import GaussianModel  # noqa: E402
+from gsrmr_splat.render import render  # noqa: E402
+from gsrmr_splat.train import TrainConfig, Trainer  # noqa: E402
 
 SIZES = ((320, 240), (648, 420))
 
@@ -83,8 +83,8 @@ def sandbox_inputs(args: argparse.Namespace) -> tuple[GaussianModel, list, list,
 
 def garden_inputs(args: argparse.Namespace) -> tuple[GaussianModel, list, list, TrainConfig, float]:
     """bench/train.py's garden dataset, trained here with SH degree 1 for ``--garden-cpu-s``."""
-    from gsrmr_server.splatting.datasets import orbit_cameras, render_views
-    from gsrmr_server.splatting.model import garden_model
+    from gsrmr_sim.shared_data import garden_model
+    from gsrmr_splat.datasets import orbit_cameras, render_views
 
     frames = render_views(garden_model(), orbit_cameras(48, Intrinsics.from_fov(160, 120, math.radians(68.0))),
                           with_depth=True)

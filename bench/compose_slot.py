@@ -36,8 +36,9 @@ from gsrmr_common.jpeg import encode_jpeg  # noqa: E402
 from gsrmr_common.wire import PoseKey  # noqa: E402
 from gsrmr_server.compose import MRComposer  # noqa: E402
 from gsrmr_server.mr.content import AgentsView, load_mr_content  # noqa: E402
-from gsrmr_server.splatting.model import GaussianModel, garden_model  # noqa: E402
 from gsrmr_server.uplink import SlotUploads  # noqa: E402
+from gsrmr_sim.shared_data import garden_model  # noqa: E402
+from gsrmr_splat.model import GaussianModel  # noqa: E402
 
 
 class _InSequence:

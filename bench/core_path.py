@@ -46,9 +46,9 @@ from gsrmr_server.scoring import score_slot  # noqa: E402
 from gsrmr_server.server_params import ServerParameters  # noqa: E402
 from gsrmr_server.slot_core import SlotOutcome, build_server_core, count_composition_faults  # noqa: E402
 from gsrmr_server.slot_row import SlotScore  # noqa: E402
-from gsrmr_server.splatting.model import GaussianModel  # noqa: E402
 from gsrmr_server.uplink import UplinkAssembler  # noqa: E402
 from gsrmr_sim.fault_relay import Upload  # noqa: E402
+from gsrmr_splat.model import GaussianModel  # noqa: E402
 
 CAMERA_FRAME = CAMERA_OPTICAL_FRAME
 FOV_RAD = math.radians(70)  # the synthetic camera's horizontal field of view (what the benches relay)

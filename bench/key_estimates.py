@@ -3,7 +3,7 @@
 Usage: ``.venv/bin/python bench/key_estimates.py REPORT_DIR... [--per-run]``.
 
 A key slot has no measurement of its own: the scheduler's burst model
-(:class:`gsrmr_server.loss_predictor.LossPredictor`) estimates the loss it left from the loss samples of the
+(:class:`gsrmr_scheduler.loss_predictor.LossPredictor`) estimates the loss it left from the loss samples of the
 images around it, and the round's budget is spent by those estimates. For each ``gsrmr-demo`` report this replays
 the run's own slots (its ``x``, loss samples as the server measured them, corrected by the seed map's
 ``sample_offset``, and what the server composed each slot from, ``source``) into a fresh burst model over the run's
@@ -13,8 +13,9 @@ seed map, books every scored slot as the scheduler would, and compares the booke
 * ``interpolated``: key slots by ℓ interpolated between the measurements, image slots at J whatever the server
   composed (the scheduler before 2026-11-27, session 7);
 * ``stepped``: key slots as a step at the slots the run's robot found a scene change in (the ``scene_change`` column
-  of ``slots.csv``, else the robot's log; :meth:`~gsrmr_server.loss_predictor.LossPredictor.note_change`);
-* ``… + composed``: a slot charged as the server composed it (:meth:`gsrmr_server.planner.budget.LossBudget.slot_loss`:
+  of ``slots.csv``, else the robot's log; :meth:`~gsrmr_scheduler.loss_predictor.LossPredictor.note_change`);
+* ``… + composed``: a slot charged as the server composed it
+  (:meth:`gsrmr_scheduler.planner.budget.LossBudget.slot_loss`:
   an image that missed its slot as the render used, a fallback at ``FALLBACK_LOSS_FACTOR`` × the key's estimate).
   ``stepped + composed`` is the scheduler now.
 
@@ -31,8 +32,8 @@ import statistics
 
 from planner_replay import make_planner, scene_changes, scheduler_params
 
-from gsrmr_server.loss_predictor import LossPredictor
-from gsrmr_server.planner.budget import LossBudget
+from gsrmr_scheduler.loss_predictor import LossPredictor
+from gsrmr_scheduler.planner.budget import LossBudget
 from gsrmr_server.recording import read_slots_csv
 
 

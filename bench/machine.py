@@ -17,8 +17,8 @@ import time
 import numpy as np
 
 from gsrmr_common.camera import Camera
-from gsrmr_server.splatting.model import garden_model, load_garden
-from gsrmr_server.splatting.render import render
+from gsrmr_sim.shared_data import garden_model, load_garden
+from gsrmr_splat.render import render
 
 
 def cpu_probe_s(repeats: int = 3) -> float:

@@ -6,12 +6,12 @@ Usage: ``.venv/bin/python bench/planner_replay.py REPORT_DIR... [--vary horizon=
 parameters of that run (``config/scheduler.yaml`` + the run's overrides) changed by ``--set`` and the
 varied key; the table gives the median and worst over the runs of mean MR loss, runs within L_th, regret
 (against each run's hindsight optimum, computed after the run) and the planner's CPU time per replan.
-Keys: the scheduler's parameters (:class:`~gsrmr_server.scheduler_params.SchedulerParameters`: horizon, method,
+Keys: the scheduler's parameters (:class:`~gsrmr_scheduler.scheduler_params.SchedulerParameters`: horizon, method,
 loss_margin, margin_quantile, explore_image_fraction, probe_gap_slots, round_slots, ...), the planner's knobs that
-are no parameter (:class:`~gsrmr_server.planner.PlannerConfig`: refine_slots, round_start_m,
+are no parameter (:class:`~gsrmr_scheduler.planner.PlannerConfig`: refine_slots, round_start_m,
 margin_window_samples, startup_explore_samples) plus ``replan_every`` (slots between timer replans) and
 ``measurement_delay`` (slots before an image's L_t reaches the planner). The planner is configured as the
-scheduler node configures it (:meth:`~gsrmr_server.scheduler_params.SchedulerParameters.planner_config`), always
+scheduler node configures it (:meth:`~gsrmr_scheduler.scheduler_params.SchedulerParameters.planner_config`), always
 without the oracle. The images the run's robot sent for a scene change (``gsrmr_robot.scene_change``; its log
 ``logs/gsrmr_robot.log`` names the slots, which depend on its camera only) are replayed at the recorded gains with
 the robot's rule, unless ``--no-scene-changes``.
@@ -38,10 +38,10 @@ import yaml
 
 from gsrmr_common.link_model import LinkBudget
 from gsrmr_robot.scene_change import ChangeProbe
-from gsrmr_server.loss_map import LossMap
-from gsrmr_server.planner import OnlinePlanner, PlannerConfig, RoutePredictor, SlotLossModel
+from gsrmr_scheduler.loss_map import LossMap
+from gsrmr_scheduler.planner import OnlinePlanner, PlannerConfig, RoutePredictor, SlotLossModel
+from gsrmr_scheduler.scheduler_params import SchedulerParameters
 from gsrmr_server.recording import read_slots_csv
-from gsrmr_server.scheduler_params import SchedulerParameters
 from gsrmr_sim.replay import TruthLossPredictor, recorded_slots, replay
 
 REPO = Path(__file__).resolve().parents[1]

@@ -31,8 +31,8 @@ sys.path.insert(0, str(REPO))
 from gsrmr_common.channel_band import GainBand  # noqa: E402
 from gsrmr_common.link_model import LinkBudget  # noqa: E402
 from gsrmr_common.plausibility import MR_LOSS_MAX, PoseTrack  # noqa: E402
-from gsrmr_server.loss_map import LossMap  # noqa: E402
-from gsrmr_server.loss_predictor import MAX_LOG_DEVIATION, LossPredictor  # noqa: E402
+from gsrmr_scheduler.loss_map import LossMap  # noqa: E402
+from gsrmr_scheduler.loss_predictor import MAX_LOG_DEVIATION, LossPredictor  # noqa: E402
 
 
 def link_budget(path: Path) -> tuple[LinkBudget, float]:

@@ -24,15 +24,16 @@ import numba
 import numpy as np
 
 from gsrmr_common.camera import Camera
-from gsrmr_server.splatting.display_raster import TILE, display_kernel
-from gsrmr_server.splatting.model import GaussianModel, garden_model, load_garden
-from gsrmr_server.splatting.project import NEAR_M, project_numpy
-from gsrmr_server.splatting.rasterize import PACK_WIDTH, bin_kernel, depth_order, gather_pack_kernel
-from gsrmr_server.splatting.render import render
+from gsrmr_sim.shared_data import garden_model, load_garden
+from gsrmr_splat.display_raster import TILE, display_kernel
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.project import NEAR_M, project_numpy
+from gsrmr_splat.rasterize import PACK_WIDTH, bin_kernel, depth_order, gather_pack_kernel
+from gsrmr_splat.render import render
 
 FIRST_CALL = ("import time; t0 = time.perf_counter();"
-              "from gsrmr_server.splatting.model import garden_model, load_garden;"
-              "from gsrmr_server.splatting.render import render;"
+              "from gsrmr_sim.shared_data import garden_model, load_garden;"
+              "from gsrmr_splat.render import render;"
               "m = garden_model(); cam = load_garden()[2][0]; t1 = time.perf_counter(); render(m, cam);"
               "t2 = time.perf_counter(); render(m, cam); t3 = time.perf_counter();"
               "print(f'{t1 - t0:.2f} {t2 - t1:.2f} {t3 - t2:.3f}')")

@@ -42,20 +42,20 @@ import time
 from machine import machine_line
 import numpy as np
 
-from gsrmr_common import dataset_tool
 from gsrmr_common.camera import camera_from_pose
 from gsrmr_common.metrics import psnr
 from gsrmr_common.nerfstudio import DatasetFrame, holdout_split, read_dataset, write_dataset
-from gsrmr_server.splatting.align import rotation_angle_deg
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.render import render
-from gsrmr_server.splatting.train import Trainer
-from gsrmr_server.splatting.train_config import TrainConfig
+from gsrmr_offline import dataset_tool
 from gsrmr_sim.models import live_recipe
 from gsrmr_sim.robot_bag import RobotBag, RobotBagRecipe, write_robot_bag
 from gsrmr_sim.world.points import make_world
 from gsrmr_sim.world.recorder import with_resolution
 from gsrmr_sim.world.scene import load_scene
+from gsrmr_splat.align import rotation_angle_deg
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.render import render
+from gsrmr_splat.train import Trainer
+from gsrmr_splat.train_config import TrainConfig
 
 ACCEPT_DB = 0.5
 FRAMES_OUTSIDE = 2  # images before and after the odometry's span (dropped as out_of_range)

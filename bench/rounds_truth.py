@@ -31,11 +31,11 @@ import sys
 import numpy as np
 
 from gsrmr_common.nerfstudio import read_dataset
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.render import render
 from gsrmr_sim.rounds import worlds_cache
 from gsrmr_sim.world.recorder import Round2Record, record_round2
 from gsrmr_sim.world.scene import Scene, load_scene
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.render import render
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_line

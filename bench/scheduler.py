@@ -22,8 +22,8 @@ import time
 
 import numpy as np
 
-from gsrmr_server.scheduling import METHODS, solve
-from gsrmr_server.scheduling.cli import make_problem
+from gsrmr_scheduler.cli import make_problem
+from gsrmr_scheduler.solve import METHODS, solve
 
 ORDER = ["exact", "apo", "ranking", "rounding", "search", "exchange", "maxrate", "fairness", "robomr", "robogs"]
 
@@ -39,8 +39,8 @@ def timed(problem, method, repeats, **opts):
 
 def rss_exact_1e5() -> str:
     """Peak RSS of a fresh process solving T = 1e5 (VmHWM: ru_maxrss would include the forked parent)."""
-    code = ("import time; from gsrmr_server.scheduling import solve; "
-            "from gsrmr_server.scheduling.cli import make_problem; p=make_problem(100000, 0); "
+    code = ("import time; from gsrmr_scheduler.solve import solve; "
+            "from gsrmr_scheduler.cli import make_problem; p=make_problem(100000, 0); "
             "s=solve(p,'exact'); t=time.perf_counter(); s=solve(p,'exact'); dt=time.perf_counter()-t; "
             "hwm=[ln for ln in open('/proc/self/status') if ln.startswith('VmHWM')][0].split()[1]; "
             "print(f'{int(hwm)/1024:.0f} MB peak RSS (VmHWM, whole process incl. numpy/numba), "

@@ -56,12 +56,12 @@ import torch
 
 from gsrmr_common.camera import Intrinsics
 from gsrmr_common.nerfstudio import DatasetFrame, holdout_split, read_dataset
-from gsrmr_server.splatting import diffrender
-from gsrmr_server.splatting import train as train_module
-from gsrmr_server.splatting.datasets import orbit_cameras, render_views
-from gsrmr_server.splatting.model import garden_model
-from gsrmr_server.splatting.train import Trainer
-from gsrmr_server.splatting.train_config import ENGINES, TrainConfig
+from gsrmr_sim.shared_data import garden_model
+from gsrmr_splat import diffrender
+from gsrmr_splat import train as train_module
+from gsrmr_splat.datasets import orbit_cameras, render_views
+from gsrmr_splat.train import Trainer
+from gsrmr_splat.train_config import ENGINES, TrainConfig
 
 GARDEN_FOV_DEG = 68.0
 GARDEN_VIEWS = 48
@@ -364,7 +364,7 @@ def commit() -> str:
     try:
         head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
                               check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--", "gsrmr_server/splatting", "bench/train.py"],
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "gsrmr_splat", "bench/train.py"],
                                cwd=root, capture_output=True, text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"

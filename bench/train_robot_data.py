@@ -11,7 +11,7 @@ ones, so the PSNR is against the truth):
 
 * ``clean`` — the true poses and images.
 * ``noise`` — each training frame's recorded camera pose moved by exactly 2 cm and 1° in seeded random
-  directions (6 DOF, :func:`gsrmr_server.splatting.camera_opt.corrected_world_to_camera_np`); held-out poses true.
+  directions (6 DOF, :func:`gsrmr_splat.camera_opt.corrected_world_to_camera_np`); held-out poses true.
 * ``drift`` — odometry drift as ``gsrmr_sim.robot_bag`` models it (``odometry_poses``: every increment scaled by
   1.02 and its yaw grown by 0.03 rad per metre travelled), integrated from the first frame's pose along the route
   (≈ 8.4 m: ≈ 0.25 rad of yaw by the end of the lap); every frame's recorded pose, training *and* held-out, is the
@@ -67,13 +67,13 @@ import numpy as np
 
 from gsrmr_common.camera import Camera, camera_from_pose
 from gsrmr_common.nerfstudio import DatasetFrame, holdout_split, read_dataset
-from gsrmr_server.splatting.camera_opt import corrected_world_to_camera_np
-from gsrmr_server.splatting.train import Trainer
-from gsrmr_server.splatting.train_config import TrainConfig
 from gsrmr_sim.models import live_recipe
 from gsrmr_sim.robot_bag import OdometryDrift, compose_planar, odometry_poses
 from gsrmr_sim.world.recorder import record_round1, with_resolution
 from gsrmr_sim.world.scene import Scene, load_scene
+from gsrmr_splat.camera_opt import corrected_world_to_camera_np
+from gsrmr_splat.train import Trainer
+from gsrmr_splat.train_config import TrainConfig
 
 SCENE = "sandbox"
 HOLDOUT_EVERY = 8

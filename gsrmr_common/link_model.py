@@ -29,7 +29,7 @@ from gsrmr_common.channel import PATHLOSS_DB_AT_1M, PATHLOSS_EXPONENT, RICIAN_K,
 from gsrmr_common.wire import POSE_KEY_BITS
 
 # The paper's link (Section V), in SI units: the defaults of the robot's ledger (LinkBudget), the
-# scheduler's plan (its parameters) and every scheduling problem (gsrmr_server.scheduling.Problem).
+# scheduler's plan (its parameters) and every scheduling problem (gsrmr_scheduler.Problem).
 SLOT_S = 0.1  # τ
 IMAGE_BITS = 67_200.0  # I: the image size the plan assumes (8.4 kB)
 KEY_BITS = float(POSE_KEY_BITS)  # S: the pose key, 3 × float64

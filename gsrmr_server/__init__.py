@@ -1,4 +1,5 @@
-"""Server side of gsrmr: scheduling, the Gaussian-splatting engine, the simulated world and the nodes."""
+"""The simulation server: the server node, its slot core (GS render at the pose key or the received image,
+composited with the MR content), the MR content itself and the recording of what it received and published."""
 
 from gsrmr_common.interrupts import guard_console_start_up
 

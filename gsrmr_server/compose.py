@@ -26,9 +26,9 @@ from gsrmr_common.metrics import mr_loss
 from gsrmr_common.wire import MAX_IMAGE_PIXELS, PoseKey, RealSource, UplinkFault
 from gsrmr_server.mr.blend import mr_image
 from gsrmr_server.mr.content import VirtualViewSource
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.render import render
 from gsrmr_server.uplink import SlotUploads
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.render import render
 
 
 @dataclass

@@ -73,7 +73,7 @@ from gsrmr_server.server_inputs import ServerInputs
 from gsrmr_server.server_params import ServerParameters
 from gsrmr_server.server_stats import ServerStats, diagnostic_report
 from gsrmr_server.slot_core import WARM_UP_INTRINSICS, build_server_core, count_composition_faults
-from gsrmr_server.splatting.model import GaussianModel
+from gsrmr_splat.model import GaussianModel
 
 
 class ServerNode(Node):

@@ -27,8 +27,8 @@ from gsrmr_server.compose import ComposedSlot, MRComposer, to_u8
 from gsrmr_server.mr.content import AgentsView, load_mr_content
 from gsrmr_server.server_params import ServerParameters
 from gsrmr_server.slot_row import SlotRow
-from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.uplink import SlotUploads, UplinkAssembler
+from gsrmr_splat.model import GaussianModel
 
 #: Intrinsics of the start-up warm-up render, before the robot's camera_info arrives (compiles the kernels).
 WARM_UP_INTRINSICS = Intrinsics.from_fov(32, 24, 1.2)

@@ -1,8 +1,7 @@
-"""The simulated world (wing three): the "real" scene and camera, the mock LIMO, the route follower, the
-fault relay, the process stacks, the demo, the survey and the paper's experiments.
+"""The simulated world: the "real" scene and camera, the mock LIMO, the route follower, the fault relay, the
+process stacks, the demo, the survey, the paper's experiments and the shared test data.
 
-Deployment code (``gsrmr_robot``, ``gsrmr_server``) never imports this package (import-linter contract in
-``pyproject.toml``); this package may import everything else.
+Nothing else imports this package (import-linter contract in ``pyproject.toml``); it may import everything.
 """
 
 from gsrmr_common.interrupts import guard_console_start_up

@@ -37,8 +37,7 @@ import time
 import numpy as np
 import yaml
 
-from gsrmr_server.loss_map import LossMap
-from gsrmr_server.splatting.model import GaussianModel
+from gsrmr_scheduler.loss_map import LossMap
 from gsrmr_sim import netns
 from gsrmr_sim.fleet import fleet_demo
 from gsrmr_sim.link_events import LinkEvent, parse_link_events
@@ -52,6 +51,7 @@ from gsrmr_sim.stack_runner import RobotRun, limo_link_path, run_round
 from gsrmr_sim.survey import SURVEY_VERSION, gs_losses, loss_map_from
 from gsrmr_sim.world.recorder import Round2Record, record_round2
 from gsrmr_sim.world.scene import load_scene
+from gsrmr_splat.model import GaussianModel
 
 REPO = Path(__file__).resolve().parents[1]
 #: The options that say how the demo builds its model: ``--model`` replaces the building, so they are refused with it.
@@ -80,7 +80,7 @@ def load_outside_model(path: str) -> GaussianModel:
 
 def load_outside_loss_map(path: str) -> LossMap:
     """``--loss-map JSON``: the seed map read as the scheduler reads its ``loss_map_file``
-    (:meth:`gsrmr_server.loss_map.LossMap.load`); :class:`DemoInputError` when it cannot be."""
+    (:meth:`gsrmr_scheduler.loss_map.LossMap.load`); :class:`DemoInputError` when it cannot be."""
     try:
         return LossMap.load(path)
     except KeyError as err:

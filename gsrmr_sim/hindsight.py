@@ -6,7 +6,7 @@ Given, per scored slot, what an image and what a key *would have* cost at the re
 have chosen minimises Σ energy subject to mean loss ≤ L_th. Taking a key in slot t instead of an image
 saves ``v_t = E^img_t − E^key_t`` and adds ``w_t = L^gs_t − L^img_t`` to the loss: a 0/1 knapsack with
 capacity ``C = T·L_th − Σ L^img``. Slots where the key loses nothing (w ≤ 0) are keys for free; the rest
-is solved *exactly* by :func:`gsrmr_server.scheduling.solve` (``exact``, certified) through a problem
+is solved *exactly* by :func:`gsrmr_scheduler.solve` (``exact``, certified) through a problem
 whose channel gains are chosen so that its savings equal v_t.
 """
 
@@ -18,7 +18,8 @@ import math
 import numpy as np
 
 from gsrmr_common import link_model as link
-from gsrmr_server.scheduling import Problem, solve
+from gsrmr_scheduler.problem import Problem
+from gsrmr_scheduler.solve import solve
 
 
 @dataclass(frozen=True)

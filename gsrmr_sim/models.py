@@ -1,7 +1,7 @@
 """Building a scene's Gaussian-splatting model: one pipeline for the demo, the experiments and the tests.
 
 A :class:`ModelRecipe` says how: the scene, the mapping-round recording (frames, image size, seed) and
-the training (a :class:`~gsrmr_server.splatting.train.TrainConfig`, an optional wall-time budget, the
+the training (a :class:`~gsrmr_splat.train.TrainConfig`, an optional wall-time budget, the
 held-out split). :func:`build_model` records round 1 as a nerfstudio dataset, trains, and writes
 
     <folder>/round1/            the dataset (transforms.json + images)
@@ -23,12 +23,12 @@ import shutil
 import time
 
 from gsrmr_common.nerfstudio import holdout_split, read_dataset
-from gsrmr_server.splatting.compact import CompactConfig, Compactor
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.train import HistoryRow, Trainer
-from gsrmr_server.splatting.train_config import TrainConfig
 from gsrmr_sim.world.recorder import record_round1, with_resolution
 from gsrmr_sim.world.scene import Scene, load_scene, resolve_scene_path
+from gsrmr_splat.compact import CompactConfig, Compactor
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.train import HistoryRow, Trainer
+from gsrmr_splat.train_config import TrainConfig
 
 CACHE_VERSION = 1  # bump when the pipeline changes what a recipe builds
 
@@ -128,7 +128,7 @@ def build_model(recipe: ModelRecipe, *, cache: str | Path | None = None, folder:
 def compact_built(built: BuiltModel, recipe: ModelRecipe, max_psnr_drop_db: float,
                   log: Callable[[str], None] = print) -> BuiltModel:
     """The built model compacted to the smallest one within ``max_psnr_drop_db`` of its held-out PSNR
-    (:mod:`gsrmr_server.splatting.compact`), cached beside it as ``model-compact-<tol>.ply`` +
+    (:mod:`gsrmr_splat.compact`), cached beside it as ``model-compact-<tol>.ply`` +
     ``compact-<tol>.json``. The info also holds both models' held-out PSNR at the dataset's own (full)
     resolution, which is the live image size."""
     tag = f"{max_psnr_drop_db:g}"

@@ -27,15 +27,15 @@ import numpy as np
 
 from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.wire import PoseKey
+from gsrmr_scheduler.problem import IMAGE, KEY, NONE
 from gsrmr_server.mr.blend import mr_image
-from gsrmr_server.scheduling.problem import IMAGE, KEY, NONE
 from gsrmr_server.scoring import score_slot
 from gsrmr_server.server_params import ServerParameters
 from gsrmr_server.slot_core import SlotOutcome, build_server_core
 from gsrmr_server.slot_row import SlotScore
-from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.uplink import SlotUploads, UplinkAssembler
 from gsrmr_sim.world.recorder import Round2Record
+from gsrmr_splat.model import GaussianModel
 
 #: Which pose a key carries: the one the robot reports (odometry) or the true one (the paper's L_t).
 TRUE, REPORTED = "true", "reported"

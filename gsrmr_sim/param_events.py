@@ -27,7 +27,8 @@ DISCOVERY_SPIN_S = 5.0
 
 #: The server's log line of a swap (gsrmr_server.server_node): "model swapped in at slot N: PATH (…)".
 SWAP_LINE = re.compile(r"model swapped in at slot (\d+): (\S+)")
-#: The scheduler's log line of a new seed map (gsrmr_server.scheduler_node): "loss map re-seeded from PATH (N cells)".
+#: The scheduler's log line of a new seed map (gsrmr_scheduler.scheduler_node):
+#: "loss map re-seeded from PATH (N cells)".
 RESEED_LINE = re.compile(r"loss map re-seeded from (\S+) \((\d+) cells\)")
 
 

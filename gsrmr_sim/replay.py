@@ -38,7 +38,7 @@ import time
 import numpy as np
 
 from gsrmr_robot.scene_change import ChangeProbe
-from gsrmr_server.planner import OnlinePlanner
+from gsrmr_scheduler.planner import OnlinePlanner
 from gsrmr_sim.hindsight import hindsight_optimum
 
 

@@ -43,12 +43,12 @@ import time
 import numpy as np
 
 from gsrmr_common.nerfstudio import holdout_split, read_dataset, write_dataset
-from gsrmr_server.model_update import UpdateConfig, split_received, superseded
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.render import render
+from gsrmr_offline.model_update import UpdateConfig, split_received, superseded
 from gsrmr_sim.report import log
 from gsrmr_sim.world.recorder import Round2Record, record_round2
 from gsrmr_sim.world.scene import Scene, load_scene, scene_digest
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.render import render
 
 #: the mock camera's node name (the ``round`` parameter set per scored round)
 CAMERA_NODE = "gsrmr_mock_camera"

@@ -3,8 +3,8 @@
 ``L_t = MR loss(m_t, m̂_t)`` with m̂_t the live server's composite of a key-only slot at the true pose s_t,
 and — with ``jpeg_quality`` — ``J_t``, the loss of an image slot (the robot's JPEG of r_t, with the pose key the
 robot reports), both made by the live slot core's composer and scored by the deployment's scoring library:
-:func:`gsrmr_server.frame_loss.frame_loss`, the function the deployment survey (``gsrmr-survey``,
-:mod:`gsrmr_server.deployment_survey`) scores a mapping round's frames with — here called with the simulator's
+:func:`gsrmr_offline.frame_loss.frame_loss`, the function the deployment survey (``gsrmr-survey``,
+:mod:`gsrmr_offline.deployment_survey`) scores a mapping round's frames with — here called with the simulator's
 true frames r_t, at each slot's time, with :class:`~gsrmr_sim.offline_server.OfflineServer`'s composer (the one
 composition pipeline). This is the L_t the paper's optimisation assumes known; the experiments use it directly,
 and ``make demo`` uses it to seed the scheduler's loss map (a rehearsal of the operating round), which the
@@ -15,12 +15,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from gsrmr_server.deployment_survey import seed_loss_map
-from gsrmr_server.frame_loss import frame_loss
-from gsrmr_server.loss_map import LossMap
-from gsrmr_server.splatting.model import GaussianModel
+from gsrmr_offline.deployment_survey import seed_loss_map
+from gsrmr_offline.frame_loss import frame_loss
+from gsrmr_scheduler.loss_map import LossMap
 from gsrmr_sim.offline_server import REPORTED, TRUE, OfflineServer
 from gsrmr_sim.world.recorder import Round2Record
+from gsrmr_splat.model import GaussianModel
 
 #: Bump when what :func:`gs_losses` measures changes (cached seed maps and loss files carry it).
 SURVEY_VERSION = 3
@@ -59,6 +59,6 @@ def gs_losses(record: Round2Record, model: GaussianModel, background=(0.0, 0.0, 
 
 def loss_map_from(losses: list[SlotLoss], **kwargs) -> LossMap:
     """A loss map holding every surveyed slot (and, where measured, the mean image-slot loss): the deployment
-    survey's :func:`~gsrmr_server.deployment_survey.seed_loss_map`; ``kwargs`` are :class:`LossMap` settings."""
+    survey's :func:`~gsrmr_offline.deployment_survey.seed_loss_map`; ``kwargs`` are :class:`LossMap` settings."""
     return seed_loss_map([s.pose for s in losses], [s.loss for s in losses], [s.image_loss for s in losses],
                          [s.sample_bias for s in losses], **kwargs)

@@ -22,8 +22,8 @@ WIDTH, HEIGHT = 160, 120
 
 def make_small_model(folder: Path, width: int = WIDTH, height: int = HEIGHT) -> Path:
     """A GS model of the sandbox from 12 round-1 frames (depth-initialised, briefly trained)."""
-    from gsrmr_server.splatting.train import TrainConfig
     from gsrmr_sim.models import ModelRecipe, build_model
+    from gsrmr_splat.train import TrainConfig
 
     recipe = ModelRecipe("sandbox", frames=12, width=width, height=height, holdout_every=0,
                          config=TrainConfig(init_points=6000, sh_degree=0, iterations=60, densify_from=10_000))
@@ -32,7 +32,7 @@ def make_small_model(folder: Path, width: int = WIDTH, height: int = HEIGHT) -> 
 
 def make_point_model(folder: Path, n: int = 2000, seed: int = 0) -> Path:
     """An untrained model: ``n`` random coloured Gaussians over the sandbox (x, y in ±5 m, z in 0..2 m)."""
-    from gsrmr_server.splatting.model import GaussianModel
+    from gsrmr_splat.model import GaussianModel
 
     rng = np.random.default_rng(seed)
     model = GaussianModel.from_points(rng.uniform([-5, -5, 0], [5, 5, 2], (n, 3)), rng.uniform(0, 1, (n, 3)),

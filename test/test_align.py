@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from gsrmr_common.camera import Camera, CameraMount, Intrinsics, camera_from_pose, opencv_w2c_to_opengl_c2w
 from gsrmr_common.nerfstudio import DatasetFrame, write_dataset
-from gsrmr_server.splatting.align import (
+from gsrmr_splat.align import (
     Similarity,
     align_poses,
     quaternion_multiply,
@@ -23,8 +23,8 @@ from gsrmr_server.splatting.align import (
     transform_model,
     umeyama,
 )
-from gsrmr_server.splatting.align_cli import main as align_main
-from gsrmr_server.splatting.external_poses import (
+from gsrmr_splat.align_cli import main as align_main
+from gsrmr_splat.external_poses import (
     NERFSTUDIO_LEGACY_APPLIED_TRANSFORM,
     PoseFileError,
     detect_format,
@@ -37,9 +37,9 @@ from gsrmr_server.splatting.external_poses import (
     read_nerfstudio_transforms,
     shift_frame_numbers,
 )
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.render import render
-from gsrmr_server.splatting.sh import C0, num_coeffs, sh_basis
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.render import render
+from gsrmr_splat.sh import C0, num_coeffs, sh_basis
 
 
 def random_similarity(seed: int, scale: float) -> Similarity:

@@ -1,4 +1,4 @@
-"""gsrmr_server/change_confirmation.py: an update learns a change two rounds saw, not one only one round saw."""
+"""gsrmr_offline/change_confirmation.py: an update learns a change two rounds saw, not one only one round saw."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from gsrmr_common.camera import Intrinsics
-from gsrmr_server.change_confirmation import ConfirmConfig, confirm_changes
-from gsrmr_server.splatting.datasets import orbit_cameras, render_views
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.render import render
-from gsrmr_server.splatting.sh import C0
+from gsrmr_offline.change_confirmation import ConfirmConfig, confirm_changes
+from gsrmr_splat.datasets import orbit_cameras, render_views
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.render import render
+from gsrmr_splat.sh import C0
 
 
 def _cloud(n: int, centre, half_m: float, colour, seed: int) -> GaussianModel:

@@ -14,9 +14,9 @@ from gsrmr_common.link_model import LinkBudget
 from gsrmr_common.ros_wire import channel_sample_from_msg, channel_sample_to_msg
 from gsrmr_common.wire import ChannelSample, ScheduleMsg
 from gsrmr_robot.uplink_core import SlotInputs, UplinkCore, covering_schedule
-from gsrmr_server.loss_map import LossMap
-from gsrmr_server.planner import OnlinePlanner, PlannerConfig, RoutePredictor
-from gsrmr_server.slot_price import DEEP_FADE_FRACTION, gain_thresholds, rician_power_samples, saving_coefficient_j
+from gsrmr_scheduler.loss_map import LossMap
+from gsrmr_scheduler.planner import OnlinePlanner, PlannerConfig, RoutePredictor
+from gsrmr_scheduler.slot_price import DEEP_FADE_FRACTION, gain_thresholds, rician_power_samples, saving_coefficient_j
 from gsrmr_sim.hindsight import hindsight_optimum, regret_split
 from gsrmr_sim.world.true_channel import TrueChannel
 

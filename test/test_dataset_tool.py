@@ -1,4 +1,4 @@
-"""``gsrmr-dataset`` (gsrmr_common.dataset_tool) on small synthetic bags written with the rosbags writer.
+"""``gsrmr-dataset`` (gsrmr_offline.dataset_tool) on small synthetic bags written with the rosbags writer.
 
 The recorded round: a robot drives a circle arc (0.3 m/s, 0.5 rad/s); TF map → odom (static) → base_link
 (moving, 50 Hz) → camera_link → camera_optical_frame (static, a 6-DoF mount); a 96×72 camera with plumb_bob
@@ -26,15 +26,15 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 import yaml
 
-from gsrmr_common import dataset_tool
-from gsrmr_common.bag_dataset import CSV_COLUMNS
 from gsrmr_common.calibration import CameraCalibration, Rectifier
 from gsrmr_common.camera import CameraMount, rpy_matrix
 from gsrmr_common.image_decode import decode_colour, decode_depth_m, format_stamp, is_depth_message
-from gsrmr_common.keyframes import blurred, spaced, thin_evenly
 from gsrmr_common.metrics import psnr
 from gsrmr_common.nerfstudio import read_dataset
 from gsrmr_common.tf_tree import base_from_camera_link_transform, quaternion_from_matrix, transform_matrix
+from gsrmr_offline import dataset_tool
+from gsrmr_offline.bag_dataset import CSV_COLUMNS
+from gsrmr_offline.keyframes import blurred, spaced, thin_evenly
 
 NS = 1_000_000_000
 T0 = 1_700_000_000 * NS

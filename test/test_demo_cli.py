@@ -11,8 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gsrmr_server.loss_map import LossMap
-from gsrmr_server.splatting.model import GaussianModel
+from gsrmr_scheduler.loss_map import LossMap
 from gsrmr_sim import demo, rounds
 from gsrmr_sim.link_events import parse_link_events
 import gsrmr_sim.netns as netns
@@ -20,6 +19,7 @@ from gsrmr_sim.report import link_summary, summary_json, write_report
 from gsrmr_sim.round_start import first_round_row
 from gsrmr_sim.stack_runner import RobotRun
 from gsrmr_sim.truth_frames import TruthFrameReader, TruthFrameWriter
+from gsrmr_splat.model import GaussianModel
 
 
 def test_link_events_parse_and_refuse_nonsense():

@@ -1,4 +1,4 @@
-"""gsrmr-survey: the scheduler's seed loss map from the robot's mapping round (gsrmr_server.deployment_survey).
+"""gsrmr-survey: the scheduler's seed loss map from the robot's mapping round (gsrmr_offline.deployment_survey).
 
 The world here is a point model of the sandbox (``make_point_model``): its renders along the sandbox route, at the
 configured camera mount, are the dataset's frames, so the model itself is a perfect model of them and another
@@ -21,8 +21,7 @@ from stack_harness import make_point_model
 from gsrmr_common.camera import CameraMount, Intrinsics, camera_from_pose
 from gsrmr_common.nerfstudio import DatasetFrame, read_dataset, write_dataset
 from gsrmr_common.wire import PoseKey
-from gsrmr_server.compose import MRComposer
-from gsrmr_server.deployment_survey import (
+from gsrmr_offline.deployment_survey import (
     frame_at_width,
     frame_mount,
     recorded_split,
@@ -30,16 +29,17 @@ from gsrmr_server.deployment_survey import (
     select_frames,
     survey_frames,
 )
-from gsrmr_server.frame_loss import frame_loss
-from gsrmr_server.loss_map import LossMap
-from gsrmr_server.planner import OnlinePlanner
-from gsrmr_server.scheduler_params import SchedulerParameters
+from gsrmr_offline.frame_loss import frame_loss
+from gsrmr_offline.survey_cli import default_config_path, main, mount_from_file, route_from_file
+from gsrmr_scheduler.loss_map import LossMap
+from gsrmr_scheduler.planner import OnlinePlanner
+from gsrmr_scheduler.scheduler_params import SchedulerParameters
+from gsrmr_server.compose import MRComposer
 from gsrmr_server.slot_core import build_composer
-from gsrmr_server.splatting.datasets import render_views
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.survey_cli import default_config_path, main, mount_from_file, route_from_file
 from gsrmr_sim.survey import gs_losses
 from gsrmr_sim.world import Round2Record, load_scene, record_round2, with_resolution
+from gsrmr_splat.datasets import render_views
+from gsrmr_splat.model import GaussianModel
 
 FRAMES, HOLDOUT_EVERY = 8, 4  # held out: frames 3 and 7
 BACKGROUND = (0.5, 0.55, 0.6)  # config/server.yaml's background_rgb, the CLI's default

@@ -4,7 +4,7 @@
   workstation nodes load no simulator, the packages a console script enters through load nothing heavy.
 * Every node's console script points at its node module's ``main``, decorated with
   :func:`gsrmr_common.interrupts.console_main`.
-* No function-local ("late") import in the five packages except the deliberate lazy ones, each listed with
+* No function-local ("late") import in the packages except the deliberate lazy ones, each listed with
   its reason in docs/architecture.md ("Deliberate lazy imports").
 * The custom contract ``acyclic_wings`` (tools/import_contracts.py) finds a cycle where there is one.
 """
@@ -26,13 +26,15 @@ import pytest
 from gsrmr_common.interrupts import CONSOLE_MAIN_MARK
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("gsrmr_common", "gsrmr_robot", "gsrmr_server", "gsrmr_shapes", "gsrmr_sim")
+PACKAGES = ("gsrmr_common", "gsrmr_offline", "gsrmr_robot", "gsrmr_scheduler", "gsrmr_server", "gsrmr_shapes",
+            "gsrmr_sim", "gsrmr_splat")
 HEAVY = ("numba", "llvmlite", "cvxpy", "scipy", "torch", "plyfile", "matplotlib")
 # Console scripts that run on the LIMO, with the module their entry point imports.
 ROBOT_SIDE = {"gsrmr-robot": "gsrmr_robot.robot_node", "gsrmr-limo-base": "gsrmr_robot.limo.node",
               "gsrmr-link-probe": "gsrmr_common.link_check"}
 # What a console script enters through before its node module: its package and the Ctrl-C guard's module.
-LIGHT_ENTRY_MODULES = ("gsrmr_common.interrupts", "gsrmr_common", "gsrmr_robot", "gsrmr_server", "gsrmr_sim")
+LIGHT_ENTRY_MODULES = ("gsrmr_common.interrupts", "gsrmr_common", "gsrmr_offline", "gsrmr_robot", "gsrmr_scheduler",
+                       "gsrmr_server", "gsrmr_sim", "gsrmr_splat")
 # The ROS nodes among the console scripts: each enters through its node module's main, a console_main.
 NODE_SCRIPTS = frozenset({"gsrmr-link-echo", "gsrmr-link-probe", "gsrmr-limo-base", "gsrmr-robot", "gsrmr-server",
                           "gsrmr-scheduler", "gsrmr-mock-limo", "gsrmr-mock-camera", "gsrmr-route-follower",
@@ -75,7 +77,7 @@ _FACTS: dict[tuple[str, str | None], Future] = {}
 def _facts_wanted() -> list[tuple[str, str | None]]:
     """Every ``(module, attr)`` the tests below ask :func:`module_facts` about, in the order they ask."""
     wanted: list[tuple[str, str | None]] = [(ROBOT_SIDE[script], None) for script in sorted(ROBOT_SIDE)]
-    wanted += [(m, None) for m in ("gsrmr_server.server_node", "gsrmr_server.scheduler_node",
+    wanted += [(m, None) for m in ("gsrmr_server.server_node", "gsrmr_scheduler.scheduler_node",
                                    "gsrmr_sim.world.camera_node", *LIGHT_ENTRY_MODULES)]
     wanted += [(value.split(":")[0], value.split(":")[1].strip()) for _, value in sorted(console_scripts().items())]
     return list(dict.fromkeys(wanted))
@@ -111,11 +113,11 @@ def test_robot_side_node_loads_no_server_code_and_no_heavy_numerics(script):
     modules = loaded_modules(ROBOT_SIDE[script])
     assert ROBOT_SIDE[script] in modules
     assert offenders(modules, HEAVY) == [], f"{script} loads heavy modules"
-    assert offenders(modules, ("gsrmr_server", "gsrmr_sim", "gsrmr_shapes")) == [], \
-        f"{script} loads server, simulator or ray-caster code"
+    assert offenders(modules, ("gsrmr_server", "gsrmr_scheduler", "gsrmr_offline", "gsrmr_splat", "gsrmr_sim",
+                               "gsrmr_shapes")) == [], f"{script} loads workstation, simulator or ray-caster code"
 
 
-@pytest.mark.parametrize("module", ["gsrmr_server.server_node", "gsrmr_server.scheduler_node"])
+@pytest.mark.parametrize("module", ["gsrmr_server.server_node", "gsrmr_scheduler.scheduler_node"])
 def test_workstation_nodes_load_no_simulated_world(module):
     """The server takes intrinsics from camera_info and its virtual agents from the MR content; the
     scheduler its route from parameters: neither loads the simulator's scene, camera or stacks."""
@@ -125,16 +127,16 @@ def test_workstation_nodes_load_no_simulated_world(module):
 
 
 def test_scheduler_node_loads_no_renderer():
-    modules = loaded_modules("gsrmr_server.scheduler_node")
-    assert sorted(m for m in modules if m.startswith(("gsrmr_server.splatting", "gsrmr_server.mr",
+    modules = loaded_modules("gsrmr_scheduler.scheduler_node")
+    assert sorted(m for m in modules if m.startswith(("gsrmr_splat", "gsrmr_server.mr",
                                                        "gsrmr_server.compose", "gsrmr_shapes", "torch"))) == []
 
 
 def test_the_check_can_fail():
     """The same checks do find what is there: the scheduler needs the solvers, the server the renderer and
     the ray caster, and the simulator's nodes load the simulator."""
-    assert "numba" in {m.split(".")[0] for m in loaded_modules("gsrmr_server.scheduler_node")}
-    assert {"gsrmr_shapes.raycast", "gsrmr_server.splatting.render"} <= loaded_modules("gsrmr_server.server_node")
+    assert "numba" in {m.split(".")[0] for m in loaded_modules("gsrmr_scheduler.scheduler_node")}
+    assert {"gsrmr_shapes.raycast", "gsrmr_splat.render"} <= loaded_modules("gsrmr_server.server_node")
     assert "gsrmr_sim.world.scene" in loaded_modules("gsrmr_sim.world.camera_node")
 
 
@@ -171,7 +173,7 @@ def test_console_script_module_respects_its_wing(script):
     assert module in modules
     if not module.startswith("gsrmr_sim"):
         assert offenders(modules, ("gsrmr_sim",)) == [], f"{script} ({module}) loads the simulator"
-    if module.startswith(("gsrmr_server.scheduling", "gsrmr_server.splatting")):
+    if module.startswith(("gsrmr_scheduler", "gsrmr_splat")):
         assert offenders(modules, ("rclpy", "launch", "launch_ros")) == [], f"{script} ({module}) loads ROS"
     if script in NODE_SCRIPTS:
         assert function.strip().endswith("main") and module != "gsrmr_common.interrupts", console_scripts()[script]
@@ -209,7 +211,7 @@ def function_local_imports(path: Path, module: str) -> list[tuple[str, int]]:
 
 
 def late_imports() -> dict[tuple[str, str], list[int]]:
-    """``{(module, imported module): [lines]}`` over every module of the five packages."""
+    """``{(module, imported module): [lines]}`` over every module of every package."""
     out: dict[tuple[str, str], list[int]] = {}
     for package in PACKAGES:
         for path in sorted((REPO / package).rglob("*.py")):

@@ -124,7 +124,7 @@ def test_shipped_link_and_plan_constants_are_the_link_models():
     import yaml
 
     from gsrmr_common import channel, link_model
-    from gsrmr_server.scheduling.problem import Problem
+    from gsrmr_scheduler.problem import Problem
 
     link = yaml.safe_load((REPO / "config" / "link.yaml").read_text())["/**"]["ros__parameters"]
     plan = yaml.safe_load((REPO / "config" / "scheduler.yaml").read_text())["/**"]["ros__parameters"]

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from gsrmr_common.link_model import LinkBudget
-from gsrmr_server.loss_map import LossMap
-from gsrmr_server.loss_predictor import LossPredictor
+from gsrmr_scheduler.loss_map import LossMap
+from gsrmr_scheduler.loss_predictor import LossPredictor
+from gsrmr_scheduler.planner import OnlinePlanner, PlannerConfig, RoutePredictor
+from gsrmr_scheduler.slot_price import DEEP_FADE_FRACTION, gain_thresholds, rician_power_samples
 from gsrmr_server.mr.blend import jpeg_mr_loss
-from gsrmr_server.planner import OnlinePlanner, PlannerConfig, RoutePredictor
-from gsrmr_server.slot_price import DEEP_FADE_FRACTION, gain_thresholds, rician_power_samples
 from gsrmr_sim.replay import recorded_slots, replay
 
 ROUTE = [(0.0, 0.0), (2.0, 0.0), (2.0, 2.0), (0.0, 2.0)]

@@ -1,4 +1,4 @@
-"""The model update between rounds (gsrmr_server/model_update.py): the split, the replay buffer, the paired verdict,
+"""The model update between rounds (gsrmr_offline/model_update.py): the split, the replay buffer, the paired verdict,
 the versions, and one update on a small scene whose world changed (accepted) or did not (refused)."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 
 from gsrmr_common.camera import Camera, Intrinsics
 from gsrmr_common.metrics import mr_loss
-from gsrmr_server.model_update import (
+from gsrmr_offline.model_update import (
     UpdateConfig,
     in_use,
     paired_verdict,
@@ -25,11 +25,11 @@ from gsrmr_server.model_update import (
     versions,
     write_version,
 )
-from gsrmr_server.splatting.datasets import look_at, orbit_cameras, render_views
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.render import render
-from gsrmr_server.splatting.sh import C0
-from gsrmr_server.splatting.train import TrainConfig
+from gsrmr_splat.datasets import look_at, orbit_cameras, render_views
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.render import render
+from gsrmr_splat.sh import C0
+from gsrmr_splat.train import TrainConfig
 
 
 def test_the_most_recent_frames_are_held_out_and_the_replay_spans_the_mapping_round():
@@ -186,7 +186,7 @@ def test_update_cli_writes_a_version_and_names_the_model_to_use(tmp_path, worlds
     an accepted update from a changed world (the model to use is the new one) and a refused one from the same
     frames again (the model to use stays)."""
     from gsrmr_common.nerfstudio import DatasetFrame, write_dataset
-    from gsrmr_server.update_cli import main
+    from gsrmr_offline.update_cli import main
 
     current, changed, mapping, cams = worlds
     posed = [DatasetFrame(f.camera, f.image, None, (float(f.camera.camera_to_world[0, 3]),
@@ -227,7 +227,7 @@ def test_the_trainer_refuses_frames_without_their_images(worlds):
     """A dataset read without its images (0×0 placeholders) trained to an empty model and then failed deep in the
     fused engine (found writing gsrmr-update); now the trainer says so up front."""
     from gsrmr_common.nerfstudio import DatasetFrame
-    from gsrmr_server.splatting.train import Trainer
+    from gsrmr_splat.train import Trainer
 
     current, _, mapping, _ = worlds
     blind = [DatasetFrame(f.camera, np.zeros((0, 0, 3), np.float32), None, None, f.file_path) for f in mapping]

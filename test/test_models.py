@@ -10,10 +10,10 @@ import numpy as np
 from test_splatting_train import small_frames
 import torch
 
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.train import TrainConfig, Trainer
 from gsrmr_sim.models import BuiltModel, ModelRecipe, compact_built, live_recipe
 from gsrmr_sim.world.scene import REPO_SCENES_DIR
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.train import TrainConfig, Trainer
 
 
 def _points(n: int, seed: int) -> GaussianModel:

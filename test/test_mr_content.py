@@ -138,8 +138,8 @@ def test_the_composer_casts_the_virtual_view_beside_the_render_and_gets_the_sequ
     from gsrmr_common.jpeg import encode_jpeg
     from gsrmr_common.wire import PoseKey
     from gsrmr_server.compose import MRComposer
-    from gsrmr_server.splatting.model import GaussianModel
     from gsrmr_server.uplink import SlotUploads
+    from gsrmr_splat.model import GaussianModel
 
     rng = np.random.default_rng(3)
     model = GaussianModel.from_points(rng.uniform([0.5, -1, 0], [3, 1, 0.5], (800, 3)), rng.uniform(0, 1, (800, 3)),

@@ -15,9 +15,9 @@ import pytest
 from gsrmr_common.camera import CameraMount
 from gsrmr_common.link_model import LinkBudget
 from gsrmr_robot.limo.base_params import MOTION_MODES, LimoBaseParameters
-from gsrmr_server.loss_map import LossMap
-from gsrmr_server.planner import LIVE_FIELDS
-from gsrmr_server.scheduler_params import (
+from gsrmr_scheduler.loss_map import LossMap
+from gsrmr_scheduler.planner import LIVE_FIELDS
+from gsrmr_scheduler.scheduler_params import (
     PLANNING_PARAMETERS,
     STARTUP_EXPLORE_SAMPLES,
     SchedulerParameters,
@@ -257,14 +257,14 @@ def test_each_live_parameter_changes_only_live_planner_fields():
 
 
 def test_parameter_modules_import_no_ros_and_the_scheduler_one_no_renderer():
-    code = ("import json, sys; import gsrmr_server.server_params, gsrmr_server.scheduler_params; "
+    code = ("import json, sys; import gsrmr_server.server_params, gsrmr_scheduler.scheduler_params; "
             "print(json.dumps(sorted(sys.modules)))")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     modules = set(json.loads(result.stdout.splitlines()[-1]))
-    assert "gsrmr_server.scheduler_params" in modules
+    assert "gsrmr_scheduler.scheduler_params" in modules
     assert sorted(m for m in modules if m.split(".")[0] in ("rclpy", "rcl_interfaces", "torch")) == []
-    assert sorted(m for m in modules if m.startswith(("gsrmr_server.splatting", "gsrmr_server.compose"))) == []
+    assert sorted(m for m in modules if m.startswith(("gsrmr_splat", "gsrmr_server.compose"))) == []
 
 
 def test_limo_base_parameters_defaults_rules_and_read_only():

@@ -10,13 +10,13 @@ import pytest
 
 from gsrmr_common.metrics import image_quality
 from gsrmr_server.mr.blend import jpeg_mr_loss, mr_image
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.render import render
 from gsrmr_sim.offline_server import TRUE, OfflineServer
 from gsrmr_sim.survey import gs_losses
 from gsrmr_sim.world import Round2Record, load_scene, record_round2, with_resolution
 from gsrmr_sim.world.kinematics import drive_route, start_pose
 from gsrmr_sim.world.reported_pose import pose_errors, reported_poses
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.render import render
 
 SLOTS = 12
 

@@ -11,15 +11,15 @@ from gsrmr_common.link_model import LinkBudget, required_power_w
 from gsrmr_common.wire import LEDGER_FIELDS, POSE_KEY_BITS, LedgerRow, MRSlotInfo, PoseKey, RealSource, UplinkFault
 from gsrmr_robot.ledger import EnergyLedger
 from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, odom_to_map
+from gsrmr_scheduler.loss_map import LossMap
+from gsrmr_scheduler.planner import OnlinePlanner, PlannerConfig, RoutePredictor
 from gsrmr_server.compose import MRComposer
-from gsrmr_server.loss_map import LossMap
-from gsrmr_server.planner import OnlinePlanner, PlannerConfig, RoutePredictor
 from gsrmr_server.slot_core import ServerCore
-from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.uplink import SlotUploads
 from gsrmr_sim.demo import first_moving_slot
 from gsrmr_sim.world.scene import load_scene
 from gsrmr_sim.world.virtual import virtual_view
+from gsrmr_splat.model import GaussianModel
 
 
 def test_ledger_prices_actual_bits_and_upload_all_reference():

@@ -12,8 +12,8 @@ import pytest
 
 from gsrmr_common.link_model import LinkBudget
 from gsrmr_common.wire import ScheduleMsg
-from gsrmr_server.loss_map import LossMap
-from gsrmr_server.planner import (
+from gsrmr_scheduler.loss_map import LossMap
+from gsrmr_scheduler.planner import (
     DriftMonitor,
     InSlotPricing,
     LossBudget,
@@ -22,8 +22,8 @@ from gsrmr_server.planner import (
     PlannerConfig,
     RoutePredictor,
 )
-from gsrmr_server.planner.cadence import SampleAlignedCadence
-from gsrmr_server.slot_price import DEEP_FADE_FRACTION, gain_thresholds, rician_power_samples, saving_coefficient_j
+from gsrmr_scheduler.planner.cadence import SampleAlignedCadence
+from gsrmr_scheduler.slot_price import DEEP_FADE_FRACTION, gain_thresholds, rician_power_samples, saving_coefficient_j
 
 ROUTE = [(0.0, 0.0), (2.0, 0.0), (2.0, 2.0), (0.0, 2.0)]
 BASE = PlannerConfig(loss_threshold=0.03, horizon_slots=20)
@@ -123,7 +123,7 @@ def test_a_ledger_row_or_pose_key_that_comes_after_its_slot_was_booked_rebooks_i
 def test_a_slot_is_charged_as_the_server_composed_it_not_as_the_robot_sent_it():
     """An image that did not reach the server in time left the render's loss (its key came) or the fallback's
     (neither came), not the JPEG's: the server's mr/slot_info says which, booked or not yet."""
-    from gsrmr_server.planner.budget import FALLBACK_LOSS_FACTOR
+    from gsrmr_scheduler.planner.budget import FALLBACK_LOSS_FACTOR
 
     key = 0.04
     budget = LossBudget(lambda _slot, _pose: key, image_slot_loss=0.005)

@@ -53,10 +53,10 @@ def jpeg() -> bytes:
 @pytest.fixture(scope="module")
 def composer():
     from gsrmr_server.compose import MRComposer
-    from gsrmr_server.splatting.model import GaussianModel
     from gsrmr_sim.world.recorder import with_resolution
     from gsrmr_sim.world.scene import load_scene
     from gsrmr_sim.world.virtual import virtual_view
+    from gsrmr_splat.model import GaussianModel
 
     scene = with_resolution(load_scene("sandbox"), W, H)
     rng = np.random.default_rng(3)
@@ -246,7 +246,7 @@ class _Evil:
 
 
 def test_model_files_are_parsed_without_pickle(tmp_path, monkeypatch):
-    from gsrmr_server.splatting.model import GaussianModel, PlyFormatError
+    from gsrmr_splat.model import GaussianModel, PlyFormatError
 
     monkeypatch.chdir(tmp_path)
     evil = tmp_path / "model.ply"
@@ -269,7 +269,7 @@ def test_training_checkpoint_load_refuses_arbitrary_pickle(tmp_path, monkeypatch
     """A checkpoint carrying a pickled callable is refused (torch.load(weights_only=True)); nothing runs."""
     import torch
 
-    from gsrmr_server.splatting.train import Trainer
+    from gsrmr_splat.train import Trainer
 
     monkeypatch.chdir(tmp_path)
     evil = tmp_path / "evil.ckpt"

@@ -17,15 +17,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gsrmr_common import dataset_tool
 from gsrmr_common.nerfstudio import holdout_split, read_dataset
-from gsrmr_server import survey_cli
-from gsrmr_server.loss_map import LossMap
-from gsrmr_server.planner import OnlinePlanner
-from gsrmr_server.scheduler_params import SchedulerParameters
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.train_cli import train_main
+from gsrmr_offline import dataset_tool, survey_cli
+from gsrmr_scheduler.loss_map import LossMap
+from gsrmr_scheduler.planner import OnlinePlanner
+from gsrmr_scheduler.scheduler_params import SchedulerParameters
 from gsrmr_sim.robot_bag import RobotBagRecipe, load_truth, write_robot_bag
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.train_cli import train_main
 
 # 5.5 s into the route: the robot drives into the first corner, so the poses turn as well as move
 RECIPE = RobotBagRecipe(frames=24, width_px=96, height_px=72, drive_start_s=5.5, drift=False, blurred_frames=2,

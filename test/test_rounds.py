@@ -6,8 +6,8 @@ import numpy as np
 
 from gsrmr_common.camera import Intrinsics
 from gsrmr_common.nerfstudio import DatasetFrame, read_dataset, write_dataset
-from gsrmr_server.splatting.datasets import orbit_cameras
 from gsrmr_sim.rounds import survey_frames
+from gsrmr_splat.datasets import orbit_cameras
 
 
 def _frames(cameras, shade: float) -> list[DatasetFrame]:

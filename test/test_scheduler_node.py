@@ -16,11 +16,11 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
-from gsrmr_server.scheduler_node import SchedulerNode
+from gsrmr_scheduler.scheduler_node import SchedulerNode
 
 REPO = Path(__file__).resolve().parents[1]
 # every module that drives an OnlinePlanner from outside the planner package
-PLANNER_USERS = ["gsrmr_server/scheduler_node.py", "bench/planner_replay.py", "gsrmr_sim/replay.py",
+PLANNER_USERS = ["gsrmr_scheduler/scheduler_node.py", "bench/planner_replay.py", "gsrmr_sim/replay.py",
                  "bench/scheduler.py", "bench/scheduler_start.py"]
 ROUTE = [-1.0, -1.1, 1.0, -1.1, 1.2, 0.9, -1.2, 0.9]
 
@@ -157,7 +157,7 @@ def test_a_change_the_planner_refuses_is_refused_on_set(scheduler):
 def test_a_new_loss_map_file_reseeds_the_forecast_and_replans(scheduler, tmp_path):
     """Issue 27: after a model swap the operator sets the new model's survey as loss_map_file: the forecast predicts
     from it and a replan follows; a file that is no loss map is refused and changes nothing."""
-    from gsrmr_server.loss_map import LossMap
+    from gsrmr_scheduler.loss_map import LossMap
 
     node, spin_until = scheduler
     assert spin_until(lambda: node.last is not None)

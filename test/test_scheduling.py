@@ -13,10 +13,11 @@ import numpy as np
 import pytest
 
 from gsrmr_common import link_model as link
-from gsrmr_common.channel import paper_route_distances
-from gsrmr_server.scheduling import METHODS, ChannelModel, Problem, ProblemError, cli, rate_allocation, solve
-from gsrmr_server.scheduling.baselines import relaxed_solution
-from gsrmr_server.scheduling.solve import method_options
+from gsrmr_common.channel import ChannelModel, paper_route_distances
+from gsrmr_scheduler import cli, rate_allocation
+from gsrmr_scheduler.baselines import relaxed_solution
+from gsrmr_scheduler.problem import Problem, ProblemError
+from gsrmr_scheduler.solve import METHODS, method_options, solve
 
 FAST_METHODS = [m for m in METHODS if m != "apo"]
 
@@ -376,15 +377,15 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path, capsys, patch, args, fiel
 
 def test_cli_console_script_and_make_problem(tmp_path):
     out = tmp_path / "p.json"
-    r = subprocess.run([sys.executable, "-m", "gsrmr_server.scheduling.cli", "make-problem", "--slots", "30",
+    r = subprocess.run([sys.executable, "-m", "gsrmr_scheduler.cli", "make-problem", "--slots", "30",
                         "--seed", "2", "-o", str(out)], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     data = json.loads(out.read_text())
     assert len(data["channel_gain"]) == 30 and data["loss_threshold"] == 0.03
-    r = subprocess.run([sys.executable, "-m", "gsrmr_server.scheduling.cli", str(out), "--method", "ranking"],
+    r = subprocess.run([sys.executable, "-m", "gsrmr_scheduler.cli", str(out), "--method", "ranking"],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and json.loads(r.stdout)["feasible"] is True
-    r = subprocess.run([sys.executable, "-m", "gsrmr_server.scheduling.cli", str(tmp_path / "missing.json"),
+    r = subprocess.run([sys.executable, "-m", "gsrmr_scheduler.cli", str(tmp_path / "missing.json"),
                         "--method", "exact"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "problem" in r.stderr
 

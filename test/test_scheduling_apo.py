@@ -9,8 +9,9 @@ import cvxpy as cp
 import numpy as np
 import pytest
 
-from gsrmr_common.channel import paper_route_distances
-from gsrmr_server.scheduling import ChannelModel, Problem, solve
+from gsrmr_common.channel import ChannelModel, paper_route_distances
+from gsrmr_scheduler.problem import Problem
+from gsrmr_scheduler.solve import solve
 
 HISTORY_KEYS = {"iteration", "dx_norm", "phi", "objective_j", "energy_relaxed_j", "solver"}
 

@@ -26,7 +26,6 @@ from gsrmr_server.scoring import SlotScorer
 from gsrmr_server.server_params import ServerParameters
 from gsrmr_server.slot_core import build_composer, build_server_core
 from gsrmr_server.slot_row import SCORE_COLUMNS, SlotScore
-from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.uplink import SlotUploads
 from gsrmr_sim.scores import SCORES_NAME, ScoresWriter, await_scores, join_scores, read_scores
 from gsrmr_sim.sim_stack import SCORER_NICE, WORLD_NICE, sim_stack
@@ -34,6 +33,7 @@ from gsrmr_sim.truth_frames import TruthFrameWriter
 from gsrmr_sim.world import Round2Record, load_scene, record_round2, with_resolution
 from gsrmr_sim.world.scorer_core import ScoreBacklog
 from gsrmr_sim.world.scorer_node import ScorerNode
+from gsrmr_splat.model import GaussianModel
 
 CLOCK = SlotClock(0.1)
 

@@ -25,9 +25,9 @@ from gsrmr_server.scoring import SlotScorer, reference_quality, score_slot
 from gsrmr_server.server_params import ServerParameters
 from gsrmr_server.slot_core import SlotOutcome, build_composer, build_server_core
 from gsrmr_server.slot_row import SCORE_COLUMNS, SLOT_ROW_COLUMNS, SlotScore
-from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_server.uplink import SlotUploads
 from gsrmr_sim.world import Round2Record, load_scene, record_round2, with_resolution
+from gsrmr_splat.model import GaussianModel
 
 ROBOT_JPEG_QUALITY = 80
 

@@ -22,8 +22,8 @@ from gsrmr_common.camera import Intrinsics
 from gsrmr_common.ros_wire import camera_info_from_intrinsics, ledger_to_msg, mr_slot_info_from_msg
 from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
 from gsrmr_common.wire import LedgerRow, MRSlotInfo, PoseKey, RealSource, ScheduleMsg, UplinkFault
+from gsrmr_scheduler.loss_map import LossMap
 from gsrmr_server.ledger_book import LedgerBook, SlotPlan
-from gsrmr_server.loss_map import LossMap
 from gsrmr_server.render_intrinsics import WAITING, RenderIntrinsics, describe, intrinsics_mismatch
 from gsrmr_server.server_node import ServerNode
 from gsrmr_server.server_stats import ServerStats, diagnostic_report
@@ -232,11 +232,11 @@ def test_server_node_records_the_images_it_received_with_their_keys(server_node,
     key (a PoseStamped of base_link in map; both stamped at the slot start); a key-only slot and a slot whose image
     did not decode record neither. ``gsrmr-dataset`` turns the run into a dataset: one frame per received image, its
     camera where the key and the camera mount put it."""
-    from gsrmr_common.bag_dataset import BagDatasetOptions, build_dataset
-    from gsrmr_common.bag_poses import read_camera_mount
     from gsrmr_common.camera import camera_from_pose
     from gsrmr_common.jpeg import encode_jpeg
     from gsrmr_common.nerfstudio import read_dataset
+    from gsrmr_offline.bag_dataset import BagDatasetOptions, build_dataset
+    from gsrmr_offline.bag_poses import read_camera_mount
     from gsrmr_server.recording import TOPIC_CAMERA_INFO, TOPIC_RECEIVED_IMAGE, TOPIC_RECEIVED_POSE, read_mcap
 
     node = server_node

@@ -12,10 +12,11 @@ from scipy.spatial.transform import Rotation
 import torch
 
 from gsrmr_common.camera import Camera, CameraMount, Intrinsics, camera_from_pose
-from gsrmr_server.splatting.diffrender import render_torch
-from gsrmr_server.splatting.model import GaussianModel, PlyFormatError, garden_model, load_garden
-from gsrmr_server.splatting.render import render
-from gsrmr_server.splatting.sh import C0, eval_sh_numpy, num_coeffs
+from gsrmr_sim.shared_data import garden_model, load_garden
+from gsrmr_splat.diffrender import render_torch
+from gsrmr_splat.model import GaussianModel, PlyFormatError
+from gsrmr_splat.render import render
+from gsrmr_splat.sh import C0, eval_sh_numpy, num_coeffs
 
 NEAR = 0.2
 
@@ -96,7 +97,7 @@ def test_fast_renderer_matches_brute_force(degree):
 
 
 def test_vectorised_exp_is_accurate_clamped_and_finite():
-    from gsrmr_server.splatting.fastexp import EXP_ARG_MIN, exp_neg_array
+    from gsrmr_splat.fastexp import EXP_ARG_MIN, exp_neg_array
 
     x = np.linspace(float(EXP_ARG_MIN), 0.0, 200_001).astype(np.float32)
     out = np.empty_like(x)
@@ -360,8 +361,8 @@ def test_garden_model_is_reproducible_and_renders_the_real_view():
 def test_stability_at_the_extremes_of_scale_shape_position_and_count(tmp_path):
     """No NaN or inf reaches a pixel: scales 1e-6 m … 1e3 m, near-degenerate and needle covariances, a camera
     inside a Gaussian and one exactly at the near plane, opacities 0 and 1, 10^6 Gaussians in one tile."""
-    from gsrmr_server.splatting.model import PlyFormatError
-    from gsrmr_server.splatting.project import NEAR_M
+    from gsrmr_splat.model import PlyFormatError
+    from gsrmr_splat.project import NEAR_M
 
     cam = front_camera(64, 48)
     bg = (0.2, 0.3, 0.4)

@@ -12,14 +12,14 @@ import pytest
 from gsrmr_common.camera import Intrinsics
 from gsrmr_common.metrics import psnr
 from gsrmr_common.nerfstudio import holdout_split, read_dataset, write_dataset
-from gsrmr_server.splatting.cli import render_main
-from gsrmr_server.splatting.compact import CompactConfig, Compactor
-from gsrmr_server.splatting.contribution import blend_weights, max_blend_weight
-from gsrmr_server.splatting.datasets import orbit_cameras, render_views
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.sh import C0
-from gsrmr_server.splatting.train import TrainConfig, Trainer
-from gsrmr_server.splatting.train_cli import compact_main, train_main
+from gsrmr_splat.cli import render_main
+from gsrmr_splat.compact import CompactConfig, Compactor
+from gsrmr_splat.contribution import blend_weights, max_blend_weight
+from gsrmr_splat.datasets import orbit_cameras, render_views
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.sh import C0
+from gsrmr_splat.train import TrainConfig, Trainer
+from gsrmr_splat.train_cli import compact_main, train_main
 
 
 def scene(n: int = 600, seed: int = 0) -> GaussianModel:

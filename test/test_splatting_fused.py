@@ -1,5 +1,5 @@
-"""The fused training engine (``TrainConfig.engine = "fused"``, :mod:`gsrmr_server.splatting.fused`) against the torch
-engine (autograd through :func:`~gsrmr_server.splatting.diffrender.render_torch`), which is the reference:
+"""The fused training engine (``TrainConfig.engine = "fused"``, :mod:`gsrmr_splat.fused`) against the torch
+engine (autograd through :func:`~gsrmr_splat.diffrender.render_torch`), which is the reference:
 
 * its gradients (projection, SH of degree 0..3, rasterizer, loss, pose and exposure rows) equal torch autograd's
   (on float64 parameters), to 2e-5 of the largest gradient of each parameter (float32 rasterizer and SSIM:
@@ -23,22 +23,23 @@ import pytest
 import torch
 
 from gsrmr_common.camera import Intrinsics
-from gsrmr_server.splatting import fused
-from gsrmr_server.splatting.camera_opt import apply_exposure, corrected_world_to_camera
-from gsrmr_server.splatting.datasets import look_at, orbit_cameras, render_views
-from gsrmr_server.splatting.diffrender import render_torch
-from gsrmr_server.splatting.fused import FusedEngine
-from gsrmr_server.splatting.fused_kernels import GEOM_WIDTH, adam_kernel, gather_kernel, project_forward_kernel
-from gsrmr_server.splatting.fused_loss import FusedLoss
-from gsrmr_server.splatting.fused_raster import backward_kernel32, bin_entries_kernel, forward_kernel32
-from gsrmr_server.splatting.losses import train_loss
-from gsrmr_server.splatting.model import GaussianModel, garden_model, load_garden
-from gsrmr_server.splatting.optim import TrainState, adam_step
-from gsrmr_server.splatting.project import fov_limits, project_numpy
-from gsrmr_server.splatting.rasterize import PACK_WIDTH, TILE, backward_kernel, depth_order, rasterize_packed
-from gsrmr_server.splatting.sh import C0
-from gsrmr_server.splatting.train import Trainer
-from gsrmr_server.splatting.train_config import TrainConfig
+from gsrmr_sim.shared_data import garden_model, load_garden
+from gsrmr_splat import fused
+from gsrmr_splat.camera_opt import apply_exposure, corrected_world_to_camera
+from gsrmr_splat.datasets import look_at, orbit_cameras, render_views
+from gsrmr_splat.diffrender import render_torch
+from gsrmr_splat.fused import FusedEngine
+from gsrmr_splat.fused_kernels import GEOM_WIDTH, adam_kernel, gather_kernel, project_forward_kernel
+from gsrmr_splat.fused_loss import FusedLoss
+from gsrmr_splat.fused_raster import backward_kernel32, bin_entries_kernel, forward_kernel32
+from gsrmr_splat.losses import train_loss
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.optim import TrainState, adam_step
+from gsrmr_splat.project import fov_limits, project_numpy
+from gsrmr_splat.rasterize import PACK_WIDTH, TILE, backward_kernel, depth_order, rasterize_packed
+from gsrmr_splat.sh import C0
+from gsrmr_splat.train import Trainer
+from gsrmr_splat.train_config import TrainConfig
 
 GRAD_RTOL = 2e-5  # of the largest |gradient| of each parameter
 

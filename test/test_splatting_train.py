@@ -13,13 +13,13 @@ import torch
 from gsrmr_common.camera import CameraMount, Intrinsics, camera_from_pose
 from gsrmr_common.metrics import ssim
 from gsrmr_common.nerfstudio import write_dataset
-from gsrmr_server.splatting.cli import render_main
-from gsrmr_server.splatting.datasets import look_at, orbit_cameras, render_views
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.render import render
-from gsrmr_server.splatting.sh import C0
-from gsrmr_server.splatting.train import TrainConfig, Trainer, max_blend_weight, ssim_torch
-from gsrmr_server.splatting.train_cli import train_main
+from gsrmr_splat.cli import render_main
+from gsrmr_splat.datasets import look_at, orbit_cameras, render_views
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.render import render
+from gsrmr_splat.sh import C0
+from gsrmr_splat.train import TrainConfig, Trainer, max_blend_weight, ssim_torch
+from gsrmr_splat.train_cli import train_main
 
 
 def small_scene(n: int = 300, seed: int = 0) -> GaussianModel:

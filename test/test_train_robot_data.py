@@ -16,23 +16,23 @@ import torch
 
 from gsrmr_common.camera import Camera, Intrinsics
 from gsrmr_common.nerfstudio import DatasetFrame, dataset_point_cloud, read_dataset, write_dataset
-from gsrmr_server.deployment_survey import recorded_split
-from gsrmr_server.splatting.camera_opt import (
+from gsrmr_offline.deployment_survey import recorded_split
+from gsrmr_splat.camera_opt import (
     EXPOSURE_DIM,
     POSE_DIM,
     FrameCorrections,
     corrected_world_to_camera,
     corrected_world_to_camera_np,
 )
-from gsrmr_server.splatting.datasets import orbit_cameras, render_views
-from gsrmr_server.splatting.diffrender import render_torch
-from gsrmr_server.splatting.losses import train_loss
-from gsrmr_server.splatting.model import GaussianModel
-from gsrmr_server.splatting.render import render
-from gsrmr_server.splatting.sh import C0
-from gsrmr_server.splatting.train import Trainer
-from gsrmr_server.splatting.train_cli import train_main
-from gsrmr_server.splatting.train_config import TrainConfig
+from gsrmr_splat.datasets import orbit_cameras, render_views
+from gsrmr_splat.diffrender import render_torch
+from gsrmr_splat.losses import train_loss
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.render import render
+from gsrmr_splat.sh import C0
+from gsrmr_splat.train import Trainer
+from gsrmr_splat.train_cli import train_main
+from gsrmr_splat.train_config import TrainConfig
 
 WIDTH, HEIGHT = 64, 48
 

@@ -13,9 +13,9 @@ from gsrmr_common.link_model import LinkBudget
 from gsrmr_robot.dds_profile import HEARTBEAT_PERIOD_NS, use_uplink_profile
 from gsrmr_robot.uplink_backlog import UplinkBacklog
 from gsrmr_robot.uplink_core import SlotInputs, UplinkCore
-from gsrmr_server.loss_map import LossMap
-from gsrmr_server.planner import OnlinePlanner, PlannerConfig, RoutePredictor
-from gsrmr_server.planner.link_cap import (
+from gsrmr_scheduler.loss_map import LossMap
+from gsrmr_scheduler.planner import OnlinePlanner, PlannerConfig, RoutePredictor
+from gsrmr_scheduler.planner.link_cap import (
     DELIVERY_GRACE_SLOTS,
     DELIVERY_WINDOW_IMAGES,
     LINK_WINDOW_SLOTS,
@@ -23,7 +23,7 @@ from gsrmr_server.planner.link_cap import (
     LinkCap,
     cap_planned_images,
 )
-from gsrmr_server.slot_price import cap_expected_images, rician_power_samples
+from gsrmr_scheduler.slot_price import cap_expected_images, rician_power_samples
 
 BLIND = PlannerConfig(loss_threshold=0.0, horizon_slots=40, slot_s=0.1, image_bits=64_000, pose_bits=192)
 

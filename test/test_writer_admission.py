@@ -46,9 +46,9 @@ from gsrmr_common.writer_admission import (
 )
 from gsrmr_robot.robot_params import RobotParameters
 from gsrmr_robot.uplink_backlog import UplinkBacklog
-from gsrmr_server.loss_map import LossMap
-from gsrmr_server.loss_predictor import MAX_LOG_DEVIATION, LossPredictor
-from gsrmr_server.scheduler_params import SchedulerParameters
+from gsrmr_scheduler.loss_map import LossMap
+from gsrmr_scheduler.loss_predictor import MAX_LOG_DEVIATION, LossPredictor
+from gsrmr_scheduler.scheduler_params import SchedulerParameters
 from gsrmr_server.server_params import ServerParameters
 
 ROBOT, SERVER, ROGUE, RELAY = b"\x01" * 16, b"\x02" * 16, b"\x03" * 16, b"\x04" * 16

@@ -5,8 +5,8 @@ repository root. import-linter's own ``acyclic_siblings`` looks at the children 
 each child's descendants squashed into it: it misses a cycle through a package's ``__init__`` and one between
 two packages of a wing (``gsrmr_common`` ↔ ``gsrmr_shapes``), and flags package-level cycles that no module
 closes. This contract takes the modules themselves: every module belongs to the wing that lists the longest
-package containing it (``gsrmr_server.scheduling.solve`` to the libraries, ``gsrmr_server.planner`` to
-deployment), and the imports among one wing's modules — function-local ones and those under
+package containing it (with ``"a: pkg", "b: pkg.lib"``, ``pkg.lib.x`` is in wing ``b``, ``pkg.x`` in ``a``), and
+the imports among one wing's modules — function-local ones and those under
 ``TYPE_CHECKING`` included, as grimp records them — must form no cycle.
 
 Configuration (each wing one string, ``"<name>: <package>, <package>, ..."``)::
@@ -14,7 +14,7 @@ Configuration (each wing one string, ``"<name>: <package>, <package>, ..."``)::
     [[tool.importlinter.contracts]]
     name = "No import cycle inside a wing"
     type = "acyclic_wings"
-    wings = ["libraries: gsrmr_common, gsrmr_shapes, gsrmr_server.scheduling", "deployment: gsrmr_server"]
+    wings = ["libraries: gsrmr_common, gsrmr_shapes, gsrmr_splat", "server: gsrmr_server"]
 
 A broken contract lists each cycle once, as a chain of imports with their line numbers.
 """

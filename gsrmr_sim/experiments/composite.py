@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gsrmr_common.metrics import pooled_psnr_db
-from gsrmr_server.scheduling.problem import IMAGE, KEY, NONE
+from gsrmr_scheduler.problem import IMAGE, KEY, NONE
 from gsrmr_sim.offline_server import OfflineServer
 
 

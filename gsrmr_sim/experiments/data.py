@@ -32,8 +32,7 @@ import time
 import numpy as np
 
 from gsrmr_common.link_model import LinkBudget
-from gsrmr_server.scheduling import Problem
-from gsrmr_server.splatting.model import GaussianModel
+from gsrmr_scheduler.problem import Problem
 from gsrmr_sim.models import LIVE_MAX_PSNR_DROP_DB, live_model, live_recipe
 from gsrmr_sim.offline_server import OfflineServer
 from gsrmr_sim.sim_stack import config_dir, link_budget, robot_jpeg_quality
@@ -41,6 +40,7 @@ from gsrmr_sim.survey import SURVEY_VERSION, gs_losses
 from gsrmr_sim.world import Round2Record, Scene, load_scene, record_round2
 from gsrmr_sim.world.kinematics import drive_route, start_pose
 from gsrmr_sim.world.reported_pose import pose_errors, reported_poses
+from gsrmr_splat.model import GaussianModel
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 
 from gsrmr_common.metrics import image_quality
-from gsrmr_server.scheduling import Problem, Schedule, solve
+from gsrmr_scheduler.problem import Problem, Schedule
+from gsrmr_scheduler.solve import solve
 from gsrmr_sim.experiments.composite import Compositor
 from gsrmr_sim.experiments.data import SceneData
 from gsrmr_sim.experiments.plots import plt, save_fig, write_csv

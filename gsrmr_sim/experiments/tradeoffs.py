@@ -19,11 +19,12 @@ import numpy as np
 from gsrmr_common.camera import Camera
 from gsrmr_common.jpeg import decode_jpeg, encode_jpeg
 from gsrmr_common.metrics import image_quality, psnr
+from gsrmr_scheduler.problem import Problem, Schedule
+from gsrmr_scheduler.solve import solve
 from gsrmr_server.mr.blend import mr_image
-from gsrmr_server.scheduling import Problem, Schedule, solve
-from gsrmr_server.splatting.render import render
 from gsrmr_sim.experiments.data import SceneData, channel_gains
 from gsrmr_sim.experiments.plots import plt, save_fig, write_csv
+from gsrmr_splat.render import render
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,6 @@ where ``R_up`` turns the file's ``up`` vector into +z.
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 from typing import Protocol
 
@@ -26,6 +25,7 @@ import numba
 import numpy as np
 
 from gsrmr_common.camera import Camera
+from gsrmr_sim.shared_data import data_file
 from gsrmr_sim.world.raycast import RayCastWorld
 from gsrmr_sim.world.scene import PointsWorld, Scene, WorldState
 
@@ -43,18 +43,9 @@ def _rotation_to_z(up: np.ndarray) -> np.ndarray:
 
 
 def find_points_file(path: str) -> Path:
-    """The points file: ``path`` itself, else its name in ``$GSRMR_DATA_DIR``, ``<repo>/../shared/data``
-    or ``/work/shared/data`` (where the project's shared data lives)."""
+    """The points file: ``path`` itself where it exists, else its name in ``$GSRMR_DATA_DIR``."""
     p = Path(path)
-    candidates = [p]
-    if os.environ.get("GSRMR_DATA_DIR"):
-        candidates.append(Path(os.environ["GSRMR_DATA_DIR"]) / p.name)
-    candidates += [Path(__file__).resolve().parents[3] / "shared" / "data" / p.name,
-                   Path("/work/shared/data") / p.name]
-    for cand in candidates:
-        if cand.exists():
-            return cand
-    raise FileNotFoundError(f"points file {path} not found (set GSRMR_DATA_DIR to its folder)")
+    return p if p.exists() else data_file(p.name)
 
 
 def load_points(spec: PointsWorld) -> tuple[np.ndarray, np.ndarray]:

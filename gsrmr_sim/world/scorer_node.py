@@ -51,10 +51,10 @@ from gsrmr_server.render_intrinsics import RenderIntrinsics
 from gsrmr_server.scoring import SlotScorer
 from gsrmr_server.slot_core import WARM_UP_INTRINSICS, build_composer
 from gsrmr_server.slot_row import SlotScore
-from gsrmr_server.splatting.model import GaussianModel
 from gsrmr_sim.scores import ScoresWriter
 from gsrmr_sim.truth_frames import TruthFrameReader
 from gsrmr_sim.world.scorer_core import ScoreBacklog, ScoreJob, ScorerParameters
+from gsrmr_splat.model import GaussianModel
 
 #: camera/image_raw: best effort as the camera publishes, a deeper queue (the node takes frames between scores).
 CAMERA_QOS = QoSProfile(depth=30, reliability=ReliabilityPolicy.BEST_EFFORT)

@@ -1,0 +1,277 @@
+"""The receding-horizon planner (pure): :class:`OnlinePlanner` composes the planning steps of one replan.
+
+The scheduler node calls :meth:`OnlinePlanner.plan` at every replan, with ``now_slot`` the slot in which it
+expects the plan to be done (now + the p90 of its plan times). A plan covers ``now_slot`` and the slots after it:
+
+1. predicts the robot's poses for the next ``horizon_slots`` along the route (:class:`~.route.RoutePredictor`);
+2. predicts L_t there (:class:`~.forecast.LossForecast`: the burst model with its learned margin, or the loss map
+   as it stands with ``trust_loss_map``);
+3. takes g_t from the channel's statistics: the expected gain ρ0·d^−α at the predicted robot–server distance
+   (:meth:`~gsrmr_common.link_model.LinkBudget.mean_gain`) — what a deployment knows. With ``oracle_channel`` it
+   takes the simulator's future realisation instead (the fading of each slot's index since the round started,
+   :meth:`learn_round_start`): an upper bound for comparison, not deployable;
+4. sets the loss budget (:class:`~.budget.LossBudget`): an image slot leaves ``image_slot_loss`` J, so
+   Σ x·J + (1 − x)·L ≤ cap becomes the knapsack Σ (1 − x)(L − J) ≤ cap − n·J, per block (the round's rest and
+   what follows it);
+5. solves each block with :func:`gsrmr_scheduler.solve`;
+6. with ``in_slot_decision`` (and no oracle) adds per-slot gain thresholds (:class:`~.pricing.InSlotPricing`);
+   without, holds the solved images to what the uplink carries (:class:`~.link_cap.LinkCap`).
+
+Why the horizon starts at ``now_slot`` and not after it: the robot replaces its schedule with each new one as it
+arrives, and a slot its schedule has no entry for uploads the image (``default_upload_image``), in whatever fade. A
+plan the node's timer starts just before a slot boundary is expected to be done in the next slot, ``now_slot``,
+but usually is done and published before that slot starts — so the robot decides ``now_slot`` with it. Planned
+from ``now_slot + 1`` (until issue 28), that slot had no entry: a round whose timer fired at that phase of the slot
+(it keeps one phase for the whole round) left 10–30 slots to the default, each an image at whatever gain the slot
+had; the few of them in deep fades (3–6 % of the mean gain: 10–30 typical images each) were the live regret tail
+(3.77 in a clean seed-2 round with 19 such slots; 2.2–3.8 in one acceptance run in five). A plan that is done
+within ``now_slot`` covers a slot the robot has already decided; it is booked at the next plan, by its ledger row.
+(A lead of more than one slot — a solver much slower than ``exact`` whose plan is done early — can still leave
+slots before ``now_slot`` without an entry.)
+
+Between plans it takes in what happened — the robot's ledger (:meth:`record_action`), its pose keys
+(:meth:`record_pose`), what the server composed each slot from (:meth:`record_composed`), the server's loss samples
+(:meth:`observe`, which also says when the prediction drifted enough for a replan, :class:`~.drift.DriftMonitor`).
+Why the node's settings: ``docs/scheduling.md`` ("The live
+loop").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+import time
+
+import numpy as np
+
+from gsrmr_common.link_model import LinkBudget
+from gsrmr_common.wire import ScheduleMsg
+from gsrmr_scheduler.loss_map import LossMap
+from gsrmr_scheduler.planner.budget import LossBudget
+from gsrmr_scheduler.planner.config import PlannerConfig
+from gsrmr_scheduler.planner.drift import DriftMonitor
+from gsrmr_scheduler.planner.forecast import LossForecast, SlotLossModel
+from gsrmr_scheduler.planner.link_cap import LinkCap, cap_planned_images
+from gsrmr_scheduler.planner.pricing import InSlotPricing
+from gsrmr_scheduler.planner.route import RoutePredictor
+from gsrmr_scheduler.problem import Problem
+from gsrmr_scheduler.slot_price import saving_coefficient_j
+from gsrmr_scheduler.solve import solve
+
+
+@dataclass
+class PlanResult:
+    """A solved horizon: the wire schedule plus what the reply of /gsrmr/replan reports."""
+
+    schedule: ScheduleMsg
+    method: str
+    images: int
+    energy_j: float
+    mean_predicted_loss: float
+    budget: float
+    feasible: bool
+    solve_time_s: float
+    predicted_loss: np.ndarray
+    notes: list[str] = field(default_factory=list)
+
+
+@dataclass
+class _Blocks:
+    """The per-block solutions of one plan, assembled over the horizon."""
+
+    x: np.ndarray
+    power_w: np.ndarray
+    thresholds: np.ndarray | None
+    energy_j: float = 0.0
+    feasible: bool = True
+    solve_time_s: float = 0.0
+    notes: list[str] = field(default_factory=list)
+
+
+class OnlinePlanner:
+    """Receding-horizon GSCLO planner: one :class:`PlannerConfig` and its collaborators (see the module docstring).
+
+    ``route`` predicts the poses, ``loss_map`` is the seed loss map (it keeps learning from the measured samples),
+    ``link`` the uplink's budget (bandwidth, noise, path loss and its Rician K). ``loss_model`` replaces the burst
+    model (a study's hindsight bound, :class:`gsrmr_sim.replay.TruthLossPredictor`).
+    """
+
+    def __init__(self, config: PlannerConfig, route: RoutePredictor, loss_map: LossMap, link: LinkBudget,
+                 *, loss_model: SlotLossModel | None = None) -> None:
+        self.config = config
+        self.route, self.link = route, link
+        self.forecast = LossForecast(loss_map, trust_loss_map=config.trust_loss_map,
+                                     sample_offset=config.loss_sample_offset,
+                                     burst_time_constant_slots=config.burst_time_constant_slots,
+                                     margin_quantile=config.margin_quantile,
+                                     margin_window_samples=config.margin_window_samples, model=loss_model)
+        self.budget = LossBudget(self.forecast.key_loss, image_slot_loss=config.image_slot_loss,
+                                 round_slots=config.round_slots, round_start_m=config.round_start_m,
+                                 refine_slots=config.refine_slots)
+        self.link_cap = LinkCap(config.slot_s)
+        self.pricing = InSlotPricing(link.rician_k, explore_image_fraction=config.explore_image_fraction,
+                                     probe_gap_slots=config.probe_gap_slots,
+                                     startup_explore_samples=config.startup_explore_samples)
+        self.drift = DriftMonitor(config.drift_threshold, config.drift_window_samples)
+        self.last_image_cap: float | None = None  # the image fraction the last plan was held to (None: no cap)
+        self.last_price: float | None = None  # λ of the last plan's in-slot rule (J per unit of loss)
+        self.seq = 0  # of the last schedule
+        self._active: ScheduleMsg | None = None
+        self._round_start_slot: int | None = None  # the simulator's round start (oracle only)
+
+    @property
+    def loss_map(self) -> LossMap:
+        """The live loss map (the seed, updated by every measured sample): what the scheduler saves."""
+        return self.forecast.loss_map
+
+    def reseed(self, loss_map: LossMap) -> None:
+        """A new seed loss map (the scheduler's ``loss_map_file`` set at run time, after a model swap): the
+        forecast predicts from it from the next plan on (:meth:`LossForecast.reseed`); the loss the booked slots left
+        stays as estimated before it (:meth:`LossBudget.freeze_all`: they were served by the old model)."""
+        self.budget.freeze_all()
+        self.forecast.reseed(loss_map)
+
+    @property
+    def active(self) -> ScheduleMsg | None:
+        """The schedule most recently planned (or resumed)."""
+        return self._active
+
+    @property
+    def round_start_slot(self) -> int | None:
+        """The slot the simulator's round (and its fading index) started in, once learnt (oracle only)."""
+        return self._round_start_slot
+
+    # ------------------------------------------------------------------ configuration and state
+    def reconfigure(self, config: PlannerConfig) -> None:
+        """Plan with ``config`` from the next plan on (a live parameter change). Only
+        :data:`~gsrmr_scheduler.planner.config.LIVE_FIELDS` may differ; ValueError names any other."""
+        reason = self.config.live_change_problem(config)
+        if reason:
+            raise ValueError(f"planner: {reason}")
+        self.config = config
+        self.drift.reconfigure(config.drift_threshold, config.drift_window_samples)
+
+    def resume(self, schedule: ScheduleMsg) -> None:
+        """Continue from a saved ``schedule`` (a restarted scheduler): it is the active one, and the next plan
+        follows its sequence number."""
+        self._active = schedule
+        self.seq = schedule.seq
+
+    def learn_round_start(self, slot: int) -> None:
+        """Oracle only: the simulator's round started in ``slot`` (its fading index counts from there)."""
+        self._round_start_slot = int(slot)
+
+    # ------------------------------------------------------------------ what happened
+    def record_action(self, slot: int, x: int, held_back: int = 0, uplink_rate_bps: float = math.nan,
+                      image_bits: float = math.nan, scene_change: int = 0) -> None:
+        """What the robot did in ``slot`` (1 = image), from its ledger: key slots are charged by it.
+        ``held_back`` = 1: an image was asked for and the robot sent the key, its last image still queued;
+        ``uplink_rate_bps``: the robot's estimate of the uplink throughput (from its image acknowledgements);
+        ``image_bits``: the size of this slot's frame as a JPEG; ``scene_change`` = 1: the robot's scene-change
+        test fired on this slot's frame (the key slots around it are estimated as a step there)."""
+        self.budget.record_action(slot, x)
+        if scene_change:
+            self.forecast.note_change(slot)
+        self.link_cap.record(slot, x, held_back, uplink_rate_bps, image_bits)
+        if x:
+            self.pricing.record_image(slot)
+
+    def record_composed(self, slot: int, source: str) -> None:
+        """What the server composed ``slot`` from (its ``mr/slot_info`` source: ``image``, ``render``, ``fallback``,
+        ``none``): an image it did not have in time is charged as the render it used instead
+        (:meth:`~.budget.LossBudget.record_composed`)."""
+        self.budget.record_composed(slot, source)
+
+    def record_pose(self, slot: int, a_m: float, b_m: float, theta_rad: float) -> None:
+        """The pose the robot reported for ``slot`` (its pose key): key slots are charged at it."""
+        self.budget.record_pose(slot, (a_m, b_m, theta_rad))
+
+    def observe(self, slot: int, a_m: float, b_m: float, theta_rad: float, loss: float) -> bool:
+        """An image slot's measured L_t (the server's loss sample, corrected by ``loss_sample_offset``: the loss
+        against the frame); True when the prediction error says a replan is due."""
+        self.link_cap.record_sample(slot)
+        loss = self.forecast.corrected(loss)
+        predicted = self.forecast.observe(slot, (a_m, b_m, theta_rad), loss)
+        if predicted is None or not math.isfinite(loss):
+            return False
+        return self.drift.add(abs(loss - predicted))
+
+    def clear_drift(self) -> None:
+        """Forget past prediction errors (after a replan)."""
+        self.drift.clear()
+
+    # ------------------------------------------------------------------ planning
+    def gains(self, first: int, poses: np.ndarray) -> np.ndarray:
+        """g_t for slots ``first …`` at the predicted ``poses`` (see the module docstring, step 3)."""
+        if not self.config.oracle_channel or self._round_start_slot is None:
+            return np.array([self.link.mean_gain(poses[i, :2]) for i in range(len(poses))])
+        out = []
+        for i in range(len(poses)):
+            k = first + i - self._round_start_slot
+            out.append(self.link.gain(k if k >= 0 else first + i, poses[i, :2]))
+        return np.array(out)
+
+    def plan(self, now_slot: int, pose: tuple[float, float, float] | None) -> PlanResult:
+        """Solve the horizon starting at ``now_slot`` — the slot in which the schedule is expected to reach the
+        robot (see the module docstring) — from the robot's last reported ``pose``."""
+        cfg = self.config
+        self.budget.account_until(now_slot, self._active)
+        first, h = now_slot, cfg.horizon_slots
+        poses = self.route.predict(pose, h, cfg.slot_s)
+        slots = np.arange(first, first + h)
+        raw, losses = self.forecast.predict(slots, poses)
+        gains = self.gains(first, poses)
+        j = cfg.image_slot_loss
+        key_cost = np.maximum(losses - j, 0.0)  # Σ x·J + (1−x)·L ≤ cap ⇔ Σ (1−x)(L − J) ≤ cap − n·J
+        self.last_image_cap = image_cap = self.link_cap.image_cap()
+        priced = cfg.in_slot_decision and not cfg.oracle_channel
+        explore = self.pricing.explore(slots, self.forecast.samples) if priced else None
+        out = _Blocks(np.zeros(h, np.int8), np.zeros(h), np.full(h, np.inf) if priced else None)
+        mean_budget = None  # the first block's mean loss budget per slot (the reply reports it)
+        for part, cap in self.budget.caps(first, h, cfg.loss_target):
+            n = part.stop - part.start
+            block_budget = max(0.0, (cap - j * n) / n)
+            mean_budget = block_budget if mean_budget is None else mean_budget
+            self._solve_block(out, part, gains[part], key_cost[part], block_budget)
+            max_images = None if image_cap is None else image_cap * n
+            if explore is not None:
+                out.thresholds[part], price = self.pricing.thresholds(
+                    gains[part], key_cost[part], block_budget * n, explore[part], self._saving_coefficient_j(),
+                    max_images)
+                if part.start == 0:
+                    self.last_price = price
+            elif max_images is not None:  # keep the images saving most loss per joule
+                capped = cap_planned_images(out.x[part], key_cost[part], gains[part], max_images)
+                if capped is not None:
+                    out.x[part] = capped
+                    out.notes.append(f"images capped at {image_cap:.2f} of slots: the uplink carries no more")
+        self.seq += 1
+        schedule = ScheduleMsg(first, cfg.slot_s, self.seq, out.x, out.power_w, out.thresholds)
+        self.forecast.remember(first, raw, now_slot)
+        self._active = schedule
+        self.budget.planned_from(first - 1)
+        return PlanResult(schedule, cfg.method, int(out.x.sum()), out.energy_j,
+                          float(np.mean(losses * (1 - out.x) + j * out.x)), float(mean_budget), out.feasible,
+                          out.solve_time_s, losses, out.notes)
+
+    def _solve_block(self, out: _Blocks, part: slice, gains: np.ndarray, key_cost: np.ndarray,
+                     loss_threshold: float) -> None:
+        """Solve P_GS over one block of the horizon into ``out``."""
+        cfg = self.config
+        problem = Problem(slot_s=cfg.slot_s, image_bits=cfg.image_bits, pose_bits=cfg.pose_bits,
+                          bandwidth_hz=self.link.bandwidth_hz, noise_w=self.link.noise_w, channel_gain=gains,
+                          gs_loss=key_cost, loss_threshold=loss_threshold)
+        t0 = time.perf_counter()
+        result = solve(problem, cfg.method, **cfg.solver_options)
+        out.solve_time_s += time.perf_counter() - t0
+        out.notes += list(getattr(result, "notes", []) or [])
+        out.x[part] = np.asarray(result.x, dtype=np.int8)
+        out.power_w[part] = np.nan_to_num(np.asarray(result.power_w, dtype=np.float64), nan=0.0, posinf=0.0)
+        out.energy_j += float(result.energy_j)
+        out.feasible = out.feasible and bool(result.feasible)
+
+    def _saving_coefficient_j(self) -> float:
+        """c of the in-slot rule: an image minus a key costs c/g joules at gain g."""
+        cfg = self.config
+        return saving_coefficient_j(cfg.image_bits, cfg.pose_bits, cfg.slot_s, self.link.bandwidth_hz,
+                                    self.link.noise_w)
