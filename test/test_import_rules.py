@@ -165,15 +165,15 @@ def test_every_console_script_is_covered():
 
 @pytest.mark.parametrize("script", sorted(console_scripts()))
 def test_console_script_module_respects_its_wing(script):
-    """Each console script's module in a fresh interpreter: only the simulator's scripts load the simulator;
-    the library tools (scheduling, splatting) load no ROS; a node's entry is its node module's own ``main``
-    (no wrapper naming the module by string), decorated with ``console_main``."""
+    """Each console script's module in a fresh interpreter: only the simulator's scripts load the simulator; the
+    library and offline tools (scheduling, splatting, dataset, survey, update) load no ROS; a node's entry is its
+    node module's own ``main`` (no wrapper naming the module by string), decorated with ``console_main``."""
     module, function = console_scripts()[script].split(":")
     modules, is_console_main = module_facts(module, function.strip())
     assert module in modules
     if not module.startswith("gsrmr_sim"):
         assert offenders(modules, ("gsrmr_sim",)) == [], f"{script} ({module}) loads the simulator"
-    if module.startswith(("gsrmr_scheduler", "gsrmr_splat")):
+    if script not in NODE_SCRIPTS and module.startswith(("gsrmr_scheduler", "gsrmr_splat", "gsrmr_offline")):
         assert offenders(modules, ("rclpy", "launch", "launch_ros")) == [], f"{script} ({module}) loads ROS"
     if script in NODE_SCRIPTS:
         assert function.strip().endswith("main") and module != "gsrmr_common.interrupts", console_scripts()[script]

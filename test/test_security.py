@@ -143,7 +143,7 @@ needs_sros2 = pytest.mark.skipif(SROS2_MISSING is not None, reason=SROS2_MISSING
 
 def sros2_env(env: dict[str, str]) -> dict[str, str]:
     """``env`` with this interpreter's prefix on AMENT_PREFIX_PATH: the sros2 wheel indexes itself (and finds its
-    schemas) under the venv's ``share/``, which no ``setup.bash`` adds (the README of the sros2 wheel's folder, `GSRMR_ROS_SECURITY`)."""
+    schemas) under the venv's ``share/``, which no ``setup.bash`` adds (the README beside the sros2 wheel)."""
     paths = [p for p in env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
     return {**env, "AMENT_PREFIX_PATH": os.pathsep.join([*paths, sys.prefix] if sys.prefix not in paths else paths)}
 
