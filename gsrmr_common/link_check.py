@@ -16,6 +16,7 @@ Topics and services (all relative, so a namespace applies):
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 import json
 import sys
 import time
@@ -27,9 +28,38 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from gsrmr_common.interrupts import console_main
-from gsrmr_common.ros_node import declare, run_node
+from gsrmr_common.node_help import Endpoint, NodeInterface, ParameterGroup
+from gsrmr_common.node_params import NodeParameters, ros_parameter
+from gsrmr_common.ros_node import declare_parameters, run_node
 
 LINK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+
+
+@dataclass(frozen=True)
+class LinkProbeParameters(NodeParameters):
+    """The probe's parameters."""
+
+    rate_hz: float = ros_parameter(20.0, "Ping rate [Hz]", min_value=0.1, max_value=1000.0)
+    count: int = ros_parameter(0, "Pings to send before reporting and exiting (0 = run until Ctrl-C)", min_value=0,
+                               max_value=10_000_000)
+    settle_s: float = ros_parameter(1.0, "Wait after the last ping for late pongs [s]", min_value=0.0,
+                                    max_value=60.0)
+
+
+_PING = Endpoint("link/ping", "std_msgs/msg/Header", "stamp = send time, frame_id = sequence number")
+_PONG = Endpoint("link/pong", "std_msgs/msg/Header", "the ping returned unchanged")
+_STATS = Endpoint("link/stats", "std_srvs/srv/Trigger", 'JSON {"node", "pings_received", "pongs_sent"}')
+#: What ``gsrmr-link-echo --help`` prints.
+ECHO_INTERFACE = NodeInterface(
+    executable="gsrmr-link-echo", node="gsrmr_link_echo",
+    summary="The DDS link check's echo (run it on the workstation): returns every ping.",
+    subscribes=(_PING,), publishes=(_PONG,), services=(_STATS,))
+#: What ``gsrmr-link-probe --help`` prints.
+PROBE_INTERFACE = NodeInterface(
+    executable="gsrmr-link-probe", node="gsrmr_link_probe",
+    summary="The DDS link check's probe (run it on the robot): sends numbered pings to gsrmr-link-echo and prints "
+            "one JSON report of round-trip times, lost pings and the echo's counters.",
+    subscribes=(_PONG,), publishes=(_PING,), parameters=(ParameterGroup(LinkProbeParameters),))
 
 
 class LinkEcho(Node):
@@ -62,11 +92,8 @@ class LinkProbe(Node):
 
     def __init__(self) -> None:
         super().__init__("gsrmr_link_probe")
-        self.rate_hz = declare(self, "rate_hz", 20.0, "Ping rate [Hz]", min_value=0.1, max_value=1000.0)
-        self.count = declare(self, "count", 0, "Pings to send before reporting and exiting (0 = run until "
-                             "Ctrl-C)", min_value=0, max_value=10_000_000)
-        self.settle_s = declare(self, "settle_s", 1.0, "Wait after the last ping for late pongs [s]",
-                                min_value=0.0, max_value=60.0)
+        params = declare_parameters(self, LinkProbeParameters)
+        self.rate_hz, self.count, self.settle_s = params.rate_hz, params.count, params.settle_s
         self._sent: dict[int, float] = {}
         self.rtt_s: list[float] = []
         self.echo_stats: dict | None = None
@@ -141,14 +168,14 @@ class LinkProbe(Node):
 @console_main
 def echo_main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-link-echo``."""
-    return run_node(LinkEcho, args)
+    return run_node(LinkEcho, args, interface=ECHO_INTERFACE)
 
 
 @console_main
 def probe_main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-link-probe``."""
     try:
-        return run_node(LinkProbe, args)
+        return run_node(LinkProbe, args, interface=PROBE_INTERFACE)
     except SystemExit as done:
         return int(done.code or 0)
 

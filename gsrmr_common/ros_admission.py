@@ -23,15 +23,17 @@ the callback — so the caller cannot be named.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 import json
 import time
-from typing import Any
+from typing import Any, TypeVar
 
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message
 
+from gsrmr_common.node_params import NodeParameters
 from gsrmr_common.writer_admission import Endpoint, FloodBreaker, Verdict, WriterGate, join_node_name
 
 #: How the shutdown line of :meth:`GatedInputs.log_summary` starts (a JSON object follows).
@@ -44,6 +46,9 @@ PROMPT_REFRESH_S = 0.02
 HOLD_RECHECK_S = 0.05
 
 Deliver = Callable[[Any, bytes], None]  # (message, writer GID)
+
+
+P = TypeVar("P", bound=NodeParameters)
 
 
 class GatedInputs:
@@ -199,6 +204,22 @@ class ParameterAudit:
             self.refused[name] += 1
         return (f"parameter changes are off while {self.node.get_name()} runs (live_parameter_changes is false at "
                 f"start-up; docs/security.md): {', '.join(live)} not changed")
+
+    def problem(self, params_cls: type[NodeParameters], params: Sequence[Parameter]) -> str | None:
+        """Why the on-set callback refuses ``params``: a value ``params_cls`` refuses (type, range, read-only, its
+        rules), or live changes are off. None: accepted."""
+        for param in params:
+            reason = params_cls.change_problem(param.name, param.value)
+            if reason:
+                return reason
+        return self.refusal(param.name for param in params)
+
+    def applied(self, current: P, params: Sequence[Parameter]) -> P:
+        """``current`` with the accepted ``params`` (the post-set callback's new values), each change recorded."""
+        new = current.with_values({param.name: param.value for param in params})
+        self.record({param.name: (getattr(current, param.name, None), getattr(new, param.name, param.value))
+                     for param in params})
+        return new
 
     def record(self, changes: dict[str, tuple[Any, Any]]) -> None:
         """Log (WARN) and count accepted changes ``{name: (old, new)}`` — the caller is not known to rclpy's

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import array
 from collections.abc import Callable, Sequence
-import math
 import sys
 import time
 from typing import Any, TypeVar
@@ -23,6 +22,8 @@ from gsrmr_common.camera import CameraMount
 from gsrmr_common.interrupts import CLEANUP, POLICY, RUNNING, START, arm_exit_deadline
 from gsrmr_common.link_model import LinkBudget
 from gsrmr_common.link_params import LinkParameters
+from gsrmr_common.mount_params import MOUNT_PREFIX, CameraMountParameters
+from gsrmr_common.node_help import NodeInterface, format_help, wants_help
 from gsrmr_common.node_params import NodeParameters
 from gsrmr_common.slot_clock import SlotClock
 
@@ -35,8 +36,12 @@ P = TypeVar("P", bound=NodeParameters)
 DDS_TEARDOWN_DEADLINE_S = 4.0
 
 
-def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, *, threads: int = 1) -> int:
+def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, *, interface: NodeInterface,
+             threads: int = 1) -> int:
     """Init rclpy, build the node, spin until SIGINT/SIGTERM or shutdown, clean up; return an exit code.
+
+    With ``-h`` or ``--help`` among the program's own arguments it prints ``interface``
+    (:func:`~gsrmr_common.node_help.format_help`) and returns 0 without starting anything.
 
     The pattern of ``ros2/examples``, hardened for a terminal's Ctrl-C under ``ros2 launch`` (see
     :mod:`gsrmr_common.interrupts`): an interrupt while the node is being built ends start-up at once,
@@ -46,6 +51,9 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None, *, 
     concurrently (a node whose slot work takes tens of milliseconds still receives messages meanwhile).
     """
     argv = list(sys.argv if args is None else args)
+    if wants_help(argv):
+        print(format_help(interface), end="")
+        return 0
     node: Node | None = None
     POLICY.install()
     POLICY.enter(START)
@@ -157,16 +165,16 @@ def declare(node: Node, name: str, default: Any, description: str, *, min_value:
     return node.declare_parameter(name, default, descriptor).value
 
 
-def declare_parameters(node: Node, params_cls: type[P]) -> P:
+def declare_parameters(node: Node, params_cls: type[P], prefix: str = "") -> P:
     """Declare every ROS parameter of the dataclass ``params_cls`` (its :func:`~gsrmr_common.node_params.ros_parameter`
-    fields, in order: name, default and descriptor) and return an instance of the values it starts with.
+    fields, in order: ``prefix`` + name, default and descriptor) and return an instance of the values it starts with.
 
     Raises ValueError (``"parameter <why>"``) for a start-up value the class's rules refuse. Fields that are
-    no ROS parameter (a nested LinkBudget …) keep their defaults: declare them with their own helpers."""
+    no ROS parameter (a nested LinkBudget …) keep their defaults: declare them with their own class."""
     values = {}
     for f, spec in params_cls.specs():
         default = list(f.default) if isinstance(f.default, tuple) else f.default
-        values[f.name] = declare(node, f.name, default, spec.description, min_value=spec.min_value,
+        values[f.name] = declare(node, prefix + f.name, default, spec.description, min_value=spec.min_value,
                                  max_value=spec.max_value, read_only=spec.read_only, constraints=spec.constraints)
     return params_cls().with_values(values)
 
@@ -189,21 +197,9 @@ def diagnostics_msg(node: Node, *, name: str, hardware_id: str, values: dict[str
 
 def declare_camera_mount(node: Node) -> CameraMount:
     """Declare the ``camera_mount.*`` parameters (``config/camera_mount.yaml``, loaded into the robot and the
-    server) read-only and return the mount: the pose of ``camera_optical_frame`` in ``base_link``."""
-    d = CameraMount()
-    return CameraMount(
-        height_m=declare(node, "camera_mount.height_m", d.height_m, "Optical centre above base_link [m]",
-                         min_value=-10.0, max_value=10.0, read_only=True),
-        pitch_rad=declare(node, "camera_mount.pitch_rad", d.pitch_rad, "Camera pitch, positive = looking "
-                          "down [rad]", min_value=-1.5, max_value=1.5, read_only=True),
-        forward_m=declare(node, "camera_mount.forward_m", d.forward_m, "Optical centre ahead of base_link [m]",
-                          min_value=-10.0, max_value=10.0, read_only=True),
-        left_m=declare(node, "camera_mount.left_m", d.left_m, "Optical centre left of base_link [m]",
-                       min_value=-10.0, max_value=10.0, read_only=True),
-        roll_rad=declare(node, "camera_mount.roll_rad", d.roll_rad, "Camera roll about its optical axis (ROS RPY, "
-                         "about base_link x) [rad]", min_value=-math.pi, max_value=math.pi, read_only=True),
-        yaw_rad=declare(node, "camera_mount.yaw_rad", d.yaw_rad, "Camera yaw, positive = looking left (ROS RPY) [rad]",
-                        min_value=-math.pi, max_value=math.pi, read_only=True))
+    server: :class:`~gsrmr_common.mount_params.CameraMountParameters`) and return the mount: the pose of
+    ``camera_optical_frame`` in ``base_link``."""
+    return declare_parameters(node, CameraMountParameters, MOUNT_PREFIX).mount()
 
 
 def declare_link_budget(node: Node) -> LinkBudget:

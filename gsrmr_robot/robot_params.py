@@ -15,6 +15,9 @@ from typing import Any
 
 from gsrmr_common.camera import CameraMount
 from gsrmr_common.link_model import SLOT_S, LinkBudget
+from gsrmr_common.link_params import LinkParameters
+from gsrmr_common.mount_params import MOUNT_PREFIX, CameraMountParameters
+from gsrmr_common.node_help import Endpoint, NodeInterface, ParameterGroup
 from gsrmr_common.node_params import NodeParameters, ros_parameter
 from gsrmr_common.tf_tree import BASE_FRAME, CAMERA_OPTICAL_FRAME, ODOM_FRAME
 from gsrmr_common.writer_admission import writer_list_problem
@@ -98,3 +101,23 @@ class RobotParameters(NodeParameters):
         if name in WRITER_LISTS:
             return writer_list_problem(name, value)
         return None
+
+
+#: What ``gsrmr-robot --help`` prints.
+INTERFACE = NodeInterface(
+    executable="gsrmr-robot", node="gsrmr_robot",
+    summary="The robot's uplink: each slot τ it uploads the rectified camera image (JPEG) or only the 192-bit pose "
+            "key, as the schedule and the measured channel gain say, and books the energy in its ledger.",
+    subscribes=(Endpoint("camera/image_raw", "sensor_msgs/msg/Image", "sensor-data QoS"),
+                Endpoint("camera/camera_info", "sensor_msgs/msg/CameraInfo", "the driver's calibration"),
+                Endpoint("odom", "nav_msgs/msg/Odometry", "odom → base_link (REP-105)"),
+                Endpoint("gsrmr/schedule", "std_msgs/msg/Float64MultiArray", "the plan (x_t, p_t), latched"),
+                Endpoint("radio/channel_gain", "std_msgs/msg/Float64MultiArray", "the radio's gain per slot")),
+    publishes=(Endpoint("uplink/pose_key", "geometry_msgs/msg/Vector3Stamped", "(a_m, b_m, theta_rad) in map"),
+               Endpoint("uplink/image_raw/compressed", "sensor_msgs/msg/CompressedImage", "JPEG, image slots"),
+               Endpoint("uplink/camera_info", "sensor_msgs/msg/CameraInfo", "the uploaded pinhole camera, latched"),
+               Endpoint("gsrmr/ledger", "std_msgs/msg/Float64MultiArray", "one energy-ledger row per slot"),
+               Endpoint("/tf_static", "tf2_msgs/msg/TFMessage", "map → odom, base_link → camera (with tf2_ros)"),
+               Endpoint("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray")),
+    parameters=(ParameterGroup(RobotParameters), ParameterGroup(CameraMountParameters, MOUNT_PREFIX),
+                ParameterGroup(LinkParameters)))

@@ -14,9 +14,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import json
 import math
+from pathlib import Path
 from typing import Any
 
 from gsrmr_common.link_model import IMAGE_BITS, KEY_BITS, SLOT_S, LinkBudget
+from gsrmr_common.link_params import LinkParameters
+from gsrmr_common.node_help import Endpoint, NodeInterface, ParameterGroup
 from gsrmr_common.node_params import NodeParameters, ros_parameter
 from gsrmr_common.writer_admission import writer_list_problem
 from gsrmr_scheduler.loss_map import LossMap
@@ -171,6 +174,22 @@ class SchedulerParameters(NodeParameters):
         """``route_waypoints_m`` as (x, y) pairs in map [m]."""
         return route_waypoints(self.route_waypoints_m)
 
+    def live_change_problem(self, values: dict[str, Any], loss_map: LossMap) -> tuple[str | None, LossMap | None]:
+        """Beyond :meth:`change_problem`: why the planner's configuration refuses ``values`` together (image_bits ≤
+        pose_bits …), or a ``loss_map_file`` that is no loss map (read here, so that a bad file is refused, not
+        applied). Returns the reason (None: accepted) and the new loss map, when one is named."""
+        if PLANNING_PARAMETERS & values.keys():
+            try:
+                self.with_values(values).planner_config(loss_map)
+            except ValueError as err:
+                return str(err), None
+        if "loss_map_file" not in values:
+            return None, None
+        try:
+            return None, LossMap.load(Path(str(values["loss_map_file"])))
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
+            return (f"loss_map_file {values['loss_map_file']!r} is no loss map: {type(err).__name__}: {err}"), None
+
     def planner_config(self, loss_map: LossMap) -> PlannerConfig:
         """The planner's configuration: the one place that maps these parameters onto
         :class:`~gsrmr_scheduler.planner.PlannerConfig`'s fields. ``image_slot_loss`` −1 takes the seed ``loss_map``'s
@@ -190,3 +209,19 @@ class SchedulerParameters(NodeParameters):
                                 else loss_map.sample_offset or 0.0),
             burst_time_constant_slots=self.burst_time_constant_slots, margin_quantile=self.margin_quantile,
             round_slots=self.round_slots)
+
+
+#: What ``gsrmr-scheduler --help`` prints.
+INTERFACE = NodeInterface(
+    executable="gsrmr-scheduler", node="gsrmr_scheduler",
+    summary="The online scheduler: solves P_GS over a receding horizon (image or key x_t, transmit power p_t per "
+            "slot) to minimise uplink energy under the average MR-loss budget, and publishes the schedule.",
+    subscribes=(Endpoint("uplink/pose_key", "geometry_msgs/msg/Vector3Stamped"),
+                Endpoint("gsrmr/loss_sample", "std_msgs/msg/Float64MultiArray"),
+                Endpoint("gsrmr/ledger", "std_msgs/msg/Float64MultiArray"),
+                Endpoint("mr/slot_info", "std_msgs/msg/Float64MultiArray"),
+                Endpoint("radio/channel_gain", "std_msgs/msg/Float64MultiArray", "only with oracle_channel")),
+    publishes=(Endpoint("gsrmr/schedule", "std_msgs/msg/Float64MultiArray", "latched"),
+               Endpoint("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray")),
+    services=(Endpoint("gsrmr/replan", "std_srvs/srv/Trigger", "replan now; says what changed"),),
+    parameters=(ParameterGroup(SchedulerParameters), ParameterGroup(LinkParameters)))

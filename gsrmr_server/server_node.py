@@ -70,7 +70,7 @@ from gsrmr_server.model_swap import ModelSwap
 from gsrmr_server.recording import TOPIC_CAMERA_INFO, RunRecorder
 from gsrmr_server.render_intrinsics import RenderIntrinsics
 from gsrmr_server.server_inputs import ServerInputs
-from gsrmr_server.server_params import ServerParameters
+from gsrmr_server.server_params import INTERFACE, ServerParameters
 from gsrmr_server.server_stats import ServerStats, diagnostic_report
 from gsrmr_server.slot_core import WARM_UP_INTRINSICS, build_server_core, count_composition_faults
 from gsrmr_splat.model import GaussianModel
@@ -132,19 +132,13 @@ class ServerNode(Node):
 
     def _validate(self, params: list[Parameter]) -> SetParametersResult:
         """On-set: refuse a change :class:`ServerParameters` gives a reason for (type, range, read-only, no file)."""
-        for param in params:
-            if reason := ServerParameters.change_problem(param.name, param.value):
-                return SetParametersResult(successful=False, reason=reason)
-        reason = self.audit.refusal(param.name for param in params)
+        reason = self.audit.problem(ServerParameters, params)
         return SetParametersResult(successful=reason is None, reason=reason or "")
 
     def _after_set(self, params: list[Parameter]) -> None:
         """Post-set: the accepted values into ``self.params`` and the slot core (the cursor's from the next tick)."""
         with self._lock:
-            old = self.params
-            self.params = self.params.with_values({param.name: param.value for param in params})
-            self.audit.record({param.name: (getattr(old, param.name, None), getattr(self.params, param.name, None))
-                               for param in params})
+            self.params = self.audit.applied(self.params, params)
             self.core.jpeg_quality, self.core.measure_loss = self.params.jpeg_quality, self.params.measure_loss
         if any(param.name == "model_path" for param in params):  # a swap is privileged: audit.record logged it
             self.get_logger().info(f"loading model {self.params.model_path} off the slot path; it is used from the "
@@ -251,6 +245,6 @@ class ServerNode(Node):
 @console_main
 def main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-server``."""
-    return run_node(ServerNode, args)
+    return run_node(ServerNode, args, interface=INTERFACE)
 
 

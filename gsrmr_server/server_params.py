@@ -17,6 +17,9 @@ from typing import Any
 
 from gsrmr_common.camera import CameraMount
 from gsrmr_common.link_model import SLOT_S, LinkBudget
+from gsrmr_common.link_params import LinkParameters
+from gsrmr_common.mount_params import MOUNT_PREFIX, CameraMountParameters
+from gsrmr_common.node_help import Endpoint, NodeInterface, ParameterGroup
 from gsrmr_common.node_params import NodeParameters, ros_parameter
 from gsrmr_common.writer_admission import writer_list_problem
 
@@ -94,3 +97,23 @@ class ServerParameters(NodeParameters):
         """``render_threads`` as the renderer takes it: None = every core."""
         return self.render_threads or None
 
+
+#: What ``gsrmr-server --help`` prints.
+INTERFACE = NodeInterface(
+    executable="gsrmr-server", node="gsrmr_server",
+    summary="The simulation server: each slot it composes the MR image from the received camera image, or from a "
+            "Gaussian-splatting render at the pose key, with the virtual world (m = d·r + (1 − d)·v), and measures "
+            "the GS loss in image slots.",
+    subscribes=(Endpoint("uplink/pose_key", "geometry_msgs/msg/Vector3Stamped"),
+                Endpoint("uplink/image_raw/compressed", "sensor_msgs/msg/CompressedImage"),
+                Endpoint("uplink/camera_info", "sensor_msgs/msg/CameraInfo", "latched"),
+                Endpoint("gsrmr/schedule", "std_msgs/msg/Float64MultiArray"),
+                Endpoint("gsrmr/ledger", "std_msgs/msg/Float64MultiArray"),
+                Endpoint("cmd_vel", "geometry_msgs/msg/Twist", "where the robot is heading (fallback pose)")),
+    publishes=(Endpoint("mr/image", "sensor_msgs/msg/Image", "rgb8"),
+               Endpoint("mr/image/compressed", "sensor_msgs/msg/CompressedImage"),
+               Endpoint("mr/slot_info", "std_msgs/msg/Float64MultiArray", "what each MR image was composed from"),
+               Endpoint("gsrmr/loss_sample", "std_msgs/msg/Float64MultiArray", "the GS loss at an image slot's key"),
+               Endpoint("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray")),
+    parameters=(ParameterGroup(ServerParameters), ParameterGroup(CameraMountParameters, MOUNT_PREFIX),
+                ParameterGroup(LinkParameters)))

@@ -1,12 +1,12 @@
 """``gsrmr-uplink-relay``: the fault-injecting uplink relay as a ROS node (robot namespace → server namespace).
 
 What it relays, the faults, their counts and its summary: :mod:`gsrmr_sim.fault_relay` (the pure core).
-Parameters: ``input_prefix`` (the robot's namespace), ``slot_s``, ``seed``, ``delay_slots``, ``stale_slots``,
-``summary_path`` (read-only) and one ``<fault>_rate`` per fault (live).
+Parameters: :class:`RelayParameters` (read-only) and one ``<fault>_rate`` per fault (live).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, make_dataclass
 import json
 from pathlib import Path
 
@@ -17,9 +17,46 @@ from rclpy.node import Node
 from sensor_msgs.msg import CompressedImage
 
 from gsrmr_common.interrupts import console_main
-from gsrmr_common.ros_node import declare, diagnostics_msg, run_node
+from gsrmr_common.node_help import Endpoint, NodeInterface, ParameterGroup
+from gsrmr_common.node_params import NodeParameters, ros_parameter
+from gsrmr_common.ros_node import declare_parameters, diagnostics_msg, run_node
 from gsrmr_common.ros_wire import IMAGE_UPLOAD_QOS, UPLINK_QOS, ns_to_stamp, stamp_to_ns
 from gsrmr_sim.fault_relay import ALL_FAULTS, FaultInjector, FaultRates, Upload
+
+
+@dataclass(frozen=True)
+class RelayParameters(NodeParameters):
+    """The relay's read-only parameters (the fault rates are :data:`FaultRateParameters`, live)."""
+
+    input_prefix: str = ros_parameter("/robot", "Namespace the robot publishes its uplink in", read_only=True)
+    slot_s: float = ros_parameter(0.1, "Slot length τ [s] (as robot and server)", min_value=0.01, max_value=10.0,
+                                  read_only=True)
+    seed: int = ros_parameter(0, "Fault RNG seed", min_value=0, max_value=2**31 - 1, read_only=True)
+    delay_slots: float = ros_parameter(1.5, "Delay of a 'delay' fault [slots] (> 1)", min_value=1.01,
+                                       max_value=100.0, read_only=True)
+    stale_slots: int = ros_parameter(5, "Stamp shift of a 'stale' fault [slots]", min_value=1, max_value=1000,
+                                     read_only=True)
+    summary_path: str = ros_parameter("", "Write the JSON summary here on exit ('' = log only)", read_only=True)
+
+
+#: One live ``<fault>_rate`` parameter per fault of :class:`FaultRates`, its default that class's.
+FaultRateParameters = make_dataclass(
+    "FaultRateParameters",
+    [(f"{name}_rate", float, ros_parameter(float(getattr(FaultRates(), name)), f"P({name}) per message",
+                                           min_value=0.0, max_value=1.0)) for name in ALL_FAULTS],
+    bases=(NodeParameters,), frozen=True)
+
+#: What ``gsrmr-uplink-relay --help`` prints.
+INTERFACE = NodeInterface(
+    executable="gsrmr-uplink-relay", node="gsrmr_uplink_relay",
+    summary="Relays the robot's uplink (pose keys and images) from input_prefix into its own namespace, injecting "
+            "faults (drop, duplicate, reorder, delay, stale, malformed …) at the given rates.",
+    subscribes=(Endpoint("<input_prefix>/uplink/pose_key", "geometry_msgs/msg/Vector3Stamped"),
+                Endpoint("<input_prefix>/uplink/image_raw/compressed", "sensor_msgs/msg/CompressedImage")),
+    publishes=(Endpoint("uplink/pose_key", "geometry_msgs/msg/Vector3Stamped"),
+               Endpoint("uplink/image_raw/compressed", "sensor_msgs/msg/CompressedImage"),
+               Endpoint("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray")),
+    parameters=(ParameterGroup(RelayParameters), ParameterGroup(FaultRateParameters)))
 
 
 class FaultRelayNode(Node):
@@ -28,20 +65,12 @@ class FaultRelayNode(Node):
 
     def __init__(self, **node_kwargs) -> None:
         super().__init__("gsrmr_uplink_relay", **node_kwargs)
-        prefix = declare(self, "input_prefix", "/robot", "Namespace the robot publishes its uplink in",
-                         read_only=True).rstrip("/")
-        slot_s = declare(self, "slot_s", 0.1, "Slot length τ [s] (as robot and server)", min_value=0.01,
-                         max_value=10.0, read_only=True)
-        seed = declare(self, "seed", 0, "Fault RNG seed", min_value=0, max_value=2**31 - 1, read_only=True)
-        delay_slots = declare(self, "delay_slots", 1.5, "Delay of a 'delay' fault [slots] (> 1)",
-                              min_value=1.01, max_value=100.0, read_only=True)
-        stale_slots = declare(self, "stale_slots", 5, "Stamp shift of a 'stale' fault [slots]", min_value=1,
-                              max_value=1000, read_only=True)
-        self.summary_path = declare(self, "summary_path", "", "Write the JSON summary here on exit ('' = log "
-                                    "only)", read_only=True)
-        default = FaultRates()
-        rates = {name: declare(self, f"{name}_rate", float(getattr(default, name)),
-                               f"P({name}) per message", min_value=0.0, max_value=1.0) for name in ALL_FAULTS}
+        p = declare_parameters(self, RelayParameters)
+        prefix, slot_s, seed, delay_slots, stale_slots = (p.input_prefix.rstrip("/"), p.slot_s, p.seed, p.delay_slots,
+                                                          p.stale_slots)
+        self.summary_path = p.summary_path
+        rate_values = declare_parameters(self, FaultRateParameters)
+        rates = {name: getattr(rate_values, f"{name}_rate") for name in ALL_FAULTS}
         self.injector = FaultInjector(FaultRates(**rates), seed=seed, slot_s=slot_s, delay_slots=delay_slots,
                                       stale_slots=stale_slots)
         self.add_on_set_parameters_callback(self._validate)
@@ -128,4 +157,4 @@ class FaultRelayNode(Node):
 @console_main
 def main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-uplink-relay``."""
-    return run_node(FaultRelayNode, args)
+    return run_node(FaultRelayNode, args, interface=INTERFACE)

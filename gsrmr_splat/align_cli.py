@@ -59,7 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--report", default=None, help="write the alignment report (JSON) here")
     ap.add_argument("--threshold-m", type=_positive, default=None,
                     help="RANSAC inlier distance in map metres (default: "
-                         f"{DEFAULT_THRESHOLD_FRACTION:.0%} of the map cameras' median distance from their median)")
+                         f"{100 * DEFAULT_THRESHOLD_FRACTION:.0f}%% of the map cameras' median distance from their "
+                         "median)")
     ap.add_argument("--rotation-threshold-deg", type=_positive, default=None,
                     help="also require inliers' camera orientations to agree within this angle")
     ap.add_argument("--iterations", type=int, default=2000,

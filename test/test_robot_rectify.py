@@ -237,7 +237,7 @@ def test_robot_node_uploads_the_rectified_frame_at_the_uplink_width(ros_context)
                     executor.spin_once(timeout_sec=0.01)
 
         # frames without a calibration: withheld (keys only), counted, nothing on uplink/camera_info
-        feed_until(lambda: robot.frames_uncalibrated >= 3, 30, with_info=False)
+        feed_until(lambda: robot.port.frames_withheld >= 3, 30, with_info=False)
         assert not uploads and not infos and "waiting for camera_info" in robot._problems()
 
         feed_until(lambda: bool(infos) and len(uploads) >= 2, 30)
@@ -262,7 +262,7 @@ def test_robot_node_uploads_the_rectified_frame_at_the_uplink_width(ros_context)
         got = decode_jpeg(bytes(uploads[-1].data))
         assert got.shape == (120, 160, 3)
         assert quality_db(got, intrinsics_from_camera_info(infos[1])) > 30.0  # measured 36 dB
-        assert robot.camera_info_changes == 2 and robot.camera.rectifiers_built == 2
+        assert robot.port.changes == 2 and robot.camera.rectifiers_built == 2
     finally:
         executor.shutdown()
         probe.destroy_node()

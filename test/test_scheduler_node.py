@@ -20,8 +20,8 @@ from gsrmr_scheduler.scheduler_node import SchedulerNode
 
 REPO = Path(__file__).resolve().parents[1]
 # every module that drives an OnlinePlanner from outside the planner package
-PLANNER_USERS = ["gsrmr_scheduler/scheduler_node.py", "bench/planner_replay.py", "gsrmr_sim/replay.py",
-                 "bench/scheduler.py", "bench/scheduler_start.py"]
+PLANNER_USERS = ["gsrmr_scheduler/scheduler_node.py", "gsrmr_scheduler/replan_log.py", "bench/planner_replay.py",
+                 "gsrmr_sim/replay.py", "bench/scheduler.py", "bench/scheduler_start.py"]
 ROUTE = [-1.0, -1.1, 1.0, -1.1, 1.2, 0.9, -1.2, 0.9]
 
 
@@ -69,7 +69,7 @@ def test_the_server_s_samples_of_a_flood_pause_reach_the_scheduler_when_it_reads
     from gsrmr_common.wire import LedgerRow, LossSample
 
     node, spin_until = scheduler
-    assert spin_until(lambda: node.last is not None)
+    assert spin_until(lambda: node.log.last is not None)
     server = rclpy.create_node("gsrmr_server", context=node.context)
     try:
         pub = server.create_publisher(Float64MultiArray, "gsrmr/loss_sample", LOSS_SAMPLE_QOS)
@@ -93,8 +93,9 @@ def test_the_server_s_samples_of_a_flood_pause_reach_the_scheduler_when_it_reads
         spin_until(lambda: False, timeout_s=0.3)
         assert node.planner.forecast.samples == samples + 4
         node.inputs._resume("gsrmr/loss_sample")
-        assert spin_until(lambda: node.planner.forecast.samples == samples + 8 and node.loss_samples_redelivered == 4)
-        assert not node.implausible
+        assert spin_until(lambda: node.planner.forecast.samples == samples + 8
+                          and node.intake.loss_samples_redelivered == 4)
+        assert not node.intake.implausible
     finally:
         server.destroy_node()
 
@@ -132,7 +133,7 @@ def scheduler(monkeypatch):
 
 def test_a_live_parameter_change_builds_a_new_config_and_requests_a_replan(scheduler):
     node, spin_until = scheduler
-    assert spin_until(lambda: node.last is not None)  # the start-up plan
+    assert spin_until(lambda: node.log.last is not None)  # the start-up plan
     before, seq = node.planner.config, node.planner.seq
     assert before == node.params.planner_config(node.planner.loss_map) and before.loss_threshold == 0.03
     result, = node.set_parameters([Parameter("loss_threshold", value=0.02)])
@@ -140,8 +141,8 @@ def test_a_live_parameter_change_builds_a_new_config_and_requests_a_replan(sched
     after = node.planner.config
     assert after is not before and after == replace(before, loss_threshold=0.02)
     assert before.loss_threshold == 0.03  # the old configuration is a value: unchanged
-    assert spin_until(lambda: node.replans.get("parameters", 0) == 1)  # the change requested a replan …
-    assert node.planner.seq > seq and node.last.schedule.seq == node.planner.seq  # … and it was published
+    assert spin_until(lambda: node.log.replans.get("parameters", 0) == 1)  # the change requested a replan …
+    assert node.planner.seq > seq and node.log.last.schedule.seq == node.planner.seq  # … and it was published
 
 
 def test_a_change_the_planner_refuses_is_refused_on_set(scheduler):
@@ -160,7 +161,7 @@ def test_a_new_loss_map_file_reseeds_the_forecast_and_replans(scheduler, tmp_pat
     from gsrmr_scheduler.loss_map import LossMap
 
     node, spin_until = scheduler
-    assert spin_until(lambda: node.last is not None)
+    assert spin_until(lambda: node.log.last is not None)
     (tmp_path / "bad.json").write_text("[1, 2]")
     result, = node.set_parameters([Parameter("loss_map_file", value=str(tmp_path / "bad.json"))])
     assert not result.successful and "is no loss map" in result.reason
@@ -175,7 +176,7 @@ def test_a_new_loss_map_file_reseeds_the_forecast_and_replans(scheduler, tmp_pat
     assert result.successful, result.reason
     assert node.planner.loss_map is not old_map and len(node.planner.loss_map.cells) == len(seeded.cells)
     assert node.planner.loss_map.predict(1.5, 0.0, 0.0) == pytest.approx(0.011)
-    assert spin_until(lambda: node.replans.get("parameters", 0) >= 1)
+    assert spin_until(lambda: node.log.replans.get("parameters", 0) >= 1)
 
 
 # ---------------------------------------------------------------------------- loss samples checked against the ledger
@@ -186,7 +187,7 @@ def test_loss_samples_are_taken_once_per_image_slot_the_ledger_names(scheduler):
     from gsrmr_common.wire import LedgerRow, LossSample
 
     node, spin_until = scheduler
-    assert spin_until(lambda: node.last is not None)
+    assert spin_until(lambda: node.log.last is not None)
     now = node.clock.slot_at(node.get_clock().now().nanoseconds)
 
     def ledger(slot: int, x: int) -> None:
@@ -197,23 +198,23 @@ def test_loss_samples_are_taken_once_per_image_slot_the_ledger_names(scheduler):
         node._on_loss(loss_sample_to_msg(LossSample(slot, -1.0, -1.1, 0.0, value)))
 
     loss(now - 30)  # before any ledger row: the robot's rows of that time may not have reached the scheduler
-    assert spin_until(lambda: node.loss_samples_unverified == 1) and not node.implausible
+    assert spin_until(lambda: node.intake.loss_samples_unverified == 1) and not node.intake.implausible
     ledger(now - 5, 1)
     ledger(now - 4, 0)
     samples = node.planner.forecast.samples
     loss(now - 5)
-    assert node.planner.forecast.samples == samples + 1 and not node.implausible  # an image slot: observed
+    assert node.planner.forecast.samples == samples + 1 and not node.intake.implausible  # an image slot: observed
     loss(now - 5)  # the very same sample again (the latched history, read by a reader that resubscribed)
-    assert node.loss_samples_redelivered == 1 and node.planner.forecast.samples == samples + 1
-    assert not node.implausible
+    assert node.intake.loss_samples_redelivered == 1 and node.planner.forecast.samples == samples + 1
+    assert not node.intake.implausible
     loss(now - 5, 0.5)
     loss(now - 4)
     loss(now - 5, 5.0)
-    assert node.implausible == {"loss_repeat": 1, "loss_key_slot": 1, "loss_range": 1}
+    assert node.intake.implausible == {"loss_repeat": 1, "loss_key_slot": 1, "loss_range": 1}
     loss(now - 40)  # before the first row heard: unverified
     loss(now - 3)  # after it, its row never comes: waits 20 slots, then implausible
-    assert spin_until(lambda: node.implausible.get("loss_unledgered") == 1, timeout_s=10.0)
-    assert node.loss_samples_unverified == 2 and node.planner.forecast.samples == samples + 1
+    assert spin_until(lambda: node.intake.implausible.get("loss_unledgered") == 1, timeout_s=10.0)
+    assert node.intake.loss_samples_unverified == 2 and node.planner.forecast.samples == samples + 1
 
 
 def test_the_server_s_slot_info_reaches_the_budget_and_a_far_slot_is_refused(scheduler):
@@ -226,7 +227,7 @@ def test_the_server_s_slot_info_reaches_the_budget_and_a_far_slot_is_refused(sch
     from gsrmr_common.wire import MR_SLOT_INFO_TOPIC, MRSlotInfo, PoseKey, RealSource
 
     node, spin_until = scheduler
-    assert spin_until(lambda: node.last is not None)
+    assert spin_until(lambda: node.log.last is not None)
     server = rclpy.create_node("gsrmr_server", context=node.context)
     rogue = rclpy.create_node("gsrmr_rogue", context=node.context)
     try:
@@ -238,7 +239,7 @@ def test_the_server_s_slot_info_reaches_the_budget_and_a_far_slot_is_refused(sch
         forged.publish(mr_slot_info_to_msg(MRSlotInfo.of(now - 3, RealSource.NONE, pose, 1.0)))
         pub.publish(mr_slot_info_to_msg(MRSlotInfo.of(now - 2, RealSource.FALLBACK, pose, 1.0)))
         pub.publish(mr_slot_info_to_msg(MRSlotInfo.of(now - 500, RealSource.RENDER, pose, 1.0)))
-        assert spin_until(lambda: node.implausible.get("slot_info_slot") == 1
+        assert spin_until(lambda: node.intake.implausible.get("slot_info_slot") == 1
                           and node.planner.budget._composed.get(now - 2) == "fallback")
         assert now - 500 not in node.planner.budget._composed
         # refused by its name ("unlisted"), or as "unknown" should the graph not name its writer within the hold

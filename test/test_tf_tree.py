@@ -299,7 +299,7 @@ def test_robot_node_without_tf2_ros_sends_nothing(ros_context) -> None:
     assert module is None and "tf2_ros" in why
     node = RobotNode(context=ros_context)
     try:
-        assert node._tf_static is None
+        assert not node.static_tf.published
         assert not [t for t in node.get_topic_names_and_types() if t[0] in ("/tf", "/tf_static")]
     finally:
         node.destroy_node()

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from gsrmr_common.node_help import Endpoint, NodeInterface, ParameterGroup
 from gsrmr_common.node_params import NodeParameters, ros_parameter
 from gsrmr_common.writer_admission import writer_list_problem
 from gsrmr_robot.limo import kinematics as kin
@@ -69,3 +70,16 @@ class LimoBaseParameters(NodeParameters):
         """The command clamps (m/s, rad/s)."""
         return kin.Limits(max_linear_mps=self.max_linear_mps, max_lateral_mps=self.max_linear_mps,
                           max_angular_radps=self.max_angular_radps)
+
+
+#: What ``gsrmr-limo-base --help`` prints.
+INTERFACE = NodeInterface(
+    executable="gsrmr-limo-base", node="gsrmr_limo_base",
+    summary="The AgileX LIMO base driver: drives the base over its serial link from cmd_vel and publishes wheel "
+            "odometry (REP-105 odom → base_link), the IMU and the base's health.",
+    subscribes=(Endpoint("cmd_vel", "geometry_msgs/msg/Twist", "base_link, m/s and rad/s"),),
+    publishes=(Endpoint("odom", "nav_msgs/msg/Odometry", "odom → base_link"),
+               Endpoint("imu", "sensor_msgs/msg/Imu"),
+               Endpoint("/tf", "tf2_msgs/msg/TFMessage", "odom → base_link, with publish_tf"),
+               Endpoint("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray")),
+    parameters=(ParameterGroup(LimoBaseParameters),))

@@ -1,23 +1,7 @@
 """``gsrmr-limo-base``: thin rclpy node around :class:`~gsrmr_robot.limo.driver.LimoDriver`.
 
-Topics (relative names, so a namespace applies; QoS reliable, depth 10):
-
-* ``cmd_vel``  ``geometry_msgs/Twist`` in: linear.x [m/s] forward, linear.y [m/s] left (mecanum),
-  angular.z [rad/s] CCW, in ``base_link``. Held for ``cmd_timeout_s``, then the base is stopped. Taken only from
-  the nodes ``cmd_vel_writers`` names (``*``: any, as a plain ROS base;
-  :class:`gsrmr_common.ros_admission.GatedInputs`), 200 messages/s per writer at most; anything else is ignored,
-  counted and named on ``/diagnostics``.
-* ``odom``  ``nav_msgs/Odometry`` out, one per 0x221 frame (≈50 Hz): ``odom_frame_id`` →
-  ``base_frame_id`` (REP-105), pose/twist covariances filled, stamped with the host receive time
-  of the frame. With ``publish_tf`` (default false) the same transform goes to ``/tf`` (REP-105
-  ``odom → base_link``, the middle edge of :mod:`gsrmr_common.tf_tree`): through
-  ``tf2_ros.TransformBroadcaster`` where tf2_ros imports, else as ``tf2_msgs/TFMessage`` where only
-  tf2_msgs does; with neither a warning is logged and no TF is sent.
-* ``imu``  ``sensor_msgs/Imu`` out, one per 0x323 frame, frame ``imu_frame_id``: orientation from
-  the base's yaw/pitch/roll, angular velocity from 0x322 [rad/s], acceleration from 0x321 [m/s²];
-  a reading never received has covariance[0] = -1 (REP-145).
-* ``/diagnostics``  ``diagnostic_msgs/DiagnosticArray`` at 1 Hz: battery voltage, vehicle state,
-  control mode, motion mode, decoded error bits, parser counters, link state and reconnects.
+Topics and parameters: ``gsrmr-limo-base --help`` (:data:`~gsrmr_robot.limo.base_params.INTERFACE`); what it
+publishes and when: ``docs/nodes.md``; the serial protocol: ``docs/limo.md``.
 """
 
 from __future__ import annotations
@@ -41,7 +25,7 @@ from gsrmr_common.ros_admission import GatedInputs, ParameterAudit
 from gsrmr_common.ros_node import declare_parameters, diagnostics_msg, run_node
 from gsrmr_common.tf_ros import load_tf2_ros, tf_message_type
 from gsrmr_robot.limo import protocol as proto
-from gsrmr_robot.limo.base_params import LimoBaseParameters
+from gsrmr_robot.limo.base_params import INTERFACE, LimoBaseParameters
 from gsrmr_robot.limo.driver import DriverSnapshot, ImuSample, LimoDriver
 
 BATTERY_WARN_V = 10.5  # 3S Li-ion pack, 12 V nominal: warn below 3.5 V/cell
@@ -105,19 +89,13 @@ class LimoBaseNode(Node):
     def _validate(self, params: list) -> SetParametersResult:
         """On-set: refuse a change :class:`LimoBaseParameters` gives a reason for (read-only, type, range, an
         unknown mode or heading source); change nothing."""
-        for prm in params:
-            reason = LimoBaseParameters.change_problem(prm.name, prm.value)
-            if reason:
-                return SetParametersResult(successful=False, reason=reason)
-        reason = self.audit.refusal(prm.name for prm in params)
+        reason = self.audit.problem(LimoBaseParameters, params)
         return SetParametersResult(successful=reason is None, reason=reason or "")
 
     def _after_set(self, params: list) -> None:
         """Post-set: take the accepted values and hand a new motion mode or heading source to the driver."""
         old = self.params
-        self.params = old.with_values({prm.name: prm.value for prm in params})
-        self.audit.record({prm.name: (getattr(old, prm.name, None), getattr(self.params, prm.name, None))
-                           for prm in params})
+        self.params = self.audit.applied(old, params)
         if not hasattr(self, "driver"):  # start-up overrides: the driver is built from self.params
             return
         if self.params.motion_mode != old.motion_mode:
@@ -305,4 +283,4 @@ def diagnostic_values(snap: DriverSnapshot) -> list[tuple[str, str]]:
 @console_main
 def main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-limo-base``."""
-    return run_node(LimoBaseNode, args)
+    return run_node(LimoBaseNode, args, interface=INTERFACE)

@@ -19,8 +19,15 @@ from rclpy.node import Node
 from rclpy.time import Time
 
 from gsrmr_common.interrupts import console_main
+from gsrmr_common.node_help import Endpoint, NodeInterface, format_help, wants_help
 from gsrmr_common.ros_node import run_node
 from gsrmr_sim.limo.mock import GROUND_TRUTH_TOPIC, MockLimo, build_parser, mock_from_args
+
+#: What ``gsrmr-mock-limo --help`` prints after its own arguments.
+INTERFACE = NodeInterface(
+    executable="gsrmr-mock-limo", node="gsrmr_mock_limo", arguments="--link PATH [options]",
+    summary="The mock LIMO base on a pty (the LIMO serial protocol, byte-exact), publishing its true pose.",
+    publishes=(Endpoint(GROUND_TRUTH_TOPIC, "nav_msgs/msg/Odometry", "the true pose: map → base_link, 50 Hz"),))
 
 
 class GroundTruthPublisher(Node):
@@ -66,12 +73,16 @@ def main(argv: list[str] | None = None) -> int:
     """Console script ``gsrmr-mock-limo`` (arguments: :func:`gsrmr_sim.limo.mock.build_parser`; the rest are
     ROS arguments)."""
     argv = list(sys.argv if argv is None else argv)
+    if wants_help(argv):
+        print(build_parser().format_help())
+        print(format_help(INTERFACE), end="")
+        return 0
     ns, rest = build_parser().parse_known_args(argv[1:])
     mock = mock_from_args(ns).start()
     print(f"mock LIMO ready: {mock.link_path} -> {mock.slave_name}", flush=True)
     try:
         if ns.ros:
-            return run_node(lambda: GroundTruthPublisher(mock), [argv[0], *rest])
+            return run_node(lambda: GroundTruthPublisher(mock), [argv[0], *rest], interface=INTERFACE)
         _wait_for_a_signal()
         return 0
     finally:

@@ -44,7 +44,9 @@ from std_msgs.msg import Int32
 
 from gsrmr_common.camera import camera_from_pose
 from gsrmr_common.interrupts import console_main
-from gsrmr_common.ros_node import declare, run_node
+from gsrmr_common.node_help import Endpoint, NodeInterface, ParameterGroup
+from gsrmr_common.node_params import NodeParameters, ros_parameter
+from gsrmr_common.ros_node import declare_parameters, run_node
 from gsrmr_common.ros_wire import ns_to_stamp, stamp_to_ns
 from gsrmr_common.route import LoopPath
 from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
@@ -110,34 +112,55 @@ def depth_msg(depth_m: np.ndarray, stamp: object, frame_id: str = CAMERA_OPTICAL
     return msg
 
 
+@dataclass(frozen=True)
+class MockCameraParameters(NodeParameters):
+    """The mock camera's parameters."""
+
+    scene: str = ros_parameter("sandbox", "Scene name (config/scenes) or YAML path", read_only=True)
+    round: int = ros_parameter(1, "1 = mapping (static world), r >= 2 = scored round r - 1 (its change events; "
+                               "persistent changes of earlier rounds stay), 0 = follow sim/route/lap (round = 1 + "
+                               "laps, clock restarts per lap)", min_value=0, max_value=1000, read_only=True)
+    rate_hz: float = ros_parameter(0.0, "Camera rate [Hz] (0 = the scene's)", min_value=0.0, max_value=100.0,
+                                   read_only=True)
+    width: int = ros_parameter(0, "Image width [px] (0 = the scene's)", min_value=0, max_value=4096, read_only=True)
+    height: int = ros_parameter(0, "Image height [px] (0 = the scene's)", min_value=0, max_value=4096,
+                                read_only=True)
+    odom_topic: str = ros_parameter(GROUND_TRUTH_TOPIC, "True pose (nav_msgs/Odometry, map)", read_only=True)
+    odom_timeout_s: float = ros_parameter(1.0, "Use the scripted pose when the true pose is older [s]",
+                                          min_value=0.0, read_only=True)
+    clock_from_motion: bool = ros_parameter(
+        False, "Start the round clock when the true pose first moves (> 1 cm or 0.01 rad) instead of at node start: "
+        "change events and agents then follow the route progress however long the stack takes to start",
+        read_only=True)
+    publish_depth: bool = ros_parameter(True, "Publish camera/depth/image_raw (32FC1, metres, REP 118)",
+                                        read_only=True)
+    truth_dir: str = ros_parameter("", "Simulation backplane: also write every colour frame to this folder for the "
+                                   "scorer's ground-truth evaluation ('' = off)", read_only=True)
+
+
+#: What ``gsrmr-mock-camera --help`` prints.
+INTERFACE = NodeInterface(
+    executable="gsrmr-mock-camera", node="gsrmr_mock_camera",
+    summary="The robot's camera in the simulated world: renders the scene's real world at the robot's true pose.",
+    subscribes=(Endpoint("sim/ground_truth/odom", "nav_msgs/msg/Odometry", "odom_topic: the true pose"),
+                Endpoint("sim/route/lap", "std_msgs/msg/Int32", "with round 0")),
+    publishes=(Endpoint("camera/image_raw", "sensor_msgs/msg/Image", "rgb8, sensor-data QoS"),
+               Endpoint("camera/camera_info", "sensor_msgs/msg/CameraInfo"),
+               Endpoint("camera/depth/image_raw", "sensor_msgs/msg/Image", "32FC1 metres, with publish_depth")),
+    parameters=(ParameterGroup(MockCameraParameters),))
+
+
 class MockCamera(Node):
     """Renders the scene's real world at the robot's true pose."""
 
     def __init__(self) -> None:
         super().__init__("gsrmr_mock_camera")
-        scene_name = declare(self, "scene", "sandbox", "scene name (config/scenes) or YAML path")
-        self.round_param = declare(self, "round", 1, "1 = mapping (static world), r >= 2 = scored round r - 1 "
-                                   "(its change events; persistent changes of earlier rounds stay), 0 = follow "
-                                   "sim/route/lap (round = 1 + laps, clock restarts per lap)",
-                                   min_value=0, max_value=1000)
+        p = declare_parameters(self, MockCameraParameters)
+        scene_name, rate, width, height, odom_topic, truth_dir = (p.scene, p.rate_hz, p.width, p.height,
+                                                                  p.odom_topic, p.truth_dir)
+        self.round_param, self.odom_timeout_s = p.round, p.odom_timeout_s
+        self.clock_from_motion, self.publish_depth = p.clock_from_motion, p.publish_depth
         self.round_index = self.round_param or 1
-        rate = declare(self, "rate_hz", 0.0, "camera rate in Hz (0 = the scene's)", min_value=0.0,
-                       max_value=100.0)
-        width = declare(self, "width", 0, "image width in pixels (0 = the scene's)", min_value=0,
-                        max_value=4096)
-        height = declare(self, "height", 0, "image height in pixels (0 = the scene's)", min_value=0,
-                         max_value=4096)
-        odom_topic = declare(self, "odom_topic", GROUND_TRUTH_TOPIC, "true pose (nav_msgs/Odometry)")
-        self.odom_timeout_s = declare(self, "odom_timeout_s", 1.0, "use the scripted pose when odom is older",
-                                      min_value=0.0)
-        self.clock_from_motion = declare(self, "clock_from_motion", False,
-                                         "start the round clock when the true pose first moves (> 1 cm "
-                                         "or 0.01 rad) instead of at node start: change events and agents "
-                                         "then follow the route progress however long the stack takes to start")
-        self.publish_depth = declare(self, "publish_depth", True,
-                                     "publish camera/depth/image_raw (32FC1, metres, REP 118)")
-        truth_dir = declare(self, "truth_dir", "", "simulation backplane: also write every colour frame to this "
-                            "folder for the scorer's ground-truth evaluation ('' = off)")
         self.truth = TruthFrameWriter(truth_dir) if truth_dir else None
         self.scene = with_resolution(load_scene(scene_name), width or None, height or None)
         self.world = make_world(self.scene, self.round_index)
@@ -238,7 +261,7 @@ class MockCamera(Node):
 @console_main
 def main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-mock-camera``."""
-    return run_node(MockCamera, args)
+    return run_node(MockCamera, args, interface=INTERFACE)
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ radio's driver publishes the same message from its own measurement. The truth is
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 import math
 
 from nav_msgs.msg import Odometry
@@ -18,12 +19,34 @@ from rclpy.qos import qos_profile_sensor_data
 from std_msgs.msg import Float64MultiArray
 
 from gsrmr_common.interrupts import console_main
-from gsrmr_common.ros_node import aligned_timer, declare, declare_link_budget, run_node
+from gsrmr_common.link_params import LinkParameters
+from gsrmr_common.node_help import Endpoint, NodeInterface, ParameterGroup
+from gsrmr_common.node_params import NodeParameters, ros_parameter
+from gsrmr_common.ros_node import aligned_timer, declare_link_budget, declare_parameters, run_node
 from gsrmr_common.ros_wire import channel_sample_to_msg
 from gsrmr_common.slot_clock import SlotClock
 from gsrmr_common.wire import CHANNEL_TOPIC
 from gsrmr_sim.limo.mock import GROUND_TRUTH_TOPIC
 from gsrmr_sim.world.true_channel import TrueChannel
+
+
+@dataclass(frozen=True)
+class SimChannelParameters(NodeParameters):
+    """The simulated radio's own parameters (the link's are config/link.yaml's)."""
+
+    slot_s: float = ros_parameter(0.1, "Slot length τ [s]", min_value=1e-3, max_value=10.0, read_only=True)
+    lead_s: float = ros_parameter(0.04, "Publish slot t's gain this long before t starts [s]", min_value=0.0,
+                                  max_value=0.05, read_only=True)
+    odom_topic: str = ros_parameter(GROUND_TRUTH_TOPIC, "True pose (nav_msgs/Odometry, map)", read_only=True)
+
+
+#: What ``gsrmr-sim-channel --help`` prints.
+INTERFACE = NodeInterface(
+    executable="gsrmr-sim-channel", node="gsrmr_sim_channel",
+    summary="The simulated radio: publishes the true uplink gain of every slot, lead_s before it starts.",
+    subscribes=(Endpoint(GROUND_TRUTH_TOPIC, "nav_msgs/msg/Odometry", "odom_topic: the true pose"),),
+    publishes=(Endpoint(CHANNEL_TOPIC, "std_msgs/msg/Float64MultiArray", "[slot, round_slot, gain]"),),
+    parameters=(ParameterGroup(SimChannelParameters), ParameterGroup(LinkParameters)))
 
 
 class ChannelNode(Node):
@@ -32,12 +55,8 @@ class ChannelNode(Node):
     def __init__(self) -> None:
         super().__init__("gsrmr_sim_channel")
         self.link = declare_link_budget(self)
-        slot_s = declare(self, "slot_s", 0.1, "Slot length τ [s]", min_value=1e-3, max_value=10.0,
-                         read_only=True)
-        self.lead_ns = int(1e9 * declare(self, "lead_s", 0.04, "Publish slot t's gain this long before t "
-                                         "starts [s]", min_value=0.0, max_value=0.05, read_only=True))
-        odom_topic = declare(self, "odom_topic", GROUND_TRUTH_TOPIC, "true pose (nav_msgs/Odometry, map)",
-                             read_only=True)
+        p = declare_parameters(self, SimChannelParameters)
+        slot_s, self.lead_ns, odom_topic = p.slot_s, int(1e9 * p.lead_s), p.odom_topic
         self.clock = SlotClock(slot_s)
         self.truth = TrueChannel(self.link)
         self.next_slot: int | None = None
@@ -74,4 +93,4 @@ class ChannelNode(Node):
 @console_main
 def main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-sim-channel``."""
-    return run_node(ChannelNode, args)
+    return run_node(ChannelNode, args, interface=INTERFACE)

@@ -14,6 +14,7 @@ with the server up and composing, as ``gsrmr-demo`` does by starting the followe
 from __future__ import annotations
 
 import contextlib
+from dataclasses import dataclass
 
 from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
@@ -22,7 +23,9 @@ from rclpy.qos import qos_profile_sensor_data
 from std_msgs.msg import Float64MultiArray, Int32
 
 from gsrmr_common.interrupts import console_main
-from gsrmr_common.ros_node import declare, run_node
+from gsrmr_common.node_help import Endpoint, NodeInterface, ParameterGroup
+from gsrmr_common.node_params import NodeParameters, ros_parameter
+from gsrmr_common.ros_node import declare_parameters, run_node
 from gsrmr_common.ros_wire import UPLINK_QOS
 from gsrmr_common.route import LoopPath, PurePursuit, laps_completed
 from gsrmr_common.wire import MR_SLOT_INFO_TOPIC
@@ -30,20 +33,40 @@ from gsrmr_sim.world.camera_node import yaw_from_quaternion
 from gsrmr_sim.world.scene import load_scene
 
 
+@dataclass(frozen=True)
+class RouteFollowerParameters(NodeParameters):
+    """The route follower's parameters."""
+
+    scene: str = ros_parameter("sandbox", "Scene name (config/scenes) or YAML path: its route", read_only=True)
+    odom_topic: str = ros_parameter("odom", "Pose feedback (nav_msgs/Odometry)", read_only=True)
+    laps: int = ros_parameter(2, "Stop after this many laps (0 = never)", min_value=0, read_only=True)
+    rate_hz: float = ros_parameter(20.0, "Control rate [Hz]", min_value=1.0, max_value=200.0, read_only=True)
+    speed_mps: float = ros_parameter(0.0, "Nominal speed [m/s] (0 = the route's)", min_value=0.0, max_value=2.0,
+                                     read_only=True)
+    wait_for_server: bool = ros_parameter(False, f"Hold still until the server composes its first slot "
+                                          f"({MR_SLOT_INFO_TOPIC})", read_only=True)
+
+
+#: What ``gsrmr-route-follower --help`` prints.
+INTERFACE = NodeInterface(
+    executable="gsrmr-route-follower", node="gsrmr_route_follower",
+    summary="Drives the scene's route loop by pure pursuit, counting laps.",
+    subscribes=(Endpoint("odom", "nav_msgs/msg/Odometry", "odom_topic"),
+                Endpoint(MR_SLOT_INFO_TOPIC, "std_msgs/msg/Float64MultiArray", "with wait_for_server")),
+    publishes=(Endpoint("cmd_vel", "geometry_msgs/msg/Twist", "base_link, m/s and rad/s"),
+               Endpoint("sim/route/lap", "std_msgs/msg/Int32", "laps completed")),
+    parameters=(ParameterGroup(RouteFollowerParameters),))
+
+
 class RouteFollower(Node):
     """Pure pursuit around the scene's route; counts laps and stops after ``laps``."""
 
     def __init__(self) -> None:
         super().__init__("gsrmr_route_follower")
-        scene = load_scene(declare(self, "scene", "sandbox", "scene name (config/scenes) or YAML path"))
-        odom_topic = declare(self, "odom_topic", "odom", "pose feedback (nav_msgs/Odometry)")
-        self.max_laps = declare(self, "laps", 2, "stop after this many laps (0 = never)", min_value=0)
-        rate = declare(self, "rate_hz", 20.0, "control rate in Hz", min_value=1.0, max_value=200.0)
-        speed = declare(self, "speed_mps", scene.route.speed_mps, "nominal speed (m/s)", min_value=0.0,
-                        max_value=2.0)
-        wait_for_server = declare(self, "wait_for_server", False,
-                                  f"hold still until the server composes its first slot ({MR_SLOT_INFO_TOPIC})",
-                                  read_only=True)
+        p = declare_parameters(self, RouteFollowerParameters)
+        scene = load_scene(p.scene)
+        odom_topic, self.max_laps, rate, wait_for_server = p.odom_topic, p.laps, p.rate_hz, p.wait_for_server
+        speed = p.speed_mps or scene.route.speed_mps
         self.path = LoopPath(scene.route.waypoints)
         self.ctrl = PurePursuit(speed, scene.route.lookahead_m, scene.route.max_omega_rps)
         self.pub = self.create_publisher(Twist, "cmd_vel", 10)
@@ -110,7 +133,7 @@ class RouteFollower(Node):
 @console_main
 def main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-route-follower``."""
-    return run_node(RouteFollower, args)
+    return run_node(RouteFollower, args, interface=INTERFACE)
 
 
 if __name__ == "__main__":

@@ -25,6 +25,8 @@ import numpy as np
 
 from gsrmr_common.camera import CameraMount
 from gsrmr_common.link_model import SLOT_S
+from gsrmr_common.mount_params import MOUNT_PREFIX, CameraMountParameters
+from gsrmr_common.node_help import Endpoint, NodeInterface, ParameterGroup
 from gsrmr_common.node_params import NodeParameters, ros_parameter
 from gsrmr_common.slot_clock import SlotClock
 from gsrmr_common.wire import LedgerRow, MRSlotInfo
@@ -204,3 +206,16 @@ class ScoreBacklog:
         """Slots received and not yet handed out (paired or not)."""
         with self._lock:
             return len(self._ready) + len(self._images.keys() | self._infos.keys())
+
+
+#: What ``gsrmr-sim-scorer --help`` prints.
+INTERFACE = NodeInterface(
+    executable="gsrmr-sim-scorer", node="gsrmr_sim_scorer",
+    summary="The simulation's ground-truth scoring of every MR image the server publishes (loss, PSNR, SSIM per "
+            "slot to <record_dir>/scores.csv).",
+    subscribes=(Endpoint("mr/image", "sensor_msgs/msg/Image"),
+                Endpoint("mr/slot_info", "std_msgs/msg/Float64MultiArray"),
+                Endpoint("gsrmr/ledger", "std_msgs/msg/Float64MultiArray"),
+                Endpoint("uplink/camera_info", "sensor_msgs/msg/CameraInfo"),
+                Endpoint("camera/image_raw", "sensor_msgs/msg/Image", "the truth, unless truth_dir")),
+    parameters=(ParameterGroup(ScorerParameters), ParameterGroup(CameraMountParameters, MOUNT_PREFIX)))

@@ -53,7 +53,7 @@ from gsrmr_server.slot_core import WARM_UP_INTRINSICS, build_composer
 from gsrmr_server.slot_row import SlotScore
 from gsrmr_sim.scores import ScoresWriter
 from gsrmr_sim.truth_frames import TruthFrameReader
-from gsrmr_sim.world.scorer_core import ScoreBacklog, ScoreJob, ScorerParameters
+from gsrmr_sim.world.scorer_core import INTERFACE, ScoreBacklog, ScoreJob, ScorerParameters
 from gsrmr_splat.model import GaussianModel
 
 #: camera/image_raw: best effort as the camera publishes, a deeper queue (the node takes frames between scores).
@@ -260,7 +260,7 @@ class ScorerNode(Node):
 @console_main
 def main(args: list[str] | None = None) -> int:
     """Console script ``gsrmr-sim-scorer``."""
-    return run_node(ScorerNode, args)
+    return run_node(ScorerNode, args, interface=INTERFACE)
 
 
 if __name__ == "__main__":
