@@ -16,7 +16,7 @@ GSRMR_DATA_DIR ?= $(abspath $(wildcard ../shared/data))
 export GSRMR_DATA_DIR
 PYTEST_ARGS ?=
 
-.PHONY: venv test test-long lint pytest demo bench clean
+.PHONY: venv test test-long lint pytest demo bench docs clean
 
 venv:
 	@VENV=$(VENV) bash tools/bootstrap.sh
@@ -42,6 +42,11 @@ demo: venv
 
 bench: venv
 	@for b in bench/*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+
+# The docs tree (README, CHANGELOG, docs/*.md through MyST) and the library's API reference, warnings as errors.
+docs: venv
+	$(PY) -m sphinx -W --keep-going -E -a -q -b html -c docs . build/docs
+	@echo "docs: build/docs/docs/index.html"
 
 clean:
 	rm -rf $(VENV) build install log *.egg-info .pytest_cache .ruff_cache

@@ -8,6 +8,8 @@ from pathlib import Path
 import re
 import xml.etree.ElementTree as ET
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[1]
 
 # pip name -> rosdep key (checked against rosdistro rosdep/python.yaml); None: no key, pip only.
@@ -19,9 +21,10 @@ ROSDEP_KEYS = {
     "pytest-timeout": "python3-pytest-timeout", "hypothesis": "python3-hypothesis",
     "plyfile": None, "mcap": None, "mcap-ros2-support": None, "clarabel": None, "scs": None, "osqp": None,
     "highspy": None, "rosbags": None, "apsw": None, "backports.zstd": None, "lz4": None, "ruamel.yaml": None,
-    "typing_extensions": None, "zstandard": None,
+    "typing_extensions": None, "zstandard": None, "catkin-pkg": "python3-catkin-pkg",
 }
-BUILD_TOOLS = {"setuptools", "wheel", "ruff", "import-linter", "grimp"}  # build and lint tools, not the package's
+BUILD_TOOLS = {"setuptools", "wheel", "ruff", "import-linter", "grimp",  # build and lint tools, not the package's
+               "docutils", "packaging", "pyparsing", "python-dateutil", "tzdata"}  # catkin-pkg's, pinned
 
 
 def _pins(path: Path) -> dict[str, str]:
@@ -75,3 +78,59 @@ def test_every_ros_import_is_declared():
                 used.add(match.group(1))
     assert used, "no ROS import found: the scan is broken"
     assert used <= keys, f"imported but not declared in package.xml: {sorted(used - keys)}"
+
+
+# ------------------------------------------------------------------------------------------- a robot-only install
+HEAVY_KEYS = {"python3-pytorch-pip", "python3-numba", "python3-cvxpy-pip", "python3-scipy", "python3-matplotlib"}
+ROBOT_SCRIPTS_MODULES = ("gsrmr_robot.robot_node", "gsrmr_robot.limo.node", "gsrmr_common.link_check")
+
+
+def _dependencies(role: str | None) -> set[str]:
+    """Every dependency rosdep installs for ``GSRMR_ROLE=role`` (unset: None), conditions evaluated by catkin_pkg
+    as rosdep does (REP 149)."""
+    from catkin_pkg.package import parse_package
+
+    package = parse_package(str(REPO / "package.xml"))
+    package.evaluate_conditions({} if role is None else {"GSRMR_ROLE": role})
+    return {d.name for d in (*package.build_depends, *package.buildtool_depends, *package.exec_depends,
+                             *package.test_depends, *package.build_export_depends) if d.evaluated_condition}
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # catkin_pkg's condition parser on pyparsing 3
+def test_the_robot_role_installs_no_solver_renderer_or_heavy_numerics():
+    robot, everything = _dependencies("robot"), _dependencies(None)
+    assert robot & HEAVY_KEYS == set(), sorted(robot & HEAVY_KEYS)
+    assert everything >= HEAVY_KEYS  # the workstation (the variable unset) still gets them
+    assert {"rclpy", "python3-numpy", "python3-opencv", "python3-serial", "python3-yaml"} <= robot
+    assert _dependencies("workstation") == everything
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")
+def test_the_robot_requirements_are_what_the_robot_side_imports_with_the_same_pins():
+    """requirements-robot.txt pins, as requirements.txt does, every package of ours the robot's console scripts load
+    (ROS wheels and what they require excepted), and its rosdep key is installed in the robot role."""
+    import importlib.metadata as metadata
+    import json
+    import subprocess
+    import sys
+
+    code = ("import importlib, json, sys; [importlib.import_module(m) for m in sys.argv[1:]]; "
+            "print(json.dumps(sorted({k.split('.')[0] for k in sys.modules})))")
+    result = subprocess.run([sys.executable, "-c", code, *ROBOT_SCRIPTS_MODULES], capture_output=True, text=True,
+                            timeout=120, check=True)
+    loaded = set(json.loads(result.stdout.splitlines()[-1]))
+    by_module = metadata.packages_distributions()
+    def norm(name: str) -> str:  # PEP 503
+        return re.sub(r"[-_.]+", "-", name).lower()
+
+    ros_requires = {norm(re.split(r"[;\[=<>! ]", r, maxsplit=1)[0]) for d in metadata.distributions()
+                    if d.metadata["Name"].lower().startswith("ros-") for r in (d.requires or [])}
+    ours = {norm(name): name for name in _pins(REPO / "requirements.txt")}
+    needed = {ours[norm(dist)] for module in loaded for dist in by_module.get(module, [])
+              if norm(dist) in ours and norm(dist) not in ros_requires}
+    robot_pins, pins = _pins(REPO / "requirements-robot.txt"), _pins(REPO / "requirements.txt")
+    assert needed, "no third-party import found on the robot side: the scan is broken"
+    assert needed <= set(robot_pins), f"the robot side loads {sorted(needed - set(robot_pins))}"
+    assert all(pins[name] == version for name, version in robot_pins.items())
+    robot = _dependencies("robot")
+    assert {ROSDEP_KEYS[name] for name in robot_pins if ROSDEP_KEYS.get(name)} <= robot

@@ -15,6 +15,9 @@ cd "$(dirname "$0")/.."
 VENV=${VENV:-.venv}
 PYTHON=${PYTHON:-python3}
 TORCH_SPEC=${TORCH_SPEC:-torch==2.13.0}
+# GSRMR_ROLE=robot: the LIMO's venv, only what the robot side imports (requirements-robot.txt; no torch, solvers,
+# launch tooling or docs: docs/hardware.md); anything else: the whole workstation and test stack.
+ROLE=${GSRMR_ROLE:-workstation}
 
 system_ros=0
 if [ -n "${ROS_DISTRO:-}" ] && "$PYTHON" -c "import rclpy" >/dev/null 2>&1; then
@@ -37,8 +40,8 @@ if [ ${#tooling_wheels[@]} -gt 0 ] && [ -d "$ROS_SECURITY" ]; then
   shopt -u nullglob
 fi
 
-inputs="requirements.txt requirements-ros.txt requirements-ros-tooling.txt requirements-ros-security.txt setup.py setup.cfg package.xml tools/bootstrap.sh"
-want=$( { cat $inputs; echo "system_ros=$system_ros torch=$TORCH_SPEC tooling=${tooling_wheels[*]:-none}"
+inputs="requirements.txt requirements-robot.txt requirements-docs.txt requirements-ros.txt requirements-ros-tooling.txt requirements-ros-security.txt setup.py setup.cfg package.xml tools/bootstrap.sh"
+want=$( { cat $inputs; echo "role=$ROLE system_ros=$system_ros torch=$TORCH_SPEC tooling=${tooling_wheels[*]:-none}"
            echo "security=${security_wheels[*]:-none}"; } \
         | sha256sum | cut -d' ' -f1)
 stamp="$VENV/.gsrmr-stamp"
@@ -67,7 +70,15 @@ if "$VENV/bin/python" -m pip --disable-pip-version-check show -q opencv-python-h
   "$VENV/bin/python" -m pip --disable-pip-version-check -q uninstall -y opencv-python-headless
   "$VENV/bin/python" -m pip --disable-pip-version-check -q uninstall -y opencv-contrib-python-headless || true
 fi
-pip_install -r requirements.txt
+if [ "$ROLE" = robot ]; then
+  pip_install -r requirements-robot.txt
+  [ $system_ros = 1 ] || pip_install -r requirements-ros.txt
+  pip_install --no-deps --no-build-isolation -e .
+  echo "$want" > "$stamp"
+  echo "bootstrap: $VENV ready (robot role: requirements-robot.txt)"
+  exit 0
+fi
+pip_install -r requirements.txt -r requirements-docs.txt
 if ! "$VENV/bin/python" -c "import torch" >/dev/null 2>&1; then
   pip_install "$TORCH_SPEC"
 fi
@@ -75,11 +86,11 @@ if [ $system_ros = 0 ]; then
   pip_install -r requirements-ros.txt
   if [ ${#tooling_wheels[@]} -gt 0 ]; then
     pip_install --no-deps "${tooling_wheels[@]}"
-    pip_install -r requirements-ros-tooling.txt -r requirements.txt
+    pip_install -r requirements-ros-tooling.txt -r requirements.txt -r requirements-docs.txt
   fi
   if [ ${#security_wheels[@]} -gt 0 ]; then
     pip_install --no-deps "${security_wheels[@]}"
-    pip_install -r requirements-ros-security.txt -r requirements.txt
+    pip_install -r requirements-ros-security.txt -r requirements.txt -r requirements-docs.txt
   fi
 fi
 "$VENV/bin/python" -c "import rclpy, std_msgs.msg, std_srvs.srv, sensor_msgs.msg, nav_msgs.msg, diagnostic_msgs.msg" \
