@@ -1,24 +1,8 @@
 """The camera as the uplink sends it (pure, no ROS): a calibration's rectifier at the uplink width.
 
-The server renders a pinhole camera; a real camera's driver publishes distortion (plumb_bob, equidistant …) and
-often more pixels than the server can render in a slot. :class:`UplinkCamera` holds the robot's side of that:
-the newest usable calibration (:class:`~gsrmr_common.calibration.CameraCalibration`, from the driver's
-``camera_info``) and its :class:`~gsrmr_common.calibration.Rectifier` at ``uplink_width_px`` — the one rule of
-:mod:`gsrmr_common.calibration`, which the dataset tool that builds the model's training data uses too, so the
-model, the live render and the uploaded frames are one pinhole camera.
-
-* :meth:`UplinkCamera.offer` a calibration (every ``camera_info``): the maps are built when the calibration
-  differs from the current one (size, K, distortion model and coefficients, R, P; not the stamp nor the
-  frame id) and only then; the answer says whether the uplink intrinsics changed (re-publish them).
-* :meth:`UplinkCamera.frame`: a raw H×W×3 frame → the frame to encode (one ``cv2.remap`` and, when scaling
-  down, one ``cv2.resize`` ``INTER_AREA``; the same raw array, unchanged, asked for twice is rectified once).
-  An undistorted camera at or below the uplink width passes through untouched: the very array, no copy.
-* :attr:`UplinkCamera.intrinsics`: the rectified pinhole camera at the uplink size, pixel centres at
-  (u + 0.5, v + 0.5) (:class:`~gsrmr_common.camera.Intrinsics`; ``ros_k()`` for a CameraInfo).
-
-Frames narrower than the uplink width are not enlarged. The optical frame is OpenCV's (x right, y down,
-z forward) before and after; for a monocular camera (R = I) rectification changes the pixels, not the frame
-(a stereo camera's R turns the rectified view, as ``image_proc`` does).
+:class:`UplinkCamera` rectifies and scales each frame by the one rule of :mod:`gsrmr_common.calibration`, which the
+dataset tool that builds the model's training data uses too, so the model, the live render and the uploaded frames
+are one pinhole camera. What the robot does with it: ``docs/nodes.md``, "The robot", "Calibration".
 """
 
 from __future__ import annotations
@@ -47,7 +31,18 @@ def check_uplink_width(uplink_width_px: int) -> int:
 
 
 class UplinkCamera:
-    """The calibration → rectifier state of the robot's uplink (see the module docstring)."""
+    """The calibration → rectifier state of the robot's uplink.
+
+    :meth:`offer` takes the calibration of every ``camera_info`` and builds the maps only when it differs from the
+    current one (:func:`calibration_key`); the answer says whether the uplink intrinsics changed (re-publish them).
+    :meth:`frame` makes the frame to encode with one ``cv2.remap`` and, when scaling down, one ``cv2.resize``
+    ``INTER_AREA``: the same raw array, unchanged, asked for twice is rectified once, and an undistorted camera at or
+    below the uplink width passes through untouched (the very array, no copy). Frames narrower than the uplink width
+    are not enlarged. The optical frame is OpenCV's (x right, y down, z forward) before and after: for a monocular
+    camera (R = I) rectification changes the pixels, not the frame (a stereo camera's R turns the rectified view, as
+    ``image_proc`` does). :attr:`intrinsics` has pixel centres at (u + 0.5, v + 0.5)
+    (:class:`~gsrmr_common.camera.Intrinsics`; ``ros_k()`` for a CameraInfo).
+    """
 
     def __init__(self, uplink_width_px: int = 320) -> None:
         self.uplink_width_px = check_uplink_width(uplink_width_px)

@@ -1,22 +1,9 @@
 """The robot's Fast DDS profile: reliable writers send a heartbeat every 50 ms (Fast DDS's default: 3 s).
 
-The robot watches its uplink queue through DDS acknowledgements (:mod:`gsrmr_robot.uplink_backlog`): a reader
-acknowledges data when a heartbeat asks, so with the default 3 s heartbeat an image sent over an idle 5 Mbit/s
-link is acknowledged up to 3 s late (measured here across two network namespaces: 2.9 s for every 8 kB image;
-with a 20 ms heartbeat: 26 ms at 2 Mbit/s). A heartbeat and its acknowledgement are ~160 bytes on the wire,
-sent while a writer has unacknowledged data: measured across the two namespaces, the 20 ms period cost 8.6 kB/s
-of uplink (the robot's key, ledger and image writers, each to the server and the scheduler) — 14 % of a
-0.5 Mbit/s link; 50 ms costs about 40 % of that and still acknowledges an image within the slot it was sent in.
-
-:func:`use_uplink_profile` points ``FASTDDS_DEFAULT_PROFILES_FILE`` at this profile before rclpy starts, unless
-the user set a profile file of their own (then their file rules, and acknowledgements come as it says — the robot
-then still stops holding images back after ``uplink_ack_stale_s``). Other RMW implementations ignore it.
-
-The file configures the robot's DDS participant, so no other user may be able to replace it: it is written into a
-directory only this user can enter (:func:`private_dir`: ``$XDG_RUNTIME_DIR/gsrmr``, else ``<tmp>/gsrmr-<uid>``,
-each used only when it is a real directory of this user with mode 0700 — a directory someone else made under that
-name is not used —, else a fresh ``mkdtemp`` one), through a temporary file created exclusively (0600) and renamed
-over the profile.
+The uplink hold-back (:mod:`gsrmr_robot.uplink_backlog`) waits for DDS acknowledgements, which come only when a
+heartbeat asks. :func:`use_uplink_profile` sets the profile before rclpy starts unless a profile file is set already;
+other RMW implementations ignore it. Why 50 ms: ``docs/nodes.md``, "The robot's DDS profile"; where the file is
+written: ``docs/security.md``, "Services, parameters, readers".
 """
 
 from __future__ import annotations
@@ -27,7 +14,7 @@ from pathlib import Path
 import stat
 import tempfile
 
-HEARTBEAT_PERIOD_NS = 50_000_000
+HEARTBEAT_PERIOD_NS = 50_000_000  # why 50 ms: docs/nodes.md, "The robot's DDS profile"
 
 UPLINK_PROFILE_XML = f"""<?xml version="1.0" encoding="UTF-8"?>
 <!-- gsrmr robot: reliable writers ask for acknowledgements every 50 ms (gsrmr_robot/dds_profile.py) -->

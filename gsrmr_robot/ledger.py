@@ -1,13 +1,7 @@
-"""The robot's uplink energy ledger (pure): what each slot actually sent and what it cost.
+"""The robot's uplink energy ledger (pure): what each slot actually sent and what it cost (:class:`EnergyLedger`).
 
-Per slot the ledger records the bits actually sent (JPEG bytes × 8 plus the 192-bit pose key, or the
-key alone), the channel gain g_t of that slot under the link model, the power needed to carry those
-bits in one slot, ``p = (σ²/g)·(2^{bits/(τB)} − 1)`` (watts), and the energy ``τ·p`` (joules). It
-also prices the *upload-all* reference (RoboMR: the same frame's JPEG every slot, no key) so the
-energy ratio is measured on the frames of this run, not on a nominal image size.
-
-A slot whose bits cannot be carried at any finite power (2^{bits/(τB)} overflows) is recorded with
-``energy_j = inf`` and counted in ``undeliverable``; totals stay finite by leaving it out of them.
+Power ``p = (σ²/g)·(2^{bits/(τB)} − 1)`` [W] and energy ``τ·p`` [J] at the slot's channel gain g, by the link model
+(:mod:`gsrmr_common.link_model`); the row's fields: :class:`gsrmr_common.wire.LedgerRow`.
 """
 
 from __future__ import annotations
@@ -23,7 +17,14 @@ PowerFunction = Callable[[float, float, float, float, float], float]
 
 
 class EnergyLedger:
-    """Accumulates :class:`LedgerRow` totals; thread-compatible (callers serialise access)."""
+    """Accumulates :class:`LedgerRow` totals; thread-compatible (callers serialise access).
+
+    A slot's bits are the JPEG bytes × 8 plus the 192-bit pose key, or the key alone. Each slot also prices the
+    upload-all reference (RoboMR: the same frame's JPEG every slot, no key), so the energy ratio is measured on the
+    frames of this run, not on a nominal image size. A slot whose bits no finite power can carry
+    (2^{bits/(τB)} overflows) is recorded with ``energy_j = inf`` and counted in ``undeliverable``; the totals leave
+    it out and stay finite.
+    """
 
     def __init__(self, required_power_w: PowerFunction, slot_s: float, bandwidth_hz: float,
                  noise_w: float) -> None:

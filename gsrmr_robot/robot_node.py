@@ -1,10 +1,9 @@
 """The robot node (``gsrmr-robot``): each slot, upload the camera image or only the pose key.
 
 Topics and parameters: ``gsrmr-robot --help`` (:data:`~gsrmr_robot.robot_params.INTERFACE`); what it does each slot,
-its calibration and TF: ``docs/nodes.md``; what it takes from the graph: ``docs/security.md``. The logic lives in
-pure objects: the slot core (:class:`~gsrmr_robot.uplink_core.UplinkCore`), the uplink camera
-(:class:`~gsrmr_robot.camera_rectify.UplinkCamera`), the schedules and gains it admits
-(:mod:`gsrmr_robot.robot_inputs`) and the uplink backlog.
+its calibration and TF: ``docs/nodes.md``, "The robot"; what it takes from the graph: ``docs/security.md``. Its logic
+is in pure objects: :class:`~gsrmr_robot.uplink_core.UplinkCore`, :class:`~gsrmr_robot.camera_rectify.UplinkCamera`,
+:mod:`gsrmr_robot.robot_inputs` and :class:`~gsrmr_robot.uplink_backlog.UplinkBacklog`.
 """
 
 from __future__ import annotations

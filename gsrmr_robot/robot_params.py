@@ -1,10 +1,8 @@
 """The robot node's parameters (:class:`RobotParameters`): names, defaults, descriptors and rules (pure, no ROS).
 
 :class:`gsrmr_robot.robot_node.RobotNode` declares them, refuses a change :meth:`RobotParameters.change_problem`
-gives a reason for (on-set callback) and applies an accepted one by replacing its ``params`` (post-set callback).
-Live: :data:`LIVE_PARAMETERS`, and only when the node was started with ``live_parameter_changes`` (off by default:
-without SROS2 any participant can call a node's parameter service); the others are read-only — among them the
-writer lists of the known-writer checks (``docs/security.md``, "Application checks").
+gives a reason for and applies an accepted one by replacing its ``params``. Live: :data:`LIVE_PARAMETERS`, and only
+with ``live_parameter_changes`` (``docs/security.md``, "Services, parameters, readers").
 """
 
 from __future__ import annotations

@@ -1,24 +1,9 @@
 """Sudden changes of the camera's view, found on the robot (pure: numpy and OpenCV only, no ROS).
 
-In a key slot the server sees no image, so a change of the world — a light switched on, an object moved into
-view — stays unseen until the next image slot, and the loss the key slots in between left is underestimated
-(``docs/scheduling.md``, "Sample offset: measured": one such gap of 8 slots put a run over L_th). The robot has
-the camera frame of every slot, key slots included. :class:`SceneChangeDetector` compares each slot's frame with
-the previous slot's on a small, blurred thumbnail; the robot's uplink (:class:`gsrmr_robot.uplink_core.UplinkCore`)
-then sends an image in one of the next slots whose fade is fair (``UplinkCore``'s docstring), so the server
-measures the change a slot or two after it happened instead of whenever its schedule next asks for an image.
-
-Score of a frame: the mean absolute difference of the two thumbnails (``thumbnail_width_px`` wide, RGB in [0, 1],
-``INTER_AREA``). Driving and turning move the view too, so the score is judged against the run's own recent
-scores: a change is a score above ``ratio`` × the median of the last ``window`` scores (changes included: when
-the robot starts to drive, every score rises for good, and the median follows within half a window), and above
-``min_score`` (a frame-to-frame difference too small to matter for the MR loss whatever the baseline: driving
-and turning in the sandbox give 0.01–0.04, the changes of its second round 0.05–0.11).
-A frame of another size than the previous one (a new calibration, another uplink width) restarts the comparison;
-so does a missing frame (the next one is compared with nothing, not with a frame from slots ago). A slot that
-holds the previous slot's frame again (the camera sent no new one) is skipped: it neither triggers nor enters the
-baseline, which would otherwise fill with zeros. Turning shifts the view: the thumbnails are compared at the
-best whole-pixel shift (:meth:`SceneChangeDetector.aligned_difference`).
+In a key slot the server sees no image, so a change of the world stays unseen until the next image slot; the robot
+has every slot's frame. :class:`SceneChangeDetector` finds such a change, :class:`ChangeProbe` picks the slot that
+sends its image. Design and measurements: ``docs/scheduling.md``, "The live loop", item 8 ("Scene changes seen by
+the robot"), and "Scene changes: measured".
 """
 
 from __future__ import annotations
@@ -39,7 +24,17 @@ CHANGE_FADE_QUANTILES = (0.3, 0.1)
 
 
 class SceneChangeDetector:
-    """Consecutive frames' thumbnail difference against the run's own recent differences (module docstring)."""
+    """Consecutive frames' thumbnail difference against the run's own recent differences.
+
+    A frame's score is the mean absolute difference of its thumbnail and the previous slot's (:meth:`thumbnail`,
+    compared at the best shift: :meth:`aligned_difference`). Driving and turning move the view too, so a change is a
+    score above ``ratio`` × the median of the last ``window`` scores — changes included: when the robot starts to
+    drive, every score rises for good, and the median follows within half a window — and above ``min_score``, a
+    difference too small to matter for the MR loss whatever the baseline (driving and turning in the sandbox give
+    0.01–0.04, the changes of its second round 0.05–0.11). A frame of another size than the previous one (a new
+    calibration, another uplink width) or a missing frame restarts the comparison; the previous slot's frame again
+    (the camera sent no new one) is skipped, so that the baseline does not fill with zeros.
+    """
 
     def __init__(self, *, ratio: float = 4.0, min_score: float = 0.04, thumbnail_width_px: int = 32,
                  window: int = 30, max_shift_fraction: float = 0.2) -> None:

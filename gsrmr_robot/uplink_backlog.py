@@ -1,41 +1,9 @@
 """The robot's view of its uplink queue (pure, no ROS): is an image still on its way, how fast does the link carry one.
 
-DDS gives the robot one honest signal about the link: a reliable writer knows when every matched reader has
-acknowledged what it published (``Publisher.wait_for_all_acked``). The robot node publishes each image and then
-polls that every few milliseconds, and asks :meth:`UplinkBacklog.queued` at the start of every slot;
-:class:`UplinkBacklog` turns the publish, acknowledgement and slot-start times into
-
-* ``queued`` — an image (or part of one) is still unacknowledged: bits are queued somewhere between the
-  robot's DDS writer and the server (the rate limit's queue, retransmissions after a loss, a link that is
-  down). In a slot where the schedule asks for an image while one is queued, the robot *holds the image
-  back* and sends the key only: on a link that carries less than one image per slot, images then go out as
-  fast as the link delivers them instead of piling up and all arriving late (ledger ``held_back`` = 1);
-* ``rate_bps`` — the image throughput the link *sustains*, as the robot sees it: the image bits acknowledged in
-  the last ``window_s`` divided by the time images were waiting in that window (the *busy* time: the union of the
-  intervals from an image's publication to its acknowledgement, and of every slot that started with an image
-  still queued, to the next slot start — the robot could send none in it). Images queued back to back, or held
-  back, measure the share of the link the other traffic leaves them (the link is never idle for them), while
-  sparse images on a fast link still read fast (the time between them is not busy) and slots the plan gives no
-  image do not lower it (a cap taken from it does not ratchet itself down). It does not time each image alone:
-  one image can cross at the rate limit's whole rate between the other packets, which says nothing about the
-  share it gets once images follow each other. An image still unacknowledged pulls the estimate down (the
-  rate is at most what it would read were that image acknowledged now: its bits over the time it waited, with
-  the window's), so a link so slow that nothing is acknowledged still reads slow. An acknowledgement later than
-  ``stale_after_s`` after the image's publication gives no sample: that was an outage, and the rate after it is
-  what it was. The times include up to one heartbeat period (50 ms with the uplink DDS profile,
-  :mod:`gsrmr_robot.dds_profile`) and the round trip, so it is a lower bound of what the link carries.
-
-A queued image that stays unacknowledged for ``stale_after_s`` no longer holds images back (its reader may
-be gone, or acknowledgements may not be configured to come promptly): the robot then sends again, at most one
-image per ``stale_after_s`` into a link that does not answer (each such image holds the next one back for
-``stale_after_s`` again). Times are monotonic seconds.
-
-DDS acknowledges *all* matched readers at once (``wait_for_all_acked`` has no per-reader form in rclpy), so a
-reliable reader that never acknowledges — any participant can subscribe the image topic — would hold every image
-back. The node therefore trusts the acknowledgements only while every matched reader is a known one (its
-``image_readers``); with another reader matched (``acks_trusted`` false) an image counts as delivered after its
-bits at the last trusted throughput estimate (``rate_bps`` over the window before the last acknowledgement; the
-unacknowledged image does not pull it down), none held back without an estimate.
+:class:`UplinkBacklog` turns image publish times, DDS acknowledgements (``Publisher.wait_for_all_acked``) and slot
+starts into ``queued`` (hold the next image back) and ``rate_bps`` (the image throughput the link sustains). Why:
+``docs/two_hosts.md``, "How the robot and the scheduler notice a slow link"; a reader that is not a known one:
+``docs/security.md``, "Services, parameters, readers". Times are monotonic seconds.
 """
 
 from __future__ import annotations
@@ -70,7 +38,19 @@ def busy_s(intervals: list[tuple[float, float]]) -> float:
 
 @dataclass
 class UplinkBacklog:
-    """Publish/acknowledge bookkeeping of the image uploads (see the module docstring)."""
+    """Publish/acknowledge bookkeeping of the image uploads.
+
+    ``rate_bps`` is the image bits acknowledged in the last ``window_s`` over the *busy* time: the union of the
+    intervals from an image's publication to its acknowledgement and of every slot that started with an image still
+    queued, to the next slot start. Images queued back to back, or held back, so measure the share of the link the
+    other traffic leaves them; sparse images on a fast link still read fast, and slots the plan gives no image do not
+    lower it (a cap taken from it does not ratchet itself down). It does not time each image alone: one image can
+    cross at the rate limit's whole rate between the other packets. The times include up to one heartbeat period
+    (:mod:`gsrmr_robot.dds_profile`) and the round trip, so ``rate_bps`` is a lower bound of what the link carries.
+    An image unacknowledged for ``stale_after_s`` stops holding the next one back and gives no sample (an outage).
+    DDS acknowledges all matched readers at once, so with ``acks_trusted`` false (a reader that is not a known one is
+    matched) an image counts as delivered after its bits at the last trusted estimate (:meth:`queued`).
+    """
 
     stale_after_s: float = 1.0  # an image unacknowledged this long no longer holds the next one back
     window_s: float = 5.0  # acknowledgements rate_bps is judged on: those of the last window_s

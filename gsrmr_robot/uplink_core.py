@@ -1,21 +1,9 @@
 """The robot's slot core (pure: no ROS): what to upload in one slot, and what it cost.
 
-:meth:`UplinkCore.run_slot` takes what the robot knows at the start of slot k — the newest camera frame
-(if fresh), the odometry pose at that frame's capture time, the schedule's ``(x_k, p_k)`` — and returns a
-:class:`SlotDecision`: the pose key to send, the JPEG to send when ``x_k = 1``, and the energy-ledger row.
-The channel gain of the slot is the radio's measurement (``radio/channel_gain``; the simulator's
-``gsrmr-sim-channel`` in simulation); without one the ledger books the expected gain ρ0·d^−α at the
-odometry position. The node (:mod:`gsrmr_robot.robot_node`) only gathers the inputs and publishes the decision;
-``bench/soak.py``-style drivers and tests call the core directly.
-
-**Scene changes** (:mod:`gsrmr_robot.scene_change`, optional): when a slot's frame differs suddenly from the
-previous slot's and the rule sent only the key, the core sends an image in the first of the next
-``change_wait_slots`` slots (that one included) whose measured gain is fair
-(:class:`gsrmr_robot.scene_change.ChangeProbe`). The server then measures the change now instead of at the
-schedule's next image. An image sent for any reason ends the wait.
-
-Frames and units: poses are ``base_link`` in ``map`` — ``(a_m, b_m, theta_rad)``, REP-103 (x forward,
-y left, θ counter-clockwise); stamps are ROS time in integer nanoseconds; powers in W, energies in J.
+:meth:`UplinkCore.run_slot` takes what the robot knows at the start of slot k (:class:`SlotInputs`) and returns a
+:class:`SlotDecision`: the pose key, the JPEG when ``x_k = 1`` and the energy-ledger row (``docs/nodes.md``, "The
+robot"). Poses are ``base_link`` in ``map``, ``(a_m, b_m, theta_rad)`` (REP-103: x forward, y left, θ
+counter-clockwise); stamps are ROS time in integer nanoseconds; powers in W, energies in J.
 """
 
 from __future__ import annotations
@@ -64,9 +52,8 @@ class PoseHistory:
     the newest one is older than that (:func:`stale`: by arrival, and by stamp when the stamp is on the node's clock).
     A node that stalled (a starved process, a blocked executor) would otherwise key the slots after the stall with the
     pose from before it — up to the stall's length of driving behind the robot, which the server's pose-continuity
-    rule then sees jump ahead at the next fresh key (clean-clone run 38: a pose_jump counted on a clean stack at load
-    12: the timer ran before the queued odometry; session 7's clean-clone run: the oldest queued odometry ran first,
-    arriving fresh with a stamp 2 s old)."""
+    rule then sees jump ahead at the next fresh key. Both ways occur under load: the slot timer runs before the
+    queued odometry, or the oldest queued odometry runs first, arriving fresh with a stamp 2 s old."""
 
     def __init__(self, maxlen: int = 100) -> None:
         self._poses: deque[tuple[int, Pose]] = deque(maxlen=maxlen)
@@ -126,20 +113,28 @@ class SlotDecision:
     row: LedgerRow  # the energy ledger's row for this slot
     scheduled: bool  # a schedule covered the slot
     publish_row: bool  # False when nothing at all was sent (no pose and no image)
-    scene_changed: bool = False  # the slot's frame differed suddenly from the previous slot's (module docstring)
+    scene_changed: bool = False  # the slot's frame differed suddenly from the previous slot's (scene_change.py)
 
 
 def covering_schedule(slot: int, newest: ScheduleMsg | None, before: ScheduleMsg | None) -> ScheduleMsg | None:
     """The schedule that decides ``slot``: the newest one, unless it does not cover the slot and the one before it
     does (a newer schedule that starts after a slot leaves that slot to the last plan made for it, not to the
-    default upload: issue 28's regret tail). None when neither is there."""
+    default upload). None when neither is there."""
     if newest is not None and newest.lookup(slot) is None and before is not None and before.lookup(slot) is not None:
         return before
     return newest
 
 
 class UplinkCore:
-    """Decides each slot's upload and books its energy (see the module docstring)."""
+    """Decides each slot's upload and books its energy; the node and ``bench/soak.py``-style drivers call it alike.
+
+    The slot's channel gain is the radio's measurement (``radio/channel_gain``; the simulator's
+    ``gsrmr-sim-channel`` in simulation); without one the ledger books the expected gain ρ0·d^−α at the odometry
+    position. Scene changes (``scene_change``, optional): when a slot's frame differs suddenly from the previous
+    slot's and the rule sent only the key, an image goes in the first of the next ``change_wait_slots`` slots (that
+    one included) whose measured gain is fair (:class:`~gsrmr_robot.scene_change.ChangeProbe`), so the server
+    measures the change then instead of at the schedule's next image. An image sent for any reason ends the wait.
+    """
 
     def __init__(self, link: LinkBudget, slot_s: float, jpeg_quality: int = 80,
                  default_upload_image: bool = True, scene_change: SceneChangeDetector | None = None,
@@ -172,14 +167,14 @@ class UplinkCore:
             self.change_probe.changed(inputs.slot)
         if (x == 0 and inputs.entry is not None and inputs.frame is not None and self.change_probe.wants_image(
                 inputs.slot, gain, self.link.mean_gain(pose[:2] if pose is not None else None))):
-            x = 1  # the view changed: let the server measure it now (module docstring, "Scene changes")
+            x = 1  # the view changed: let the server measure it now (UplinkCore's docstring, "Scene changes")
             for_change = True
         else:
             for_change = False
         # no fresh frame (before the camera's first, or a late one): nothing but the key can go, and the ledger
-        # says so — a row that claimed an image here told the scheduler an image had left that the server then
-        # never composed: its link cap read the link as too slow to deliver (an image in 17 slots for the first
-        # 100 of a round, in 12 of 142 recorded runs) and its probe clock restarted without a measurement
+        # says so — a row claiming an image here would tell the scheduler an image left that the server never
+        # composes: its link cap would read the link as too slow to deliver, and its probe clock would restart
+        # without a measurement (docs/scheduling.md, "The live loop", item 10)
         if x == 1 and inputs.frame is None:
             x = 0
         # an image asked for while the last one is still queued on the link is held back (key only): on a link

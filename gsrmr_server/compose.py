@@ -1,15 +1,9 @@
 """The server's per-slot MR pipeline (pure): r̂_t from the upload or Φ(s_t), then m̂_t = d·r̂ + (1 − d)·v.
 
-For slot t the composer decides the real-view estimate r̂_t:
-
-* ``image``    — the uploaded JPEG, decoded (refused before decoding if its header lies about its size);
-* ``render``   — Φ(s_t), the Gaussian-splatting render at the slot's pose key;
-* ``fallback`` — Φ at the best pose estimate (last key, extrapolated) when the upload is missing, late,
-  corrupt or the wrong size; ``none`` when no pose has ever been received (r̂ = the background colour).
-
-The GS render is made in every slot: its depth is the real-world depth the virtual view is occluded
-against (d_t), and in image slots it gives the true GS loss L_t = MR loss between the MR image with the
-uploaded image and the MR image with Φ(s_t) — the sample the scheduler's loss map learns from.
+:class:`MRComposer` picks r̂_t (the sources: :class:`~gsrmr_common.wire.RealSource`; an uploaded JPEG whose
+header lies about its size is refused before decoding). The GS render is made in every slot: its depth is the real
+depth the virtual view is occluded against (d_t), and in image slots it gives the GS loss L_t, the MR loss between
+the MR image with the uploaded image and the one with Φ(s_t): the sample the scheduler's loss map learns from.
 """
 
 from __future__ import annotations

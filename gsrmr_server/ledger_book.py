@@ -1,10 +1,8 @@
 """What the server knows of a slot before it composes it (pure, no ROS): the robot's ledger row and the schedule.
 
-The robot publishes its ledger row for slot k (``gsrmr/ledger``) before its uploads, so the row says whether
-an image follows (the robot decides in the slot: the schedule alone cannot say). :class:`LedgerBook` holds
-the rows until their slots are composed, and the latest schedule; :meth:`LedgerBook.take` gives the slot's
-:class:`SlotPlan`: the row, and what the schedule had said, which decide whether the server waits for — and
-counts as missing — an image.
+The robot publishes its ledger row for slot k (``gsrmr/ledger``) before its uploads, so the row says whether an
+image follows (the robot decides in the slot: the schedule alone cannot say). :meth:`LedgerBook.take` gives the
+slot's :class:`SlotPlan`, which decides whether the server waits for — and counts as missing — an image.
 """
 
 from __future__ import annotations

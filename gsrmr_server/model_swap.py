@@ -1,10 +1,6 @@
-"""A new GS model loaded off the slot path and handed over at a slot boundary (issue 27, item 3) — pure, no ROS.
+"""A new GS model loaded off the slot path and handed over at a slot boundary (pure, no ROS): :class:`ModelSwap`.
 
-:meth:`ModelSwap.request` starts a loader thread (``load(path)``: read the .ply and, in the server, render it
-once so that the first slot with it pays no first-touch cost); the composing thread calls :meth:`ModelSwap.take`
-before each slot and gets the new model once it is ready — the slot being composed keeps the model it started
-with, no slot waits for a load. A newer request supersedes one still loading (its model is dropped when it
-arrives). A load that fails leaves the model in use and is reported (:attr:`ModelSwap.error`).
+How to swap a model: ``docs/model_update.md``, "4. Swap, without stopping the server".
 """
 
 from __future__ import annotations
@@ -28,7 +24,14 @@ class Loaded(Generic[M]):
 
 
 class ModelSwap(Generic[M]):
-    """One loader thread at a time; the newest request wins (module docstring)."""
+    """One loader thread at a time; the newest request wins.
+
+    :meth:`request` starts a loader thread (``load(path)``: read the .ply and, in the server, render it once so that
+    the first slot with it pays no first-touch cost); the composing thread calls :meth:`take` before each slot and
+    gets the new model once it is ready — the slot being composed keeps the model it started with, no slot waits for
+    a load. A newer request supersedes one still loading (its model is dropped when it arrives). A load that fails
+    leaves the model in use and is reported (:attr:`error`).
+    """
 
     def __init__(self, load: Callable[[str], M]) -> None:
         self._load = load

@@ -1,19 +1,10 @@
 """Scoring an MR image against a reference real frame (pure, no ROS): a deployment library.
 
-A slot's MR image m̂ (8-bit RGB, as published on ``mr/image``) is scored against the reference MR image
-m = d·r + (1 − d)·v built from a reference frame r of the real camera (H×W×3 uint8 RGB: in simulation the
-true camera frame, in a deployment survey a frame taken for the purpose) and the slot's *own* virtual view v
-and mask d: the 3DGS image loss (0.8·L1 + 0.2·(1 − SSIM)), PSNR [dB] and SSIM (:func:`reference_quality`).
-
-With ``hindsight_jpeg_quality`` (:func:`score_slot`) it also gives what either choice would have left in the
-slot — the inputs of the hindsight optimum (:mod:`gsrmr_sim.hindsight`): ``gs_truth_loss``, the loss of the
-composite from the GS render at the slot's pose, and ``image_truth_loss``, that of the composite from the
-reference frame's JPEG at that quality (the robot's; in an image slot, the published m̂ itself).
-
-:class:`SlotScorer` rebuilds v, d and the GS composite of a published slot from its
-:class:`~gsrmr_common.wire.MRSlotInfo` (the pose it was composed at, its MR content time, its source) with an
-:class:`~gsrmr_server.compose.MRComposer` holding the server's model, MR content, camera mount, background and
-intrinsics — so another process can score the server's images without adding to the server's work.
+A reference frame r of the real camera is, in simulation, the true camera frame, in a deployment survey a frame
+taken for the purpose. :func:`reference_quality` scores a slot's m̂ against m = d·r + (1 − d)·v with the slot's own
+v and d, :func:`score_slot` adds the hindsight losses (:mod:`gsrmr_sim.hindsight`), and :class:`SlotScorer`
+rebuilds a published slot from its :class:`~gsrmr_common.wire.MRSlotInfo`, so that another process can score the
+server's images without adding to the server's work.
 """
 
 from __future__ import annotations
@@ -32,8 +23,9 @@ from gsrmr_server.uplink import SlotUploads
 
 def reference_quality(mr_u8: np.ndarray, virtual: np.ndarray, mask: np.ndarray,
                       reference_u8: np.ndarray) -> dict[str, float] | None:
-    """``{loss, psnr_db, ssim}`` of the published m̂ (H×W×3 uint8) against m = d·r + (1 − d)·v with r the
-    reference frame (H×W×3 uint8) and v, d the slot's own virtual view; None when r has another size."""
+    """``{loss, psnr_db, ssim}`` of the published m̂ (H×W×3 uint8 RGB, as on ``mr/image``) against
+    m = d·r + (1 − d)·v with r the reference frame (H×W×3 uint8 RGB) and v, d the slot's own virtual view; None when
+    r has another size. ``loss`` is the 3DGS image loss 0.8·L1 + 0.2·(1 − SSIM), ``psnr_db`` in dB."""
     if reference_u8.shape[:2] != mr_u8.shape[:2]:
         return None
     truth = mr_image(reference_u8.astype(np.float32) / 255.0, virtual, mask)
@@ -44,7 +36,10 @@ def score_slot(composed: ComposedSlot, mr_u8: np.ndarray, reference_u8: np.ndarr
                hindsight_jpeg_quality: int | None = None) -> SlotScore:
     """The scores of slot ``composed.slot`` — its v, d, GS composite and source from ``composed``, m̂ =
     ``mr_u8`` — against ``reference_u8`` (None, or a frame of another size: nothing measured); with
-    ``hindsight_jpeg_quality`` and a GS composite, the hindsight losses too (module docstring)."""
+    ``hindsight_jpeg_quality`` and a GS composite, the hindsight losses too — what either choice would have left
+    in the slot, the inputs of the hindsight optimum: ``gs_truth_loss``, the loss of the composite from the GS render
+    at the slot's pose, and ``image_truth_loss``, that of the composite from the reference frame's JPEG at that
+    quality (the robot's; in an image slot, the published m̂ itself)."""
     quality = reference_quality(mr_u8, composed.virtual, composed.mask, reference_u8) \
         if reference_u8 is not None else None
     if quality is None:
@@ -61,7 +56,8 @@ def score_slot(composed: ComposedSlot, mr_u8: np.ndarray, reference_u8: np.ndarr
 
 
 class SlotScorer:
-    """Scores published slots from their :class:`~gsrmr_common.wire.MRSlotInfo` (see the module docstring).
+    """Scores published slots from their :class:`~gsrmr_common.wire.MRSlotInfo`: rebuilds a slot's v, d and GS
+    composite from the pose it was composed at, its MR content time and its source.
 
     ``composer`` must hold what the server composes with (model, MR content, mount, background, and the
     intrinsics of the robot's ``camera_info``); ``hindsight_jpeg_quality`` as :func:`score_slot`."""

@@ -1,17 +1,9 @@
 """What the server node takes from the graph, checked (the node's input callbacks hand their messages here).
 
-Admission by writer happens before (:class:`gsrmr_common.ros_admission.GatedInputs`); this is the plausibility
-layer behind it (``docs/security.md``, "Application checks"): a pose key must move within ``max_speed_mps``
-(:class:`gsrmr_common.plausibility.PoseTrack`), an image must fit :data:`MAX_COMPRESSED_BYTES` and name a slot, a
-ledger row must name a slot near the one being composed and come once per slot, a schedule must be plausible and
-newer (``seq``) than the last of its writer endpoint. What is refused is counted: wire faults by
-:class:`~gsrmr_common.wire.UplinkFault` (in :attr:`ServerInputs.uplink`), plausibility by reason
-(:attr:`ServerInputs.implausible`). What is taken lands in the :class:`~gsrmr_server.uplink.UplinkAssembler` (keys,
-images) and the :class:`~gsrmr_server.ledger_book.LedgerBook` (ledger rows, the schedule), from which the slot
-being composed is taken (:meth:`ServerInputs.take`).
-
-Each method takes the arrival time ``now_ns`` (ROS time, ns) and holds the node's lock while it touches the books;
-a method returns the line to log, if any (the node logs it: rclpy wants one severity per call site).
+:class:`ServerInputs` is the plausibility layer behind the admission by writer
+(:class:`gsrmr_common.ros_admission.GatedInputs`); its rules: ``docs/security.md``, "Plausibility, even from the
+right writer". Each method takes the arrival time ``now_ns`` (ROS time, ns), holds the node's lock while it touches
+the books and returns the line to log, if any (the node logs it: rclpy wants one severity per call site).
 """
 
 from __future__ import annotations
@@ -37,7 +29,13 @@ _SCHEDULE_LIMITS = ScheduleLimits(max_power_w=float("inf"))
 
 
 class ServerInputs:
-    """The server's checked inputs: pose keys, images, ledger rows and schedules, per slot."""
+    """The server's checked inputs: pose keys, images, ledger rows and schedules, per slot.
+
+    What is taken lands in :attr:`uplink` (:class:`~gsrmr_server.uplink.UplinkAssembler`: keys, images) and
+    :attr:`ledgers` (:class:`~gsrmr_server.ledger_book.LedgerBook`: ledger rows, the schedule), from which the slot
+    being composed is taken (:meth:`take`). What is refused is counted: wire faults by
+    :class:`~gsrmr_common.wire.UplinkFault` (in :attr:`uplink`), plausibility by reason (:attr:`implausible`).
+    """
 
     def __init__(self, clock: SlotClock, max_speed_mps: float, lock: threading.Lock) -> None:
         self.clock = clock

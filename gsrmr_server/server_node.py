@@ -1,29 +1,10 @@
 """The server node (``gsrmr-server``): one MR image per slot, whatever the uplink did.
 
-Slot k is composed once its uploads are complete (its key, and its image unless the robot's ledger row says none
-follows: :class:`~gsrmr_server.ledger_book.LedgerBook`) and at the latest ``process_delay_s`` after it starts
-(:class:`~gsrmr_common.slot_clock.ComposeCursor`: missed slots are composed late; more than ``max_backlog_slots``
-behind, it skips ahead and counts ``skipped_slots``) by the pure slot core (:mod:`gsrmr_server.slot_core`): r̂_k
-is the decoded image, the GS render at the pose key, or the render at the best pose estimate.
-
-Subscribes: ``uplink/pose_key``, ``uplink/image_raw/compressed``, ``gsrmr/schedule``, ``gsrmr/ledger``, ``cmd_vel``
-(recorded), ``uplink/camera_info`` (the render intrinsics: :class:`~gsrmr_server.render_intrinsics.RenderIntrinsics`;
-the slot clock starts with the first usable one; each is recorded on ``/gsrmr/camera_info``).
-
-Publishes: ``mr/image`` (rgb8, frame ``camera_optical_frame``, stamp = slot start), right after it
-``mr/slot_info`` (:class:`~gsrmr_common.wire.MRSlotInfo`: source, pose and MR content time, what a monitor needs
-to rebuild the slot's v and d), ``mr/image/compressed`` (JPEG), ``gsrmr/loss_sample`` (the GS loss L_t of an
-image slot) and ``/diagnostics`` (:class:`~gsrmr_server.server_stats.ServerStats`, written to
-``server_summary.json`` on shutdown). Records ``slots.csv`` and MCAP into ``record_dir`` when set. Parameters:
-:class:`~gsrmr_server.server_params.ServerParameters` (checked on set, applied after set; live ones only with
-``live_parameter_changes``). A new ``model_path`` (``ros2 param set /gsrmr_server model_path …``) is loaded off the
-slot path and swapped in at a slot boundary, no slot waiting for it (:class:`~gsrmr_server.model_swap.ModelSwap`).
-
-Nothing on the graph is taken blindly (``docs/security.md``, "Application checks"): every input is admitted by its
-writer (:class:`gsrmr_common.ros_admission.GatedInputs`: ``robot_writers`` for the uplink, the ledger and the
-camera_info, ``schedule_writers``, ``cmd_vel_writers``; each writer endpoint rate-limited), then checked for
-plausibility (:class:`~gsrmr_server.server_inputs.ServerInputs`); refusals are counted by writer and by reason on
-``/diagnostics`` and in ``server_summary.json``.
+Topics and parameters: ``gsrmr-server --help`` (:data:`~gsrmr_server.server_params.INTERFACE`); what it does each
+slot, publishes and records: ``docs/nodes.md``, "The server"; what it takes from the graph: ``docs/security.md``,
+"Application checks". Its logic is in pure objects: the slot core (:class:`~gsrmr_server.slot_core.ServerCore`),
+:class:`~gsrmr_server.server_inputs.ServerInputs`, :class:`~gsrmr_server.render_intrinsics.RenderIntrinsics`,
+:class:`~gsrmr_server.model_swap.ModelSwap` and :class:`~gsrmr_server.server_stats.ServerStats`.
 """
 
 from __future__ import annotations
@@ -87,7 +68,7 @@ class ServerNode(Node):
         # Warm-up: the first render compiles the kernels (~1.5 s) before the slot clock starts, not in a slot.
         self.core = build_server_core(p, GaussianModel.load_ply(p.model_path), WARM_UP_INTRINSICS)
         self.composer = self.core.composer
-        # a new model_path is loaded off the slot path and swapped in at a slot boundary (issue 27, item 3)
+        # a new model_path is loaded off the slot path and swapped in at a slot boundary
         self.model_swap: ModelSwap[GaussianModel] = ModelSwap(self._load_model)
         self.model_swap.in_use = p.model_path
         self.camera = RenderIntrinsics()  # none until the robot's camera_info arrives

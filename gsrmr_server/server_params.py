@@ -1,11 +1,8 @@
 """The server node's parameters (:class:`ServerParameters`): names, defaults, descriptors and rules (pure, no ROS).
 
 :class:`gsrmr_server.server_node.ServerNode` declares them, refuses a change :meth:`ServerParameters.change_problem`
-gives a reason for (on-set callback) and applies an accepted one by replacing its ``params`` (post-set callback).
-Live: ``process_delay_s``, ``measure_loss``, ``jpeg_quality``, ``max_backlog_slots`` — only when the node was started
-with ``live_parameter_changes`` (off by default: without SROS2 any participant can call the parameter service); the
-others are read-only, among them the writer lists of the known-writer checks (``docs/security.md``).
-The server declares no simulation-only parameter: scoring its MR images against the simulator's truth is the
+gives a reason for and applies an accepted one by replacing its ``params``; live ones only with
+``live_parameter_changes``. None is simulation-only: scoring the MR images against the simulator's truth is the
 simulation's scorer node (``gsrmr-sim-scorer``, :mod:`gsrmr_sim.world.scorer_node`).
 """
 

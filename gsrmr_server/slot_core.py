@@ -1,15 +1,8 @@
-"""The server's slot core (pure: no ROS): one slot's uploads in, the slot's outcome out.
+"""The server's slot core (pure: no ROS): one slot's uploads in, the slot's outcome out (:class:`ServerCore`).
 
-:meth:`ServerCore.process` composes m̂_k (:class:`~gsrmr_server.compose.MRComposer`), converts it to
-8 bit once and returns a :class:`SlotOutcome`: the image, its JPEG (encoded once, on first use), the
-typed ``slots.csv`` row (:class:`SlotRow`), the loss sample for the scheduler (image slots with a key) and
-the slot's :class:`~gsrmr_common.wire.MRSlotInfo` (what m̂_k was composed from: a monitor, such as the
-simulation's scorer, rebuilds v_k and d_k from it; scoring is :mod:`gsrmr_server.scoring`). The node
-(:mod:`gsrmr_server.server_node`) gathers the inputs, publishes and records; tests and benches call the
-core directly.
-
-Units: stamps in seconds since the clock's epoch (``stamp_s``), poses in ``map`` (m, rad), powers in W,
-energies in J, latency in ms.
+The node (:mod:`gsrmr_server.server_node`) gathers the inputs, publishes and records; tests and benches call the
+core directly. Units: stamps in seconds since the clock's epoch (``stamp_s``), poses in ``map`` (m, rad), powers in
+W, energies in J, latency in ms.
 """
 
 from __future__ import annotations
@@ -55,7 +48,14 @@ class SlotOutcome:
 
 
 class ServerCore:
-    """Composes and encodes one slot at a time (see the module docstring)."""
+    """Composes and encodes one slot at a time.
+
+    :meth:`process` composes m̂_k (:class:`~gsrmr_server.compose.MRComposer`), converts it to 8 bit once and returns
+    a :class:`SlotOutcome`: the image, its JPEG (encoded once, on first use), the typed ``slots.csv`` row
+    (:class:`SlotRow`), the loss sample for the scheduler (image slots with a key) and the slot's
+    :class:`~gsrmr_common.wire.MRSlotInfo` (what m̂_k was composed from: a monitor, such as the simulation's scorer,
+    rebuilds v_k and d_k from it; scoring is :mod:`gsrmr_server.scoring`).
+    """
 
     def __init__(self, composer: MRComposer, jpeg_quality: int = 85, measure_loss: bool = True, *,
                  slot_s: float = SLOT_S, bandwidth_hz: float = BANDWIDTH_HZ, noise_w: float = NOISE_W) -> None:

@@ -18,7 +18,7 @@ class SlotRow:
     """One row of ``slots.csv`` (column order = field order); None = empty cell."""
 
     slot: int
-    stamp_s: float  # slot start
+    stamp_s: float  # slot start [s, ROS time]
     x: int | None = None  # what the robot did (its ledger row), else what the schedule said
     power_w: float | None = None  # transmit power the robot needed for what it sent
     bytes_sent: int | None = None

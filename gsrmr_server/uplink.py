@@ -1,16 +1,8 @@
 """Server-side uplink bookkeeping (pure): which uploads arrived for which slot, and every fault.
 
-Uploads are matched to slots by their stamp (see :mod:`gsrmr_common.wire`). A slot is *taken* once,
-when the server composes its MR image; anything for that slot arriving later is counted ``late``.
-A missing, late, duplicated, stale or corrupt upload never blocks a slot: :meth:`UplinkAssembler.take`
-always returns what is known, and :meth:`best_pose` extrapolates the last valid pose key so the
-server can fall back to a render.
-
-Fault counters (all cumulative) are named by :class:`gsrmr_common.wire.UplinkFault`, which documents
-each one. This class counts those it sees (duplicates, invalid keys, late, future, evicted, missing key
-or image); the server node counts the others through :meth:`UplinkAssembler.count` (refused JPEGs, see
-:func:`gsrmr_server.compose.refusal_fault`; oversized or malformed uploads; malformed ledger rows;
-skipped slots).
+:class:`UplinkAssembler` files uploads under the slot their stamp names (:mod:`gsrmr_common.wire`); a missing, late,
+duplicated, stale or corrupt upload never blocks a slot. The fault counters are named, and each documented, by
+:class:`gsrmr_common.wire.UplinkFault`.
 """
 
 from __future__ import annotations
@@ -35,7 +27,15 @@ class SlotUploads:
 
 
 class UplinkAssembler:
-    """Collects pose keys and JPEG uploads per absolute slot index."""
+    """Collects pose keys and JPEG uploads per absolute slot index.
+
+    A slot is *taken* once, when the server composes its MR image; anything for that slot arriving later is counted
+    ``late``. :meth:`take` always returns what is known, and :meth:`best_pose` extrapolates the last valid pose key so
+    the server can fall back to a render. This class counts the faults it sees (duplicates, invalid keys, late,
+    future, evicted, missing key or image); the server node counts the others through :meth:`count` (refused JPEGs,
+    see :func:`gsrmr_server.compose.refusal_fault`; oversized or malformed uploads; malformed ledger rows; skipped
+    slots). All counters are cumulative.
+    """
 
     def __init__(self, max_future_slots: int = 50, max_extrapolation_slots: int = 20) -> None:
         self.max_future_slots = max_future_slots

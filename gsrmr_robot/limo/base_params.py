@@ -1,10 +1,8 @@
 """The LIMO base node's parameters (:class:`LimoBaseParameters`): names, defaults, descriptors and rules (pure).
 
 :class:`gsrmr_robot.limo.node.LimoBaseNode` declares them, refuses a change :meth:`LimoBaseParameters.change_problem`
-gives a reason for (on-set callback) and applies an accepted one (post-set callback: the driver's motion mode and
-heading source). Live: ``motion_mode``, ``heading_source`` — only when the node was started with
-``live_parameter_changes`` (off by default); the others are read-only. ``cmd_vel_writers`` names the nodes the base
-drives from (``docs/security.md``, "cmd_vel").
+gives a reason for and hands an accepted one to the driver; live ones only with ``live_parameter_changes``.
+``cmd_vel_writers``: ``docs/security.md``, "cmd_vel".
 """
 
 from __future__ import annotations

@@ -1,22 +1,7 @@
-"""LIMO base driver over pyserial: enable, stream commands, watchdog, odometry, reconnect.
+"""LIMO base driver over pyserial (no rclpy): enable, stream commands, watchdog, odometry, reconnect.
 
-No rclpy here (the ROS node in :mod:`gsrmr_robot.limo.node` is a thin wrapper). Two threads:
-
-* **io thread**: opens the port (a device path such as ``/dev/ttyTHS1`` or any pyserial URL, 460800
-  8N1, no flow control), flushes stale input, sends the 0x421 enable frame, then reads and feeds
-  :class:`~gsrmr_robot.limo.protocol.FrameParser`. When the port fails (unplugged adapter, closed
-  pty, I/O error) it closes it, reports a ``link_down`` event and retries with exponential backoff
-  (``reconnect_min_s`` doubling up to ``reconnect_max_s``), re-sending the enable frame each time.
-* **tx thread**: every ``1/command_rate_hz`` s sends one 0x111 built from the latest command
-  (:meth:`LimoDriver.set_command`), clamped and mapped by :mod:`kinematics` for the current motion
-  mode. A command older than ``cmd_timeout_s`` — or no command yet, an unknown motion mode, or no
-  0x221 accepted yet on this connection — sends zeros, so the base stops even if the caller dies and
-  never moves before its motion feedback is flowing. Zeros are streamed while stopped.
-
-The 0x421 enable is re-sent (at most once per ``reenable_period_s``) while 0x211 reports a control
-mode other than "commanded", e.g. after the remote control took over and released.
-
-Times are host monotonic seconds (``clock``). All public methods are thread-safe.
+Its io and tx threads, the watchdog and the reconnect: ``docs/limo.md``, "Driver"; the ROS node around it:
+:mod:`gsrmr_robot.limo.node`. Times are host monotonic seconds (``clock``); all public methods are thread-safe.
 """
 
 from __future__ import annotations

@@ -1,23 +1,8 @@
-"""LIMO kinematics: body-velocity command → 0x111 fields, and 0x221 feedback → body velocities.
+"""LIMO kinematics (pure): body-velocity command → 0x111 fields, and 0x221 feedback → body velocities.
 
-Pure module. Frames and signs follow REP-103 for ``base_link``: +x forward, +y left, +z up, positive
-yaw rate counter-clockwise (left turn), positive steering = left. Velocities in m/s and rad/s.
-
-Motion modes (0x211 d6): differential (four-wheel diff / tracked), Ackermann, mecanum. What the ROS
-drivers put in the four 0x111 fields per mode (protocol doc §3.1):
-
-* diff:      ``(vx, wz, 0, 0)``
-* mecanum:   ``(vx, wz, vy, 0)``
-* Ackermann: ``(vx, 0, 0, steering_raw)``, ``steering_raw = inner-wheel angle [rad] / angle_scale``
-
-Differences from the official drivers (doc §6): linear, lateral and angular velocities are clamped
-(LIMO no-load top speed 1 m/s); the inner steering angle clamp really is 0.48869 rad; v = w = 0 and
-any non-finite input give a zero command, never NaN.
-
-Ackermann feedback uses a rigid-body bicycle model with ``base_link`` at the centre of the rear axle:
-the reported speed ``v`` is the speed of that point, so ``vx = v``, ``vy = 0`` and ``wz = v / r`` with
-``r = L / tan|δ| + T/2`` (``δ`` the inner-wheel angle). This keeps ``wz`` identical to the AgileX
-formula (doc §7 C: 0.3981 rad/s) while avoiding its mixed reference points (doc §6 C++ #6).
+Frames and signs follow REP-103 for ``base_link``: +x forward, +y left, +z up, positive yaw rate counter-clockwise
+(left turn), positive steering = left; velocities in m/s and rad/s. The fields per motion mode, the limits and the
+Ackermann feedback model: ``docs/limo.md``, "Kinematics".
 """
 
 from __future__ import annotations

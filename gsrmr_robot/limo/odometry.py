@@ -1,19 +1,7 @@
-"""Planar odometry of the LIMO from 0x221 body velocities and an optional IMU yaw.
+"""Planar odometry of the LIMO (pure) from 0x221 body velocities and an optional IMU yaw.
 
-Pure module. Pose of ``base_link`` in ``odom`` (REP-105): x, y [m], yaw [rad, CCW, unwrapped
-internally, reported wrapped to (-π, π]].
-
-* Integration is driven by the host receive time of consecutive 0x221 frames (doc §5.1): the
-  velocity reported in frame k is applied over ``(t_{k-1}, t_k]`` with the midpoint heading. A gap
-  longer than ``max_gap_s`` (link loss) is not integrated: the reference time restarts.
-* Heading source ``"gyro_integration"``: yaw += wz·dt from the 0x221 yaw rate.
-  Heading source ``"imu"``: yaw = yaw₀ + unwrapped(IMU yaw − first IMU yaw); **no dead-band**
-  (the official driver dropped changes < 0.1° per frame, losing slow turns). Until the first IMU
-  frame arrives the gyro integration is used.
-* Covariances (row-major 6×6, ROS order x y z roll pitch yaw): position variance grows with the
-  distance travelled (``(k_xy·d)²`` plus a floor), yaw variance with the angle turned (gyro) or a
-  fixed IMU variance; z/roll/pitch are not estimated (large variance). Twist covariance from fixed
-  per-axis standard deviations.
+Pose of ``base_link`` in ``odom`` (REP-105): x, y [m], yaw [rad, CCW; unwrapped internally, reported wrapped to
+(-π, π]]. Integration, heading sources and covariances: ``docs/limo.md``, "Odometry".
 """
 
 from __future__ import annotations

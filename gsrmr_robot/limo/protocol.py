@@ -1,32 +1,9 @@
-"""AgileX LIMO serial protocol: 14-byte frames, message codecs and a resynchronising stream parser.
+"""AgileX LIMO serial protocol (pure: no I/O, no rclpy): 14-byte frames, message codecs, a resynchronising parser.
 
-Pure module (no I/O, no rclpy). Reference: ``docs/limo_protocol.md`` in the shared docs (§2 frame
-format, §3 message catalogue, §7 worked frames).
-
-Frame (both directions, 14 bytes)::
-
-    0x55 | 0x0E | id_hi | id_lo | d0 … d7 | count | checksum = (d0 + … + d7) & 0xFF
-
-Multi-byte fields are big-endian. Every int16 field is *saturated* to [-32768, 32767] on encode
-(never wrapped) and rounded to the nearest count; NaN encodes as 0.
-
-Units: every dataclass field carries its unit in its name (``_mps`` m/s, ``_radps`` rad/s, ``_rad``
-rad, ``_v`` volt, ``_mps2`` m/s², ``_mm`` millimetre). The steering field of 0x111/0x221 is the
-dimensionless "raw steering" (inner-wheel angle [rad] ÷ angle scale, see :mod:`kinematics`).
-
-Checksum weakness (§2): the checksum covers only the 8 data bytes, so a corrupted ID or count byte
-is not detected, and it is an additive 8-bit sum, so two compensating bit flips in the data pass.
-:class:`FrameParser` therefore adds three defences beyond the checksum, each counted separately:
-
-* **ID confirmation**: a frame is dispatched only if its ID has been seen ``confirm_frames`` (5)
-  times within ``confirm_window_s`` (1 s), this frame included: a real stream (≥ 10 Hz) confirms
-  within 0.1–0.4 s and stays confirmed; a single-bit ID corruption such as 0x221 → 0x321 appears as
-  isolated frames and is dropped.
-* **count consistency**: per ID the count byte must follow the step learnt from that ID's stream,
-  0 (constant, as every known transmitter sends) or +1 (rolling counter); a mismatch is dropped and
-  the stream re-locks after ``relock_frames`` (3) mutually consistent frames.
-* **plausibility** (:func:`decode_message`): enum bytes must be known values and physical values
-  within generous bounds (|v| ≤ 5 m/s, |yaw| ≤ 180°, …).
+Reference: ``docs/limo_protocol.md`` in the shared docs (§2 frame format, §3 message catalogue, §7 worked frames).
+The frame, the encoding rules and the parser's defences beyond the checksum: ``docs/limo.md``, "Frames and units"
+and "Parser and the checksum's blind spots". Multi-byte fields are big-endian; every dataclass field carries its
+unit in its name (``_mps`` m/s, ``_radps`` rad/s, ``_rad`` rad, ``_v`` volt, ``_mps2`` m/s², ``_mm`` millimetre).
 """
 
 from __future__ import annotations
@@ -446,7 +423,12 @@ class FrameParser:
     the length byte itself is examined as a possible header); once 14 bytes are buffered, verify the
     checksum; on failure drop only the header byte and hunt again (a real header hidden inside a
     corrupted frame is not lost). Valid frames then pass the ID, confirmation and count checks
-    described in the module docstring.
+    (``docs/limo.md``, "Parser and the checksum's blind spots"): an ID is dispatched once seen
+    ``confirm_frames`` times within ``confirm_window_s``, this frame included — a real stream (≥ 10 Hz)
+    confirms within 0.1–0.4 s and stays confirmed, while a single-bit ID corruption such as 0x221 → 0x321
+    appears as isolated frames; per ID the count byte must follow the step learnt from that ID's stream, 0
+    (constant, as every known transmitter sends) or +1 (rolling), and a stream re-locks after
+    ``relock_frames`` mutually consistent frames.
 
     ``confirm_frames=1`` disables ID confirmation; ``check_count=False`` disables the count check.
     """

@@ -1,19 +1,8 @@
-"""MR content: the virtual agents, their lighting and their YAML (``config/mr/<name>.yaml``).
+"""MR content (pure numpy/numba, no ROS): the virtual agents, their lighting and their YAML (``config/mr/<name>.yaml``).
 
-The virtual world is the server's: its agents exist only there, it is lit by its own lights (the built-in
-files copy the mapping round's lights of the scene they belong to, so the agents look like part of the
-room), and it never sees the real world's changes. A file holds::
-
-    name: sandbox
-    ambient: 0.45                       # ambient light level, ≥ 0
-    lights: [...]                       # directional / point lights (gsrmr_shapes.spec.parse_light)
-    virtual_agents:                     # boxes / cylinders (gsrmr_shapes.spec.parse_shape), plus
-      - {id: walker, shape: cylinder, position: [x_m, y_m], ...,
-         path: {waypoints: [[x_m, y_m], ...], speed_mps: 0.2, loop: true}}   # optional motion
-
-Agents with a path move at constant speed along its waypoints (closed polygon when ``loop``; a two-point
-loop goes there and back), heading along the segment they are on; time is seconds since the round began.
-Frames: ``map`` (x forward, y left, z up, metres). Pure numpy/numba, no ROS.
+The virtual world is the server's: its agents exist only there, it is lit by its own lights and it never sees the
+real world's changes. The file (:func:`parse_mr_content`): ``docs/world.md``, "Virtual view v_t and mask d_t".
+Frames: ``map`` (x forward, y left, z up, metres); an agent's time is seconds since the round began.
 """
 
 from __future__ import annotations
@@ -50,7 +39,8 @@ MRContentError = SpecError  # an invalid MR content file; the message starts wit
 
 @dataclass(frozen=True)
 class AgentPath:
-    """A virtual agent's motion: constant speed along waypoints (closed loop when ``loop``)."""
+    """A virtual agent's motion: constant speed along waypoints (closed polygon when ``loop``; a two-point loop goes
+    there and back), heading along the segment it is on."""
 
     waypoints: tuple[tuple[float, float], ...]
     speed_mps: float
@@ -93,7 +83,18 @@ def _agent(value: Any, path: str, index: int) -> Agent:
 
 
 def parse_mr_content(data: Any, source: str = "") -> MRContent:
-    """Validate an MR content mapping (as loaded from YAML)."""
+    """Validate an MR content mapping (as loaded from YAML). A file holds::
+
+        name: sandbox
+        ambient: 0.45                       # ambient light level, ≥ 0
+        lights: [...]                       # directional / point lights (gsrmr_shapes.spec.parse_light)
+        virtual_agents:                     # boxes / cylinders (gsrmr_shapes.spec.parse_shape), plus
+          - {id: walker, shape: cylinder, position: [x_m, y_m], ...,
+             path: {waypoints: [[x_m, y_m], ...], speed_mps: 0.2, loop: true}}   # optional motion
+
+    The built-in files copy the mapping round's lights of the scene they belong to, so that the agents look like
+    part of the room.
+    """
     m = mapping(data if data is not None else {}, "", {"name", "ambient", "lights", "virtual_agents"})
     name = string(m.get("name", Path(source).stem if source else "mr"), "name")
     lights = tuple(parse_light(v, f"lights[{i}]", i) for i, v in enumerate(listing(m.get("lights", []), "lights")))

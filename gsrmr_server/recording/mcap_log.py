@@ -1,5 +1,5 @@
 """The MCAP side of a recording: topics, segments of a running recording, their merge and the salvage of
-a crashed one (see :mod:`gsrmr_server.recording` for the layout and the crash-safety rules).
+a crashed one (the layout and the crash-safety rules: ``docs/nodes.md``, "The server's recording").
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ TOPIC_SLOT_LOG = "/gsrmr/slot_log"
 TOPIC_CAMERA_INFO = "/gsrmr/camera_info"
 # Written by the server in each slot composed with the robot's image: that image as it arrived (the robot's JPEG, the
 # header's stamp the slot start) and the slot's pose key as a geometry_msgs/PoseStamped of base_link in map (x = a_m,
-# y = b_m, z = 0, yaw θ) at the same stamp — training data for an update of the model (issue 27), which
+# y = b_m, z = 0, yaw θ) at the same stamp — training data for an update of the model, which
 # gsrmr-dataset reads as a bag (--pose-topic, with the camera mount).
 TOPIC_RECEIVED_IMAGE = "/gsrmr/received/image/compressed"
 TOPIC_RECEIVED_POSE = "/gsrmr/received/pose"

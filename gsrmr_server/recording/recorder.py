@@ -1,5 +1,5 @@
 """The run recorder: one CSV row and a few ROS 2 messages per slot, crash-safe (layout and rules:
-:mod:`gsrmr_server.recording`).
+``docs/nodes.md``, "The server's recording").
 """
 
 from __future__ import annotations

@@ -56,8 +56,8 @@ def read_slots_csv(path: str | os.PathLike[str], columns: tuple[str, ...] = CSV_
     """Rows of a ``slots.csv`` as dicts: ints for slot/x/bytes_sent, str for source/faults, float
     otherwise, ``None`` for empty cells. A last line without its newline (torn write) is dropped.
     ``columns``: the header the file must have (a file of some of these columns, e.g. the simulation's
-    ``scores.csv``, is read with the same cell rules). A file recorded before the last columns were added (its
-    header the first of ``columns``: ``scene_change`` came on 2026-11-27) reads with those cells ``None``."""
+    ``scores.csv``, is read with the same cell rules). A file whose header is the first of ``columns`` (one
+    recorded before the last columns were added) reads with those cells ``None``."""
     with Path(path).open(newline="", encoding="utf-8") as f:
         text = f.read()
     if text and not text.endswith("\n"):
