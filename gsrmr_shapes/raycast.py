@@ -1,20 +1,7 @@
-"""Colour and depth of textured solids by ray casting: the simulated "real" camera and the virtual agents.
-
-One ray per pixel centre (``gsrmr_common.camera.Camera.ray_directions_camera``, OpenCV axes, pixel
-centres at +0.5), scaled so that its camera-frame z component is 1: the ray parameter at a hit *is*
-the depth (camera-space z, metres), the convention of 3DGS/gsplat depth maps. Misses get depth +inf.
-
-Primitives (map frame, metres): the room (an axis-aligned box seen from inside: floor, walls,
-ceiling), boxes with a yaw about +z, upright cylinders. Shading is Lambertian and view-independent,
-so a degree-0/1 SH Gaussian-splatting model can reproduce it:
-``rgb = albedo · (ambient + Σ_lights colour·intensity·max(0, n·l)·attenuation·visibility) · region gain``
-with point-light attenuation 1 / (1 + (d / range_m)²) and optional hard shadows (one shadow ray per
-light that has ``shadows: true``, cast against boxes and cylinders). Albedo textures are procedural
-(flat, checker, 2-octave value noise, sine stripes) at ``scale_m`` metres — moderate-frequency detail.
-
-The kernel is numba-compiled (``cache=True``), single-threaded; see ``bench/world.py`` for timings. Used by
-the simulated world (:mod:`gsrmr_sim.world.raycast`: the room and its objects) and by the server's virtual
-agents (:mod:`gsrmr_server.mr.content`). No ROS.
+"""Colour and depth of textured solids by ray casting (numba, single-threaded, no ROS): the simulated "real" camera
+(:mod:`gsrmr_sim.world.raycast`) and the server's virtual agents (:mod:`gsrmr_server.mr.content`). One ray per pixel
+centre, scaled so that its camera-frame z is 1: the ray parameter at a hit is the depth (camera z, metres; +inf for a
+miss). Primitives in ``map``, metres; shading and textures: docs/world.md, "Rendering".
 """
 
 from __future__ import annotations

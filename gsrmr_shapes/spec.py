@@ -1,14 +1,7 @@
-"""Solids, materials and lights of both worlds, and the YAML validation helpers that read them.
-
-The simulated "real" world (:mod:`gsrmr_sim.world.scene`) and the server's virtual MR content
-(:mod:`gsrmr_server.mr.content`) are made of the same primitives: oriented boxes and upright cylinders
-with a Lambertian procedural material, lit by directional and point lights. This module owns their
-dataclasses and the validation of their YAML entries; :mod:`gsrmr_shapes.raycast` draws them.
-
-Frames and units: the ROS ``map`` frame (x forward, y left, z up, metres; REP-103). Angles in YAML are
-degrees (keys end in ``_deg``), in the dataclasses radians (``_rad``). Colours are linear RGB in [0, 1].
-Invalid entries raise :class:`SpecError` whose message starts with the key path, e.g.
-``objects[2].size: must be 3 positive numbers``. Pure Python, no ROS.
+"""Solids, materials and lights of the simulated world (:mod:`gsrmr_sim.world.scene`) and the server's virtual content
+(:mod:`gsrmr_server.mr.content`): their dataclasses and the validation of their YAML entries (:class:`SpecError` names
+the key path); :mod:`gsrmr_shapes.raycast` draws them. Frames and units: ``map``, metres; angles in degrees in YAML
+(keys ``*_deg``), radians in the dataclasses (``*_rad``); colours linear RGB in [0, 1]. Pure Python, no ROS.
 """
 
 from __future__ import annotations

@@ -1,6 +1,5 @@
-"""The CPU Gaussian-splatting engine: the model and its .ply (``model``), EWA projection, SH, the numba
-rasterizers, ``render``, training with its densification strategy (``train``, ``strategy``), compaction, alignment
-and pose import. Conventions (OpenCV camera axes, pixel centres at +0.5, 3DGS compositing): ``docs/splatting.md``.
+"""The CPU Gaussian-splatting engine: the model and its .ply, ``render``, training, compaction, alignment and pose
+import. Conventions (OpenCV camera axes, pixel centres at +0.5, 3DGS compositing) and design: docs/splatting.md.
 """
 
 from gsrmr_common.interrupts import guard_console_start_up

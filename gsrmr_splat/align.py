@@ -1,15 +1,7 @@
-"""Similarity alignment of a Gaussian-splatting model trained elsewhere into the robot's ``map`` frame.
-
-A model trained by nerfstudio, gsplat or the original 3DGS lives in the frame and scale of its own camera
-poses (COLMAP's, or nerfstudio's normalised frame). Given the camera poses of the same images in both frames
-— the model's frame and ``map`` (REP-103: x forward, y left, z up, metres) — this module estimates the
-similarity ``x_map = s·R·x_model + t`` from the camera centres (Umeyama 1991, inside a RANSAC loop against
-mis-registered images), measures how well the cameras' orientations agree with it, and applies it to every
-Gaussian (:func:`transform_model`: means, rotations, scales and the view-dependent SH colour).
-
-Camera poses everywhere here are 4×4 camera→world matrices with OpenCV camera axes (x right, y down,
-z forward), the convention of :mod:`gsrmr_common.camera`; :mod:`~gsrmr_splat.external_poses`
-reads them from nerfstudio, COLMAP and 3DGS files. Pure numpy/scipy: no ROS, no torch.
+"""Similarity alignment of a model trained elsewhere into the robot's ``map`` frame: ``x_map = s·R·x_model + t`` fitted
+to the camera centres (Umeyama inside RANSAC) and applied to every Gaussian (:func:`transform_model`). Camera poses here
+are 4×4 camera→world with OpenCV camera axes (:mod:`gsrmr_common.camera`). Pure numpy/scipy. Design: docs/splatting.md,
+"Aligning a model trained elsewhere".
 """
 
 from __future__ import annotations

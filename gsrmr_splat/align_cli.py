@@ -1,11 +1,8 @@
 """``gsrmr-align``: bring a Gaussian-splatting model trained elsewhere into the robot's ``map`` frame.
 
-``gsrmr-align MODEL.ply --model-poses FILE --map-dataset DIR --out OUT.ply`` pairs the model's camera poses
-(FILE: a nerfstudio transforms.json — with ``--dataparser-transforms`` for a splatfacto model —, an
-``ns-export cameras`` JSON, a 3DGS cameras.json or a COLMAP images.txt) with the map-frame poses of the same
-images in a gsrmr nerfstudio dataset (DIR) by image name (base name without extension), estimates
-x_map = s·R·x_model + t from the camera centres (RANSAC + Umeyama), and writes the transformed model.
-``--report OUT.json`` saves the residuals and the similarity (:mod:`gsrmr_splat.align`).
+Pairs the model's camera poses (a nerfstudio, COLMAP or 3DGS file) with the map-frame poses of the same images in a
+gsrmr nerfstudio dataset by image name, fits x_map = s·R·x_model + t to the camera centres (RANSAC + Umeyama) and writes
+the transformed model. Formats and report: docs/splatting.md, "Aligning a model trained elsewhere".
 """
 
 from __future__ import annotations

@@ -1,41 +1,8 @@
-"""Per-frame corrections learned with the model: camera pose refinement and exposure compensation.
-
-A robot's mapping round has poses from odometry/TF (noise, drift) and an auto-exposed camera. The trainer can
-learn, per training frame, a small correction of each (gsplat ``examples/simple_trainer.py`` ``--pose_opt``,
-``CameraOptModule``; nerfstudio's camera optimiser), one row of numbers per frame in a :class:`FrameCorrections`.
-
-**Pose** (6 numbers, :data:`POSE_DIM`): δ = (ω, τ), ω a rotation vector [rad] and τ a translation [m], both in
-**world (map) axes**, the rotation about the camera's own optical centre. The corrected camera of a recorded
-world→camera [R | t] (centre c = −Rᵀt) has camera→world rotation Exp(ω)·Rᵀ and centre c + τ
-(:func:`corrected_world_to_camera`); (−ω, −τ) undoes (ω, τ) exactly. gsplat composes its delta on the
-camera→world matrix from the right (camera axes) with a 6-D rotation; world axes about the centre make the
-gauge rule below a plain mean and keep the two halves decoupled (a rotation does not move the centre).
-
-**The gauge.** Moving every camera by one rigid motion and the model by the same motion renders the same
-images: refining every pose leaves the model free to drift away from ``map``, while the server renders at the
-robot's *unrefined* pose keys. A rigid motion of the world (rotation ω about the cameras' mean centre c̄, then a
-translation τ) changes the corrections by ω_i += ω, τ_i += ω × (c_i − c̄) + τ, so it moves the means of the
-corrections by exactly (ω, τ). The rule: **the corrections' mean is zero** — after every update the mean row is
-subtracted from every row (:meth:`FrameCorrections.remove_mean`). A model fitted to the corrected cameras is then
-in the frame of the recorded poses on average, which is where the unrefined poses (held-out views, the live pose
-keys) look from. An L2 penalty ``pose_reg``·(|ω|² + |τ|²) (rad², m²) on the frame of the step pulls the
-corrections no view constrains back to zero (with Adam's normalised steps even a small penalty acts where the
-image gives no gradient).
-
-**Exposure** (6 numbers, :data:`EXPOSURE_DIM`): per colour channel a log-gain g and a bias b: the rendered image
-becomes exp(g)·rgb + b before the loss (:func:`apply_exposure`; rgb in [0, 1]). Per-channel gain and bias model
-what changes between frames of one camera (auto-exposure, auto white balance, black level); a full 3×3 colour
-matrix (12 numbers) could also absorb view-dependent errors of the model from a single view. The same gauge
-rule holds (mean log-gain and mean bias zero: the model is the geometric-mean exposure of the training frames),
-with an L2 penalty ``exposure_reg``·(|g|² + |b|²). It is applied only in training: the model renders the
-"average exposure" world.
-
-Both are optimised by Adam per row (:meth:`FrameCorrections.adam_update`): a frame's row changes only on the
-steps that render that frame, with its own step count for the bias correction (gsplat's dense embedding lets
-Adam's momentum move every row on every step).
-
-:func:`refine_pose` is the test-time variant: a few Adam steps on one held-out frame's δ with the model frozen
-(a diagnostic beside the fair held-out PSNR, which renders at the recorded poses).
+"""Per-frame corrections learned with the model, one row per training frame in a :class:`FrameCorrections`: a camera
+pose refinement δ = (ω rad, τ m) in world (``map``) axes, rotating about the camera's optical centre
+(:func:`corrected_world_to_camera`), and an exposure model exp(g)·rgb + b per channel (:func:`apply_exposure`, training
+only). Each table's mean row is held at zero (the gauge: the model stays in ``map``). Design, rates and measurements:
+docs/splatting.md, "Training on what a robot records".
 """
 
 from __future__ import annotations
@@ -77,7 +44,8 @@ def so3_exp(omega: torch.Tensor) -> torch.Tensor:
 
 def corrected_world_to_camera(world_to_camera: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
     """The recorded world→camera 4×4 (OpenCV axes) corrected by δ = (ω rad, τ m) in world axes: camera→world
-    rotation Exp(ω)·Rᵀ, optical centre c + τ. Differentiable in ``delta`` (and ``world_to_camera``)."""
+    rotation Exp(ω)·Rᵀ, optical centre c + τ; (−ω, −τ) undoes (ω, τ) exactly. Differentiable in ``delta`` (and
+    ``world_to_camera``)."""
     rot = world_to_camera[:3, :3]
     center = -rot.T @ world_to_camera[:3, 3]
     rot_new = rot @ so3_exp(delta[:3]).T
@@ -156,7 +124,7 @@ class FrameCorrections:
 
 
 def pose_summary(poses: FrameCorrections) -> dict[str, float]:
-    """Mean and max over frames of the corrections' size: |τ| in cm, |ω| in degrees."""
+    """Mean and max over frames of the corrections' size: ‖τ‖ in cm, ‖ω‖ in degrees."""
     v = poses.values.numpy()
     trans_cm = np.linalg.norm(v[:, 3:], axis=1) * 100.0
     rot_deg = np.degrees(np.linalg.norm(v[:, :3], axis=1))
@@ -173,7 +141,7 @@ def exposure_summary(exposure: FrameCorrections) -> dict[str, float]:
 
 
 def pose_delta_size(delta: np.ndarray) -> tuple[float, float]:
-    """(|τ| cm, |ω| degrees) of one pose correction."""
+    """(‖τ‖ cm, ‖ω‖ degrees) of one pose correction."""
     d = np.asarray(delta, np.float64)
     return float(np.linalg.norm(d[3:]) * 100.0), float(math.degrees(np.linalg.norm(d[:3])))
 

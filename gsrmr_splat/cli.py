@@ -1,12 +1,9 @@
-"""``gsrmr-render`` (.ply → PNGs), the command-line renderer (numba, no torch); ``gsrmr-train`` and
-``gsrmr-compact`` (torch) are :mod:`~gsrmr_splat.train_cli`.
+"""``gsrmr-render``: a 3DGS .ply rendered to PNGs (numba, no torch); ``gsrmr-train`` and ``gsrmr-compact`` are
+:mod:`~gsrmr_splat.train_cli`.
 
-``gsrmr-render MODEL.ply --cameras CAMERAS.json --out DIR`` renders every camera of CAMERAS.json, a
-list of ``{"width", "height", "K" (3×3, pixel centres at +0.5 as in 3DGS/COLMAP), "world_to_camera"
-(4×4, OpenCV axes)}``, to DIR/000.png, 001.png, … in list order. ``--pose a,b,θ`` (metres, metres,
-radians; repeatable) renders robot poses instead, with the camera mount ``--mount-height-m``,
-``--mount-pitch-rad`` (positive = looking down), ``--mount-forward-m``, ``--mount-left-m`` and
-intrinsics ``--width --height --hfov-deg`` (see :mod:`gsrmr_common.camera`).
+Renders every camera of ``--cameras CAMERAS.json`` (a list of ``{"width", "height", "K", "world_to_camera"}``: K 3×3 in
+pixels with pixel centres at +0.5, world→camera 4×4 in OpenCV axes) or every robot pose ``--pose a,b,θ`` (metres,
+metres, radians; the camera from the mount and intrinsics options) to DIR/000.png, 001.png, … in list order.
 """
 
 from __future__ import annotations

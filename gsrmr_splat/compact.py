@@ -1,17 +1,6 @@
-"""Compaction: the smallest model of a scene within a held-out PSNR tolerance.
-
-After training, every Gaussian is ranked by its contribution over the training views (or the views the caller
-names: ``coverage_cameras``) — its accumulated blending weight Σ α·T over every pixel of every view (LightGaussian's
-global significance, Mini-Splatting's importance; :func:`~gsrmr_splat.contribution.blend_weights`).
-Rounds then prune the least contributing ``prune_fraction`` of what is left and fine-tune briefly (Adam on every
-parameter, no densification, a small position rate), measuring the held-out PSNR after each; a round that drops more
-than ``max_psnr_drop_db`` below the uncompacted model is discarded and retried with half the share,
-until the share falls below ``min_prune_fraction``; the last round within the tolerance is kept. Then
-the SH degree is lowered one step at a time (fine-tuned the same way) while the
-view-dependent colour does not pay for itself within the same tolerance.
-
-The held-out PSNR is measured as ``gsrmr-train`` measures it (:meth:`Trainer.evaluate`: the mean PSNR of
-the fast renderer on the held-out frames at the training resolution).
+"""Compaction: the smallest model of a scene within a held-out PSNR tolerance (:class:`Compactor`, settings
+:class:`CompactConfig`): Gaussians ranked by their accumulated blending weight, pruned in rounds with brief fine-tuning,
+then lower SH degrees while the tolerance holds. Design and measurements: docs/splatting.md, "Compaction".
 """
 
 from __future__ import annotations
@@ -95,7 +84,16 @@ def finetune_config(base: TrainConfig, iterations: int, sh_degree: int) -> Train
 
 
 class Compactor:
-    """Runs the compaction of one model on one dataset split (see the module docstring)."""
+    """Runs the compaction of one model on one dataset split.
+
+    Every Gaussian is ranked by its accumulated blending weight Σ α·T over every pixel of the coverage views
+    (LightGaussian's global significance, Mini-Splatting's importance). Rounds prune the least contributing
+    ``prune_fraction`` of what is left and fine-tune briefly (:func:`finetune_config`), measuring the held-out
+    PSNR as ``gsrmr-train`` does (:meth:`Trainer.evaluate`); a round more than ``max_psnr_drop_db`` below the
+    uncompacted model is discarded and retried with half the share, until the share falls below
+    ``min_prune_fraction``. Then the SH degree is lowered one step at a time (fine-tuned the same way) while the
+    tolerance holds.
+    """
 
     def __init__(self, train_frames: list[DatasetFrame], test_frames: list[DatasetFrame],
                  train_config: TrainConfig | None = None, config: CompactConfig | None = None,

@@ -1,7 +1,6 @@
-"""How much each Gaussian contributes to a set of views: the largest blending weight α·T it reaches in
-any pixel and the sum of its weights over every pixel (numba tile kernel over the renderer's packed
-layout, the forward pass's rules). The maximum prunes Gaussians that change no pixel; the sum ranks them
-for compaction (:mod:`gsrmr_splat.compact`).
+"""How much each Gaussian contributes to a set of views: its largest blending weight α·T at any pixel and the sum of its
+weights over every pixel (a numba tile kernel with the forward pass's rules). The maximum prunes Gaussians that change
+no pixel; the sum ranks them for compaction (:mod:`gsrmr_splat.compact`).
 """
 
 from __future__ import annotations

@@ -1,7 +1,5 @@
-"""Synthetic training data rendered with the engine itself (for the training test and benchmark).
-
-:func:`orbit_cameras` places cameras on a circle around a target (world z up), looking at it;
-:func:`render_views` renders a model from them as nerfstudio :class:`DatasetFrame` s (with depth).
+"""Synthetic training data rendered with the engine itself, for the training tests and benchmarks: :func:`orbit_cameras`
+(a circle around a target, world z up) and :func:`render_views` (nerfstudio frames with depth).
 """
 
 from __future__ import annotations

@@ -1,9 +1,6 @@
-"""Differentiable rendering for training: torch projection/SH + the numba rasterizer as an autograd Function.
-
-Kept apart from :mod:`~gsrmr_splat.render` so the server's forward path never imports torch.
-Culling, depth sort and tile binning are non-differentiable (numba); projection, activations and SH
-are torch autograd; compositing is :class:`RasterizeFunction` (numba forward and exact numba
-backward, :func:`~gsrmr_splat.rasterize.backward_kernel`).
+"""Differentiable rendering for training (:func:`render_torch`): torch projection and SH around the numba rasterizer as
+an autograd Function (:class:`RasterizeFunction`). Kept apart from :mod:`~gsrmr_splat.render` so that the server's
+forward path never imports torch.
 """
 
 from __future__ import annotations

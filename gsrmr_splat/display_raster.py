@@ -1,21 +1,8 @@
-"""The display rasterizer: forward-only float32 compositing for :func:`~gsrmr_splat.render.render`.
-
-Same conventions as :func:`~gsrmr_splat.rasterize.forward_kernel` (pixel centres at +0.5,
-|dx|, |dy| ≤ radius, σ ≥ 0, α = min(0.99, o·exp(−σ)) ≥ 1/255, stop *before* blending when T·(1 − α) < 1e-4,
-C += T·background), which training keeps in float64 with the state its backward pass needs. What
-makes this one ≈ 2.5× faster on a CPU:
-
-- **a whole 16-pixel tile row at a time**, branch-free (masks instead of ``continue``), so LLVM
-  vectorises it (AVX2/AVX-512); exp is :func:`~gsrmr_splat.fastexp.exp_neg`, not a libm call;
-- **float32** parameters and per-tile state (the packed rows are half the bytes);
-- the tile state lives in one flat array indexed with *unsigned* integers: numba adds a
-  negative-index wrap-around test to every signed index it cannot prove non-negative, and that
-  test alone keeps LLVM from vectorising the row (3–4× slower);
-- tiles are dealt to threads interleaved (chunk c takes tiles c, c + n, …): the sky and the ground
-  cost very different amounts, and numba's static ``prange`` split would otherwise give one thread
-  the expensive half.
-
-Output per pixel is independent of the thread count and within ≈ 1e-7 (mean) of the float64 kernel.
+"""The display rasterizer: forward-only float32 compositing for :func:`~gsrmr_splat.render.render`, with the rules of
+the float64 training kernel :func:`~gsrmr_splat.rasterize.forward_kernel`. A Gaussian is blended into a whole 16-pixel
+tile row at a time, branch-free, with :func:`~gsrmr_splat.fastexp.exp_neg` and float32 state (half the bytes) in one
+flat array indexed by unsigned integers, so that LLVM vectorises the row; tiles are dealt to threads interleaved, and
+the output does not depend on the thread count. Why each: docs/splatting.md, "How the fast path works", step 4.
 """
 
 from __future__ import annotations

@@ -1,25 +1,7 @@
-"""Camera poses of the images a Gaussian-splatting model was trained on, read from other tools' files.
-
-Every reader returns ``{key: 4×4 camera→world}`` with **OpenCV camera axes** (x right, y down, z forward; the
-convention of :mod:`gsrmr_common.camera`), in the frame the file's model lives in, in that frame's units.
-
-Images are matched across tools by :func:`image_key`: the file name without its folders and without an image
-extension (``images/frame_0001.png``, ``frame_0001.jpg`` and 3DGS's ``frame_0001`` are all ``frame_0001``).
-Two images of one file with the same key (``left/0001.png`` and ``right/0001.png``) are refused.
-
-Formats:
-
-* nerfstudio ``transforms.json`` (:func:`read_nerfstudio_transforms`): per frame ``file_path`` and
-  ``transform_matrix``, camera→world with OpenGL axes (x right, y up, z back). A splatfacto model's Gaussians
-  live in the dataparser's normalised frame, not in the file's: pass the run's ``dataparser_transforms.json``
-  and the poses are carried there (see the function).
-* ``ns-export cameras`` output (``transforms_train.json``): a JSON list of ``{"file_path", "transform"}``,
-  camera→world 3×4, OpenGL axes, already in the model's (dataparser) frame.
-* COLMAP text model ``images.txt`` (:func:`read_colmap_images_txt`): world→camera, OpenCV axes; the frame of
-  a 3DGS model trained on that reconstruction.
-* graphdeco-inria 3DGS ``cameras.json`` (:func:`read_3dgs_cameras_json`), written by
-  ``utils/camera_utils.camera_to_JSON`` next to the trained model.
-* gsrmr's own nerfstudio datasets (:func:`read_map_dataset`): the robot's cameras in ``map``.
+"""Camera poses of the images a model was trained on, read from nerfstudio, COLMAP and 3DGS files and from gsrmr's own
+datasets (:func:`detect_format` picks the reader). Every reader returns ``{key: 4×4 camera→world}`` with OpenCV camera
+axes (x right, y down, z forward), in the frame and units of the file's model, keyed by :func:`image_key`. Formats and
+pairing: docs/splatting.md, "Aligning a model trained elsewhere".
 """
 
 from __future__ import annotations

@@ -1,12 +1,4 @@
-"""A float32 exp(−σ) that LLVM can vectorise (numba's ``math.exp`` is a libm call per element).
-
-``exp_neg(x)`` for float32 ``x``: the argument is clamped to [:data:`EXP_ARG_MIN`, 0] — above 0 means
-σ < 0, which a positive-definite conic only reaches by rounding, and is treated as σ = 0; below
-−30 the value (< 1e-13) is far under the 1/255 alpha cut, and clamping keeps every product normal
-(denormal float32 arithmetic is slow) and finite. Range reduction x·log2(e) = n + f, |f| ≤ ½;
-2^f by its degree-6 Taylor polynomial (truncation error < 2e-7); 2^n built in the exponent bits.
-Relative error ≤ 4e-6 over the range (float32 rounding of x·log2(e) dominates), checked by a test.
-"""
+"""A float32 exp(−σ) that LLVM can vectorise (numba's ``math.exp`` is a libm call per element): :func:`exp_neg`."""
 
 from __future__ import annotations
 
@@ -41,7 +33,14 @@ def _int32_bits_as_float32(typingctx, bits):
 
 @nb.njit(inline="always", fastmath=True, cache=True)
 def exp_neg(x):
-    """exp(x) for float32 x, clamped to [EXP_ARG_MIN, 0]; relative error ≤ 4e-6; vectorisable."""
+    """exp(x) for float32 x, clamped to [:data:`EXP_ARG_MIN`, 0]; relative error ≤ 4e-6 (a test checks it).
+
+    The clamp: above 0 means σ < 0, which a positive-definite conic reaches only by rounding, so it is taken as
+    σ = 0; below −30 the value (< 1e-13) is far under the 1/255 alpha cut, and clamping keeps every product normal
+    (denormal float32 arithmetic is slow) and finite. Range reduction x·log2(e) = n + f with −½ ≤ f ≤ ½; 2^f by its
+    degree-6 Taylor polynomial (truncation error < 2e-7); 2^n built in the exponent bits. The float32 rounding of
+    x·log2(e) dominates the error. No libm call and no branch, so LLVM vectorises the loops that call it.
+    """
     t = min(max(x, EXP_ARG_MIN), _ZERO) * _LOG2E
     n = np.int32(t - _HALF)  # t ≤ 0: truncation toward zero of t − ½ rounds t to the nearest integer
     f = t - np.float32(n)

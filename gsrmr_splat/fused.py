@@ -1,26 +1,10 @@
-"""The fused training engine (``TrainConfig.engine = "fused"``): one training step — projection, SH, rasterizer
-forward and backward, the loss 0.8·L1 + 0.2·(1 − SSIM) and its gradient, the chain rule back to the
-parameters and Adam — in numba kernels (:mod:`~gsrmr_splat.fused_kernels`), without torch autograd.
+"""The fused training engine (``TrainConfig.engine = "fused"``, :class:`FusedEngine`): one training step — projection,
+SH, rasterizer, the loss 0.8·L1 + 0.2·(1 − SSIM), their backward passes and Adam — in numba kernels, without autograd.
 
-The maths is the torch engine's (:func:`~gsrmr_splat.diffrender.render_torch`,
-:func:`~gsrmr_splat.losses.train_loss`, :func:`~gsrmr_splat.optim.adam_step`): the same
-culling, depth order and tile lists, the same rasterizer rules, the same loss and Adam (β = 0.9, 0.999,
-ε = 1e-15, the trainer's per-group learning rates). What differs is rounding: the projection and its backward
-run in float64 (torch: float32); the rasterizer runs in float32 over whole tile rows with a polynomial exp
-(:mod:`~gsrmr_splat.fused_raster`; torch's: float64, libm exp), as 3DGS's CUDA rasterizer does; the
-SSIM's separable blur sums in another order than torch's conv2d. Every sum is taken in a fixed order, so a step's
-result does not depend on the numba thread count (the torch engine's rasterizer backward sums per thread). The
-parameters, Adam moments and density statistics stay the trainer's torch tensors (the kernels work on their numpy
-views), so density control, checkpoints and the torch engine read and write the same state.
-
-Where the time goes (the sandbox's mapping round at 160 px, ~100k Gaussians, 2 threads): rasterizer backward and
-forward about half, the projection and its backward a third, loss, sorting, binning and Adam the rest; see
-docs/splatting.md, "Training speed", and ``bench/train.py --profile``.
-
-Pose refinement and exposure compensation are supported: the kernels return dL/d(world→camera) and dL/d(camera
-centre), which :func:`pose_gradient` carries in closed form (numpy) through
-:func:`~gsrmr_splat.camera_opt.corrected_world_to_camera` to the frame's correction δ = (ω, τ); the
-exposure's gain and bias act on the rendered image before the loss, their gradient summed in numpy.
+The maths is the torch engine's; only rounding differs (projection float64, rasterizer and SSIM float32, every sum in a
+fixed order, so no result depends on the numba thread count). Parameters, Adam moments and density statistics stay the
+trainer's torch tensors (the kernels work on their numpy views); the pose correction's gradient is closed-form numpy
+(:func:`pose_gradient`). Design and timings: docs/splatting.md, "Training speed: the fused engine".
 """
 
 from __future__ import annotations

@@ -1,20 +1,6 @@
-"""Numba kernels of the fused training engine (:mod:`~gsrmr_splat.fused`) around its rasterizer
-(:mod:`~gsrmr_splat.fused_raster`) and loss (:mod:`~gsrmr_splat.fused_loss`): the maths of
-the torch path (:mod:`~gsrmr_splat.diffrender`, :mod:`~gsrmr_splat.optim`) with its
-backward pass written out by hand, so that a training step runs without torch autograd.
-
-* :func:`project_forward_kernel` — :func:`~gsrmr_splat.project.project_kernel`'s projection and
-  culling (the same boxes and radii) with float64 outputs, and a cheap conservative frustum test first.
-* :func:`gather_kernel` — the depth-ordered packed rows of the rasterizer, colours from SH (degree 0..3).
-* :func:`project_backward_kernel` — the chain rule from the rasterizer's per-Gaussian gradients (means2d,
-  conic, opacity, colour) back to the parameters (means, quaternions, log-scales, opacity logits, SH) and,
-  for pose refinement, to the world→camera matrix and the camera centre; it also accumulates the density
-  control's statistics (screen-space gradient norm, count, largest radius, last iteration seen).
-* :func:`adam_kernel` — Adam over every parameter's elements (the rows no Gaussian gradient reached have
-  gradient zero, as torch's).
-
-Every sum is taken in a fixed order (per Gaussian, or over a fixed number of chunks), so no result depends on
-the numba thread count.
+"""Numba kernels of the fused engine (:mod:`~gsrmr_splat.fused`) around its rasterizer and loss: projection, the packed
+rows with SH colour, the chain rule back to the parameters and the pose (with the density statistics), and Adam — the
+torch path's maths with its backward pass written out by hand, every sum in a fixed order.
 """
 from __future__ import annotations
 
@@ -247,7 +233,7 @@ def project_backward_kernel(visible, rank, entry_grads, entry_start, geom, means
 
     With ``want_pose``, ``pose_grads`` (N_REDUCE × 15) receives per chunk dL/dW (3×3 row-major), dL/dt and
     dL/d(camera centre) for the SH directions. Density statistics of Gaussian i = order[j]:
-    grad_accum[i] += |(dL/dmx·W/2, dL/dmy·H/2)|, grad_count[i] += 1, max_radius[i] = max(·, radius[j]),
+    grad_accum[i] += ‖(dL/dmx·W/2, dL/dmy·H/2)‖, grad_count[i] += 1, max_radius[i] = max(·, radius[j]),
     last_seen[i] = it.
     """
     m_rows = visible.shape[0]

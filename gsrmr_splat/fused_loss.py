@@ -1,19 +1,6 @@
-"""The fused engine's loss: 0.8·L1 + 0.2·(1 − SSIM) of a render against its target and the gradient with respect
-to the render, in three parallel numba passes over image rows.
-
-SSIM as :func:`~gsrmr_splat.losses.ssim_torch` (and :func:`gsrmr_common.metrics.ssim`): per channel,
-the 11-tap Gaussian window (σ = 1.5) applied as two 1-D passes (the 2-D window is their outer product; zero
-padding at the borders is separable too), C1 = 0.01², C2 = 0.03², the mean over every pixel and channel. With
-μ = G∗x, E[x²] = G∗x², E[xy] = G∗(x·y), σxx = E[x²] − μx², σxy = E[xy] − μx·μy and the map
-m = (2μxμy + C1)(2σxy + C2) / ((μx² + μy² + C1)(σxx + σyy + C2)), the gradient of Σm with respect to x is
-G∗a + 2x·(G∗b) + y·(G∗c) where a, b, c are ∂m/∂μx, ∂m/∂E[x²], ∂m/∂E[xy] per pixel (the window is symmetric, so
-its transpose is itself). L1's gradient is sign(x − y) (0 where equal, as torch's).
-
-Passes: (1) the five statistics of a row, blurred along the row, into a buffer padded with five zero rows above
-and below; (2) the column blur of those, the map and its three derivatives, blurred along the row; (3) the
-column blur of the derivatives and the gradient. float32 throughout (as the torch path's), sums of the map and of
-|x − y| in float64 per row, then in row order: the result does not depend on the thread count. Buffers are
-indexed with unsigned integers so that LLVM vectorises the blurs (see :mod:`~gsrmr_splat.display_raster`).
+"""The fused engine's loss (:class:`FusedLoss`): 0.8·L1 + 0.2·(1 − SSIM) of a render against its target and its gradient
+with respect to the render, in three parallel numba passes over image rows; the SSIM is
+:func:`~gsrmr_splat.losses.ssim_torch`'s. The gradient and the passes: docs/splatting.md, "The fused loss".
 """
 
 from __future__ import annotations
@@ -165,7 +152,8 @@ def _pass_grad(pred, target, hd, w, l1_weight, ssim_weight, g_out, row_abs, row_
 
 
 class FusedLoss:
-    """0.8·L1 + 0.2·(1 − SSIM) and its gradient (module docstring); keeps its row buffers between calls."""
+    """0.8·L1 + 0.2·(1 − SSIM) and its gradient (docs/splatting.md, "The fused loss"); keeps its row buffers
+    between calls."""
 
     def __init__(self, lam: float = 0.2) -> None:
         self.lam = lam

@@ -1,19 +1,8 @@
-"""The fused engine's rasterizer: float32 forward and backward over whole 16-pixel tile rows (vectorised).
-
-Same rules as :func:`~gsrmr_splat.rasterize.forward_kernel` and
-:func:`~gsrmr_splat.rasterize.backward_kernel` (pixel centres at +0.5, |dx|, |dy| ≤ radius,
-α = min(0.99, o·exp(−σ)) ≥ 1/255, stop *before* blending when T·(1 − α) < 1e-4, C += T·background; the backward
-walks each tile's list back to front undoing T_i = T_{i+1} / (1 − α_i)), written as
-:mod:`~gsrmr_splat.display_raster` writes the display path: a whole tile row at a time, branch-free
-(masks instead of ``continue``) so LLVM vectorises it, exp by :func:`~gsrmr_splat.fastexp.exp_neg`,
-float32 parameters and per-tile state (as 3DGS's CUDA rasterizer), pixels with σ < 0 (a rounding artefact of a
-near-singular conic) skipped as there. The forward records per pixel the final transmittance and the list
-position after the last Gaussian blended; the backward recomputes σ and α with the same inlined code, so it
-blends exactly the Gaussians the forward blended.
-
-The per-tile state is one flat float32 array indexed with unsigned integers (see display_raster: a signed index
-keeps LLVM from vectorising). A Gaussian's gradient sums over one tile are float32 (at most 256 pixels), added to
-a float64 buffer per thread.
+"""The fused engine's rasterizer: float32 forward and backward over whole 16-pixel tile rows, vectorised as
+:mod:`~gsrmr_splat.display_raster`, with the rules of :func:`~gsrmr_splat.rasterize.forward_kernel` and
+:func:`~gsrmr_splat.rasterize.backward_kernel`. The forward keeps per pixel the final transmittance and the list
+position after its last blend; the backward walks each tile's list back to front, undoing T_i = T_{i+1} / (1 − α_i), and
+computes α with the forward's code (:func:`_alpha`), so it blends exactly the Gaussians the forward blended.
 """
 
 from __future__ import annotations
@@ -45,7 +34,7 @@ _AMAX, _AMIN, _TMIN = np.float32(ALPHA_MAX), np.float32(ALPHA_MIN), np.float32(T
 @nb.njit(inline="always", fastmath=True, cache=True)
 def _alpha(du_i, u_lo, u_hi, mx, half_a, half_c_dy2, b_dy, opacity, radius):
     """(dx, exp(−σ), raw α = o·exp(−σ), α, mask) of the pixel centred at column ``du_i``: the one definition both
-    passes use. The mask: α ≥ 1/255, σ ≥ 0, |dx| ≤ radius and the column inside the Gaussian's box
+    passes use. The mask: α ≥ 1/255, σ ≥ 0, abs(dx) ≤ radius and the column inside the Gaussian's box
     [u_lo, u_hi] (centres), as the float64 kernels."""
     dx = du_i - mx
     sigma = (half_a * dx + b_dy) * dx + half_c_dy2

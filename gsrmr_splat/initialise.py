@@ -1,10 +1,6 @@
-"""A training run's start: scene extent (3DGS ``getNerfppNorm``), frames at the training resolution, the initial
-points — back-projected from the training views' depth, subsampled from a point cloud the dataset names, or
-random in a box — and their nearest-neighbour scales.
-
-Which source (:func:`choose_init`, ``TrainConfig.init``): ``depth`` (an RGB-D camera's depth maps), ``points``
-(a sparse cloud: nerfstudio's ``ply_file_path``, e.g. COLMAP's), ``random``, or ``auto`` — depth when any
-training frame has a depth map, else the dataset's point cloud when it names one, else random points.
+"""A training run's start: the scene extent (3DGS ``getNerfppNorm``), frames at the training resolution and the initial
+points — back-projected depth, a point cloud the dataset names, or random — with their nearest-neighbour scales. Which
+source: :func:`choose_init`; design: docs/splatting.md, "Training on what a robot records".
 """
 
 from __future__ import annotations

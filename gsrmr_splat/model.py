@@ -1,17 +1,5 @@
-"""The Gaussian model (parameters stored before activation) and the standard 3DGS ``.ply`` format.
-
-Parameters, all float32, world frame in metres:
-
-* ``means`` N×3 — centres.
-* ``quats`` N×4 — rotations as (w, x, y, z), not necessarily normalised (normalised on use).
-* ``log_scales`` N×3 — log of the standard deviations along the rotated axes (metres).
-* ``opacity_logits`` N — opacity = sigmoid(logit).
-* ``sh`` N×K×3 — spherical-harmonic colour coefficients, K = (degree + 1)², ``sh[:, 0]`` = f_dc.
-
-The ``.ply`` layout is the one of graphdeco-inria 3DGS (``GaussianModel.save_ply``) that gsplat and
-nerfstudio also read and write: one ``vertex`` element of float32 properties ``x y z nx ny nz
-f_dc_0..2 f_rest_0..(3(K−1)−1) opacity scale_0..2 rot_0..3`` where ``f_rest`` is grouped by colour
-channel (all red coefficients 1..K−1, then green, then blue).
+"""The Gaussian model (:class:`GaussianModel`: parameters before activation, world frame, metres) and the standard 3DGS
+``.ply`` format that graphdeco-inria 3DGS, gsplat and nerfstudio read and write (:meth:`GaussianModel.save_ply`).
 """
 
 from __future__ import annotations
@@ -37,7 +25,30 @@ def opacity_logit(p: np.ndarray) -> np.ndarray:
 
 @dataclass
 class GaussianModel:
-    """N anisotropic 3-D Gaussians with SH colour; see the module docstring for the units."""
+    """N anisotropic 3-D Gaussians with spherical-harmonic colour, parameters stored before activation.
+
+    Every array is converted to contiguous float32 on construction; positions and sizes are in the world frame,
+    in metres.
+
+    Attributes:
+        means: N×3 centres (metres).
+        quats: N×4 rotations as (w, x, y, z) quaternions, not necessarily normalised (normalised on use).
+        log_scales: N×3 natural logs of the standard deviations along the rotated axes (:attr:`scales`, metres).
+        opacity_logits: N logits of the opacities (:attr:`opacities` = sigmoid(logit)).
+        sh: N×K×3 SH colour coefficients per RGB channel, K = (degree + 1)² for degree 0..3, ``sh[:, 0]`` the DC
+            term (colour conventions: :mod:`~gsrmr_splat.sh`).
+
+    Raises:
+        ValueError: ``sh`` is not N×K×3 with K one of 1, 4, 9, 16, or another array does not reshape to N rows.
+
+    Example:
+        ::
+
+            points = np.array([[1.0, 0.0, 0.2], [1.5, 0.3, 0.2]])
+            model = GaussianModel.from_points(points, [[0.8, 0.2, 0.2], [0.2, 0.8, 0.2]], scales_m=0.05)
+            model.save_ply("two.ply")
+            assert GaussianModel.load_ply("two.ply").num_gaussians == 2
+    """
 
     means: np.ndarray
     quats: np.ndarray
@@ -138,7 +149,27 @@ class GaussianModel:
 
     # ------------------------------------------------------------------ .ply IO
     def save_ply(self, path: str | Path) -> Path:
-        """Write the standard 3DGS .ply (float32, binary little endian)."""
+        """Write the standard 3DGS .ply: binary little endian, one ``vertex`` element of float32 properties.
+
+        The properties, values before activation: ``x y z nx ny nz f_dc_0..2 f_rest_0..(3(K−1)−1) opacity
+        scale_0..2 rot_0..3``, the normals zero and ``f_rest`` grouped by colour channel (all red coefficients
+        1..K−1, then green, then blue): the layout graphdeco-inria 3DGS writes and gsplat and nerfstudio read.
+
+        Args:
+            path: The file to write; its folder is created.
+
+        Returns:
+            Path: ``path``.
+
+        Raises:
+            ValueError: A parameter holds NaN or inf, or a quaternion has zero norm (:meth:`check_finite`).
+
+        Example:
+            ::
+
+                model = GaussianModel.from_points(np.zeros((1, 3)), [[0.5, 0.5, 0.5]])
+                model.save_ply("out/one.ply")
+        """
         self.check_finite()
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -157,7 +188,26 @@ class GaussianModel:
 
     @classmethod
     def load_ply(cls, path: str | Path) -> GaussianModel:
-        """Read a 3DGS / gsplat / nerfstudio .ply; :class:`PlyFormatError` on malformed files or NaN."""
+        """Read a 3DGS .ply as graphdeco-inria 3DGS, gsplat and nerfstudio write it (layout: :meth:`save_ply`).
+
+        Args:
+            path: The .ply file.
+
+        Returns:
+            GaussianModel: The model; its SH degree (0..3) follows from the number of ``f_rest_*`` properties.
+
+        Raises:
+            FileNotFoundError: ``path`` does not exist.
+            PlyFormatError: Not a readable .ply, no ``vertex`` element, missing or misnumbered 3DGS properties, an
+                ``f_rest`` count of no SH degree, a NaN or inf value or a zero quaternion (the message names the
+                property and the first bad vertex).
+
+        Example:
+            ::
+
+                model = GaussianModel.load_ply("room.ply")
+                print(model.num_gaussians, model.sh_degree)
+        """
         path = Path(path)
         if not path.exists():
             raise FileNotFoundError(f"no such .ply: {path}")

@@ -1,20 +1,7 @@
-"""EWA projection of 3-D Gaussians to the image plane (3DGS / gsplat conventions).
-
-Camera: OpenCV axes (x right, y down, z forward), ``world_to_camera`` 4×4, pinhole fx, fy, cx, cy in
-pixels with pixel centres at +0.5. For each Gaussian:
-
-* Σ = R S Sᵀ Rᵀ, S = diag(exp(log_scale)), R from the normalised (w, x, y, z) quaternion.
-* t = W·mean + t_w (camera frame); culled when t.z < ``near_m`` (default :data:`NEAR_M` = 0.2 m, the
-  3DGS value; gsplat uses 0.01 m).
-* J is built at t with x/z and y/z clamped to the image bounds widened by 0.3·tan(half-fov) on each
-  side (the 3DGS / gsplat clamp; equal to ±1.3·tan_fov for a centred principal point).
-* 2-D covariance J W Σ Wᵀ Jᵀ + 0.3 px² · I; conic = its inverse; radius = ceil(3·sqrt(λmax)) with
-  λmax = mid + sqrt(max(0.1, mid² − det)) as in 3DGS.
-* mean2d = (fx·x/z + cx, fy·y/z + cy) (unclamped).
-
-Besides the 3-sigma radius the fast path also computes, per axis, the half-extent beyond which
-``opacity·exp(−σ) < 1/255`` for every pixel (σ ≥ dx²/(2 Σ_xx)); pixels outside it could never
-contribute, so binning by it gives exactly the same image with fewer tile pairs.
+"""EWA projection of 3-D Gaussians to the image plane (3DGS / gsplat conventions): culling, 2-D conic, 3-sigma radius
+and the opacity-limited pixel box. Camera: OpenCV axes (x right, y down, z forward), ``world_to_camera`` 4×4, pinhole
+fx, fy, cx, cy in pixels, pixel centres at +0.5. The rules (near plane :data:`NEAR_M`, Jacobian clamp, 0.3 px² blur; the
+projected mean itself is not clamped): docs/splatting.md, "Conventions"; the box: "How the fast path works".
 """
 
 from __future__ import annotations

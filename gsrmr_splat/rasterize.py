@@ -1,22 +1,8 @@
-"""Numba tile rasterizer: binning, front-to-back forward compositing and its exact backward pass.
-
-Input Gaussians are *packed* in depth order (camera z ascending, ties broken by Gaussian index), one
-row each: ``(mx, my, conic_a, conic_b, conic_c, opacity, r, g, b, depth_z, radius, log(255·opacity))``.
-Pixel (u, v) is sampled at its centre (u + 0.5, v + 0.5).
-
-Compositing (3DGS): Gaussian i reaches pixel p only when p's centre lies inside its 3-sigma square box
-(|dx| ≤ radius and |dy| ≤ radius; this makes the image independent of the tile size) and
-α = min(0.99, o·exp(−σ)), σ = ½ dᵀ·conic·d, is ≥ 1/255. Front to back: if T·(1 − α) < 1e-4 the pixel
-stops *before* blending that Gaussian; otherwise C += T·α·c, T ← T·(1 − α). Finally
-C += T·background, alpha = 1 − T, depth = Σ T·α·z / alpha (0 where alpha is 0).
-
-Tiles are :data:`TILE`×:data:`TILE` pixels; a Gaussian is listed in every tile its opacity-limited box
-(from :mod:`~gsrmr_splat.project`) touches. Tiles run in parallel (``prange``), dealt interleaved
-(chunk c takes tiles c, c + :data:`N_CHUNKS`, …) so that a static split still gives each thread a mix
-of cheap and expensive image regions; the backward pass gives every thread its own gradient buffer,
-so it is race-free and deterministic for a given thread count. This float64 path is what training
-uses; :mod:`~gsrmr_splat.display_raster` is the faster float32 forward-only path of
-:func:`~gsrmr_splat.render.render`.
+"""Numba tile rasterizer in float64, the torch training engine's: binning, front-to-back compositing and its exact
+backward pass (:mod:`~gsrmr_splat.display_raster` is the faster float32 forward of :func:`~gsrmr_splat.render.render`,
+:mod:`~gsrmr_splat.fused_raster` the fused engine's). Gaussians come *packed* in depth order, one row each
+(:func:`pack`); tiles run in parallel, dealt interleaved, and the backward gives every thread its own gradient buffer.
+Rules: docs/splatting.md, "Conventions" and "How the fast path works".
 """
 
 from __future__ import annotations
@@ -270,7 +256,8 @@ def depth_order(depth: np.ndarray) -> np.ndarray:
 
 
 def pack(means2d, conic, opacity, colors, depth, radius) -> np.ndarray:
-    """M×:data:`PACK_WIDTH` float64 rows in the layout the kernels read."""
+    """M×:data:`PACK_WIDTH` float64 rows in the layout the kernels read: ``(mx, my, conic_a, conic_b, conic_c,
+    opacity, r, g, b, depth_z, radius, log(255·opacity))`` per Gaussian (pixels; camera z in metres)."""
     m = means2d.shape[0]
     out = np.empty((m, PACK_WIDTH), np.float64)
     out[:, 0:2] = means2d

@@ -1,11 +1,6 @@
-"""Public forward renderer: ``render(model, camera, background) -> RenderOutput``.
-
-Camera: :class:`gsrmr_common.camera.Camera` (OpenCV axes, world→camera 4×4, pixel centres at +0.5).
-Pipeline: numba projection and culling (near plane :data:`~gsrmr_splat.project.NEAR_M`) →
-uint64 depth/index key sort → SH colour of the visible Gaussians → numba tile binning → parallel
-float32 compositing (:mod:`~gsrmr_splat.display_raster`; another ``tile`` size takes the
-float64 training kernel, for tests). Conventions are listed in :mod:`~gsrmr_splat.project` and
-:mod:`~gsrmr_splat.rasterize`.
+"""The public forward renderer, :func:`render` → :class:`RenderOutput` (numba, no torch): projection and culling, depth
+sort, SH colour, tile binning and float32 compositing (:mod:`~gsrmr_splat.display_raster`). Conventions and pipeline:
+docs/splatting.md, "Conventions" and "How the fast path works".
 """
 
 from __future__ import annotations
@@ -34,9 +29,22 @@ MAX_PIXELS = 4096 * 4096
 
 @dataclass
 class RenderOutput:
-    """Rendered view: ``rgb`` H×W×3 float32 in [0, 1], ``alpha`` H×W (1 − final transmittance),
-    ``depth`` H×W camera-space z in metres (alpha-normalised expected depth; 0 where nothing was hit),
-    and ``num_visible``, the Gaussians that survived culling."""
+    """What :func:`render` returns: float32 images of the camera's size, H×W pixels.
+
+    Attributes:
+        rgb: H×W×3 colour, RGB in [0, 1] (clipped), the background included.
+        alpha: H×W accumulated opacity, 1 − the final transmittance.
+        depth: H×W alpha-normalised expected depth Σ T·α·z / alpha: camera-space z in metres (along the optical
+            axis, not the ray length); 0 where alpha is 0.
+        num_visible: How many Gaussians survived culling and were composited.
+
+    Example:
+        ::
+
+            out = render(model, camera)
+            hit = out.alpha > 0.5
+            mean_depth_m = float(out.depth[hit].mean())
+    """
 
     rgb: np.ndarray
     alpha: np.ndarray
@@ -65,12 +73,41 @@ def _check_background(background) -> np.ndarray:
 
 def render(model: GaussianModel, camera: Camera, background=(0.0, 0.0, 0.0), *, near_m: float = NEAR_M,
            sh_degree: int | None = None, tile: int = TILE, threads: int | None = None) -> RenderOutput:
-    """Render ``model`` seen by ``camera`` over a flat ``background`` colour (RGB in [0, 1]).
+    """Render ``model`` seen by ``camera`` over a flat ``background`` colour.
 
-    ``sh_degree`` caps the SH degree used (None = the model's). ``threads`` sets the numba thread
-    count for this call (None = numba's current setting, all cores by default; 1 is faster when the
-    cores are already busy with other processes). Raises ValueError for an image larger than
-    :data:`MAX_PIXELS` or a non-finite background; NaN parameters are culled (never NaN output).
+    numba only (torch is never imported); a pure function of its inputs, which several Python threads may call at
+    once. Gaussians with NaN parameters are culled, so the output never holds NaN. The rules (near plane,
+    footprint, alpha, compositing): docs/splatting.md, "Conventions".
+
+    Args:
+        model: The Gaussians, world frame, metres.
+        camera: A :class:`gsrmr_common.camera.Camera`: OpenCV axes (x right, y down, z forward), a world→camera
+            4×4 rigid transform in metres, pinhole intrinsics in pixels with pixel centres at +0.5.
+        background: RGB in [0, 1] (three values, or one grey value), composited behind the Gaussians.
+        near_m: Gaussians whose camera z is below this (metres) are culled.
+        sh_degree: Cap on the SH degree used (None: the model's).
+        tile: Tile size in pixels: the default takes the float32 display kernel, another size the float64 training
+            kernel (for tests).
+        threads: numba thread count for this call (None: numba's current setting, all cores by default; 1 is
+            faster when the cores are already busy with other processes).
+
+    Returns:
+        RenderOutput: ``rgb`` H×W×3 in [0, 1], ``alpha`` and ``depth`` (camera z, metres) H×W, and the count of
+        visible Gaussians.
+
+    Raises:
+        ValueError: The image has more than :data:`MAX_PIXELS` pixels, or ``background`` is not 3 finite values.
+
+    Example:
+        ::
+
+            import math
+            from gsrmr_common.camera import CameraMount, Intrinsics, camera_from_pose
+
+            model = GaussianModel.load_ply("room.ply")
+            camera = camera_from_pose(1.0, 0.5, 0.0, CameraMount(), Intrinsics.from_fov(320, 240, math.radians(70)))
+            out = render(model, camera, (0.0, 0.0, 0.0), threads=1)
+            out.rgb.shape  # (240, 320, 3)
     """
     if threads is not None:
         previous = numba.get_num_threads()

@@ -1,8 +1,6 @@
-"""Real spherical harmonics up to degree 3, the 3DGS basis and sign convention (``utils/sh_utils.py``).
-
-Colour of a Gaussian seen along unit direction ``d`` (world frame, from the camera centre to the
-Gaussian mean): ``c = max(0, Σ_k sh[k] · Y_k(d) + 0.5)`` per channel. Coefficients are stored N×K×3
-with K = (degree + 1)² and ``sh[:, 0]`` the DC term (``f_dc`` in the .ply).
+"""Real spherical harmonics up to degree 3 with the 3DGS basis and signs (``utils/sh_utils.py``). Colour along the unit
+direction d from the camera centre to the Gaussian mean (world frame): ``c = max(0, Σ_k sh[k]·Y_k(d) + 0.5)`` per
+channel; coefficients N×K×3, K = (degree + 1)², ``sh[:, 0]`` the DC term (``f_dc`` in the .ply).
 """
 
 from __future__ import annotations

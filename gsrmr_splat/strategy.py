@@ -20,7 +20,8 @@ def densify_and_prune(st: TrainState, cfg: TrainConfig, extent: float, n_views: 
     Candidates have a mean view-space positional gradient ≥ ``grad_threshold`` since the last call; the
     large ones (> ``percent_dense`` × extent) are split in two samples of their own distribution at 1/1.6
     the scale, the small ones cloned; ranked by gradient when the budget is short. Pruned: opacity below
-    ``prune_opacity``, and after the first opacity reset too large on screen or in the world, and (with
+    ``prune_opacity``, and after the first opacity reset too large on screen (radius > ``max_screen_px``) or in
+    the world (largest scale > 0.1 × extent), and (with
     ``prune_unseen``) unseen for two passes over the ``n_views`` training views.
     """
     p = {k: v.detach() for k, v in st.params.items()}

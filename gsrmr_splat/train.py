@@ -1,42 +1,9 @@
-"""Trainer: nerfstudio dataset → Gaussian model (.ply), the 3DGS recipe on the CPU.
-
-* Loss 0.8·L1 + 0.2·(1 − SSIM), SSIM with the 11×11, σ = 1.5 Gaussian window of
-  :mod:`gsrmr_common.metrics` (zero padding, C1 = 0.01², C2 = 0.03²) in torch (:func:`ssim_torch`).
-* Adam (eps 1e-15) with the 3DGS learning rates; the position rate decays exponentially from
-  1.6e-4·extent to 1.6e-6·extent, extent = 1.1 × the largest camera distance from the cameras' mean.
-* Adaptive density control (3DGS): every ``densify_interval`` iterations between ``densify_from`` and
-  ``densify_until``, Gaussians whose mean NDC-space positional gradient exceeds ``grad_threshold``
-  are cloned (small: max scale ≤ 0.01·extent) or split in two (large), within ``budget`` Gaussians
-  (highest gradients first); Gaussians with opacity < ``prune_opacity`` are pruned, and after the
-  first opacity reset also those larger than 0.1·extent in the world or 20 px on screen. Opacities
-  are reset to ≤ 0.01 every ``opacity_reset_interval``. Gaussians that no training view has seen
-  for two passes over the views are pruned as unused, and a final pass removes every Gaussian whose
-  largest blending weight over all training views is below 1/255 (it cannot change any pixel).
-* The SH degree is raised by one every ``sh_increase_interval`` up to ``sh_degree``.
-* Initialisation (``TrainConfig.init``, :func:`~gsrmr_splat.initialise.choose_init`): ``auto`` =
-  back-projected depth pixels when the training frames have depth, else the point cloud the dataset names
-  (nerfstudio ``ply_file_path``, subsampled to ``init_points`` from the seed), else random points in the cameras'
-  bounding box grown by the extent; or one of them explicitly. Scales from the 3-nearest-neighbour distance.
-* Optional per-frame corrections (:mod:`~gsrmr_splat.camera_opt`): a camera pose refinement
-  (``pose_opt``: the corrected world→camera enters the differentiable projection) and an exposure model
-  (``exposure_opt``: per-channel gain and bias on the rendered image before the loss), each with its mean held
-  at zero so the model stays in ``map`` at the average exposure. Evaluation renders the held-out frames at their
-  recorded poses without any exposure model (what the live server does at the robot's pose keys).
-* Checkpoints (torch.save) hold parameters, Adam moments, statistics, iteration and RNG state (and the
-  corrections when they are on).
-* Two engines compute a step (``TrainConfig.engine``): ``fused`` (the default; :mod:`~gsrmr_splat.fused`)
-  runs projection, SH, rasterizer, loss, their backward passes and Adam in numba kernels without autograd, several
-  times faster on the CPU; ``torch`` runs autograd through :func:`~gsrmr_splat.diffrender.render_torch`
-  and is the reference the fused engine is tested against. Same maths (float rounding apart: the fused rasterizer
-  and SSIM are float32, its projection float64), the same state, checkpoints and density control; both support the
-  pose and exposure corrections. The fused engine's result does not depend on the numba thread count.
-
-The pieces live beside this module, split as gsplat splits its strategy from its ops:
-:mod:`~gsrmr_splat.losses`, :mod:`~gsrmr_splat.initialise`,
-:mod:`~gsrmr_splat.optim` (state, Adam, row selection, opacity reset),
-:mod:`~gsrmr_splat.strategy` (density control) and :mod:`~gsrmr_splat.contribution`
-(the numba blending-weight kernel), :mod:`~gsrmr_splat.train_config` (the settings); this module
-holds the loop.
+"""The training loop (:class:`Trainer`): nerfstudio dataset → Gaussian model (.ply), the 3DGS recipe on the CPU. Its
+pieces live beside it, split as gsplat splits its strategy from its ops: :mod:`~gsrmr_splat.losses`,
+:mod:`~gsrmr_splat.initialise`, :mod:`~gsrmr_splat.optim`, :mod:`~gsrmr_splat.strategy`,
+:mod:`~gsrmr_splat.contribution`, :mod:`~gsrmr_splat.camera_opt`, the step engines :mod:`~gsrmr_splat.fused` and
+:mod:`~gsrmr_splat.diffrender`. Settings: :class:`~gsrmr_splat.train_config.TrainConfig`; the recipe: docs/splatting.md,
+"Training".
 """
 
 from __future__ import annotations
@@ -105,14 +72,43 @@ class HistoryRow(NamedTuple):
 
 
 class Trainer:
-    """Optimises a Gaussian model on a list of training frames (see the module docstring)."""
+    """Optimises a Gaussian model on a list of training frames: the 3DGS recipe on the CPU.
+
+    Loss 0.8·L1 + 0.2·(1 − SSIM); Adam with the 3DGS learning rates (:meth:`lr`); adaptive density control under
+    a Gaussian budget (:func:`~gsrmr_splat.strategy.densify_and_prune`), opacity resets and an SH degree ramp (one
+    degree more every ``sh_increase_interval`` steps); optional per-frame pose and exposure corrections
+    (:mod:`~gsrmr_splat.camera_opt`); each step computed by the fused numba engine or by torch autograd
+    (``TrainConfig.engine``). Settings: :class:`TrainConfig`; the recipe and its measurements: docs/splatting.md,
+    "Training" and "Training on what a robot records".
+
+    A frame (:class:`gsrmr_common.nerfstudio.DatasetFrame`) is a camera — OpenCV axes (x right, y down,
+    z forward), world→camera 4×4 in metres, intrinsics in pixels — and an H×W×3 float32 image, RGB in [0, 1].
+
+    Args:
+        frames: The training frames (at least one), images loaded at their cameras' size.
+        config: The settings (None: the defaults).
+        test_frames: Held-out frames for :meth:`evaluate` (None: none).
+        initial_model: A trained model to fine-tune: it replaces the point initialisation, and its SH degree
+            (capped by ``config.sh_degree``) is active from the start.
+        point_cloud: The dataset's sparse cloud, (N×3 points in metres in the frames' world, N×3 colours in
+            [0, 1]), for ``config.init`` ``points`` or ``auto``.
+
+    Raises:
+        ValueError: No training frames, an image that does not match its camera, an unknown ``init`` or
+            ``engine``, or an explicit ``init`` source the frames do not have.
+
+    Example:
+        ::
+
+            trainer = Trainer.from_dataset("data/round1", TrainConfig(iterations=2000), holdout_every=8)
+            model = trainer.train(cpu_budget_s=120.0, progress=False)
+            print(trainer.evaluate())  # held-out PSNR in dB, at the recorded poses
+            model.save_ply("round1.ply")
+    """
 
     def __init__(self, frames: list[DatasetFrame], config: TrainConfig | None = None,
                  test_frames: list[DatasetFrame] | None = None, initial_model: GaussianModel | None = None,
                  point_cloud: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-        """``initial_model`` (e.g. to fine-tune a trained model) replaces the point initialisation; its SH
-        degree is the active one from the start. ``point_cloud`` (N×3 points [m] in the frames' world, N×3
-        colours in [0, 1]) is the dataset's sparse cloud for ``init`` ``points`` / ``auto``."""
         self.config = config or TrainConfig()
         cfg = self.config
         if cfg.torch_threads:
@@ -157,8 +153,26 @@ class Trainer:
     @classmethod
     def from_dataset(cls, path: str | Path, config: TrainConfig | None = None,
                      holdout_every: int = 0) -> Trainer:
-        """Read a nerfstudio dataset; every ``holdout_every``-th frame (if > 0) becomes a test view. The point
-        cloud the dataset names (``ply_file_path``) is read when the initialisation would use it."""
+        """A trainer on a nerfstudio dataset (:func:`gsrmr_common.nerfstudio.read_dataset`).
+
+        Args:
+            path: The dataset folder or its ``transforms.json``.
+            config: The settings (None: the defaults).
+            holdout_every: Every ``holdout_every``-th frame becomes a held-out test view (0: none).
+
+        Returns:
+            Trainer: Initialised, not yet trained. The point cloud the dataset names (``ply_file_path``) is read
+            when the initialisation would use it.
+
+        Raises:
+            FileNotFoundError: No ``transforms.json`` (or no point cloud where the dataset names one).
+            ValueError: A malformed dataset or point cloud, or as the constructor.
+
+        Example:
+            ::
+
+                trainer = Trainer.from_dataset("data/round1", holdout_every=8)
+        """
         cfg = config or TrainConfig()
         train, test = holdout_split(read_dataset(path), holdout_every)
         wants_cloud = cfg.init == "points" or (cfg.init == "auto" and not has_depth(train))
@@ -219,13 +233,17 @@ class Trainer:
         return int(self._perm.pop())
 
     def step(self) -> tuple[float, float]:
-        """One optimisation step on one training view; returns (loss, PSNR dB of that view).
+        """One optimisation step on the next training view (a shuffled pass over the views).
 
         With ``pose_opt`` the view is rendered at its recorded pose corrected by its learned δ, with
-        ``exposure_opt`` its render passes through its learned gain and bias before the loss; the loss returned
-        is the photometric one (without the corrections' L2 penalties). ``TrainConfig.engine`` picks the fused
-        numba step (:mod:`~gsrmr_splat.fused`) or the torch autograd one; density control, the SH
-        schedule and the opacity reset follow either."""
+        ``exposure_opt`` its render passes through its learned gain and bias before the loss.
+        ``TrainConfig.engine`` picks the fused numba step (:mod:`~gsrmr_splat.fused`) or the torch autograd one;
+        density control, the SH schedule and the opacity reset follow either.
+
+        Returns:
+            tuple[float, float]: The photometric loss (without the corrections' L2 penalties) and the PSNR (dB) of
+            that view's render.
+        """
         cfg, st = self.config, self.state
         it = st.step + 1
         view = self._next_view()
@@ -332,7 +350,7 @@ class Trainer:
         return out
 
     def corrections_summary(self) -> dict[str, float]:
-        """Size of the learned corrections: mean and max |τ| (cm) and |ω| (degrees) over the training frames, and
+        """Size of the learned corrections: mean and max ‖τ‖ (cm) and ‖ω‖ (degrees) over the training frames, and
         the range of the exposure gains and biases (only the keys of the options that are on)."""
         st = self.state
         out: dict[str, float] = {}
@@ -343,7 +361,7 @@ class Trainer:
         return out
 
     def corrections_per_frame(self) -> list[dict]:
-        """Per training frame: its file, the pose correction (δ: ω rad, τ m, world axes; |τ| cm, |ω| degrees)
+        """Per training frame: its file, the pose correction (δ: ω rad, τ m, world axes; ‖τ‖ cm, ‖ω‖ degrees)
         and the exposure (gains r, g, b and biases r, g, b), for the options that are on."""
         return per_frame_rows([f.file_path for f in self.frames], self.state.pose, self.state.exposure)
 
@@ -369,7 +387,20 @@ class Trainer:
 
     # ------------------------------------------------------------------ evaluation, IO, loop
     def evaluate(self, frames: list[DatasetFrame] | None = None) -> float:
-        """Mean PSNR (dB) of the fast renderer on ``frames`` (default: the held-out test frames)."""
+        """Mean PSNR of :func:`~gsrmr_splat.render.render` on ``frames``, each at its recorded pose, without any
+        exposure model (what the live server does at the robot's pose keys), at the training resolution.
+
+        Args:
+            frames: The frames to score (None: the held-out test frames).
+
+        Returns:
+            float: The mean PSNR in dB; NaN when there are no frames.
+
+        Example:
+            ::
+
+                psnr_db = trainer.evaluate()
+        """
         frames = self.test_frames if frames is None else frames
         if not frames:
             return float("nan")
@@ -380,11 +411,24 @@ class Trainer:
 
     def evaluate_pose_refined(self, steps: int = 20, lr_pose: float | None = None,
                               frames: list[DatasetFrame] | None = None) -> tuple[float, list[np.ndarray]]:
-        """Test-time pose refinement: the mean PSNR (dB) of ``frames`` (default: the held-out frames) after
-        ``steps`` Adam steps (step size ``lr_pose``, default the config's) of a pose correction per frame with
-        the model frozen (:func:`~gsrmr_splat.camera_opt.refine_pose`), and the corrections (δ = ω rad,
-        τ m, world axes). Not the fair held-out figure (:meth:`evaluate`, at the recorded poses): it tells how
-        much of the error is the frame's pose."""
+        """Test-time pose refinement: the mean PSNR of ``frames`` after ``steps`` Adam steps of a pose correction
+        per frame with the model frozen (:func:`~gsrmr_splat.camera_opt.refine_pose`). Not the fair held-out
+        figure (:meth:`evaluate`, at the recorded poses): it tells how much of the error is the frame's pose.
+
+        Args:
+            steps: Adam steps per frame.
+            lr_pose: Adam step size (rad and m per update; None: ``config.lr_pose``).
+            frames: The frames to refine and score (None: the held-out test frames).
+
+        Returns:
+            tuple[float, list[numpy.ndarray]]: The mean PSNR in dB (NaN without frames) and each frame's
+            correction δ = (ω rad, τ m), world axes.
+
+        Example:
+            ::
+
+                refined_db, deltas = trainer.evaluate_pose_refined(steps=30)
+        """
         frames = self.test_frames if frames is None else frames
         if not frames:
             return float("nan"), []
@@ -402,8 +446,22 @@ class Trainer:
         return float(np.mean(vals)), deltas
 
     def save_checkpoint(self, path: str | Path) -> Path:
-        """torch.save everything needed to resume: tensors and plain Python types only, so that
-        :meth:`load_checkpoint` reads it with ``torch.load(weights_only=True)`` (no arbitrary unpickling)."""
+        """Save everything needed to resume bit-exactly (``torch.save``): the config, parameters, Adam moments,
+        density statistics, step, history, RNG states and, when on, the per-frame corrections with their Adam
+        state. Tensors and plain Python types only, so that :meth:`load_checkpoint` reads it with
+        ``torch.load(weights_only=True)`` (no arbitrary unpickling).
+
+        Args:
+            path: The checkpoint file; its folder is created.
+
+        Returns:
+            Path: ``path``.
+
+        Example:
+            ::
+
+                trainer.save_checkpoint("round1.ply.ckpt")
+        """
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         st = self.state
@@ -424,7 +482,23 @@ class Trainer:
         return path
 
     def load_checkpoint(self, path: str | Path) -> None:
-        """Resume from :meth:`save_checkpoint` output (the frames must be the same dataset)."""
+        """Resume from :meth:`save_checkpoint` output; the next :meth:`train` continues bit-exactly.
+
+        Args:
+            path: The checkpoint file. The trainer must hold the same frames and the same ``pose_opt`` and
+                ``exposure_opt`` options as the run that wrote it.
+
+        Raises:
+            FileNotFoundError: ``path`` does not exist.
+            ValueError: The checkpoint's pose or exposure corrections do not match this run's options.
+
+        Example:
+            ::
+
+                trainer = Trainer.from_dataset("data/round1", cfg, holdout_every=8)
+                trainer.load_checkpoint("round1.ply.ckpt")
+                model = trainer.train()
+        """
         ck = torch.load(Path(path), weights_only=True)  # tensors and plain types only: no arbitrary unpickling
         st = self.state
         st.params, st.exp_avg, st.exp_avg_sq = ck["params"], ck["exp_avg"], ck["exp_avg_sq"]
@@ -447,11 +521,29 @@ class Trainer:
     def train(self, iterations: int | None = None, *, checkpoint: str | Path | None = None,
               eval_every: int = 0, progress: bool = True, time_budget_s: float | None = None,
               cpu_budget_s: float | None = None) -> GaussianModel:
-        """Run until ``iterations`` (default: config), ``time_budget_s`` of wall time or ``cpu_budget_s``
-        of process CPU time (all threads; excludes held-out evaluation); returns the model.
+        """Train until the iteration count or a time budget is reached, then (with ``config.final_prune``) remove
+        the Gaussians that change no training pixel.
 
-        Appends :class:`HistoryRow` (iteration, wall s, CPU s, train loss, held-out PSNR or NaN,
-        Gaussian count) to ``state.history`` every ``eval_every`` iterations and at the end.
+        Appends a :class:`HistoryRow` (iteration, wall s, CPU s, train loss, held-out PSNR or NaN, Gaussian count)
+        to ``state.history`` every ``eval_every`` iterations and at the end.
+
+        Args:
+            iterations: The step count to reach, counted from the start of the run (None: ``config.iterations``).
+            checkpoint: Save a checkpoint here every ``config.checkpoint_every`` steps and at the end (None: none).
+            eval_every: Score the held-out frames every this many steps (0: only at the end).
+            progress: Show a tqdm progress bar.
+            time_budget_s: Stop after this much wall time (seconds; None: no limit).
+            cpu_budget_s: Stop after this much process CPU time, all threads, held-out evaluation excluded
+                (seconds; None: no limit).
+
+        Returns:
+            GaussianModel: The trained model.
+
+        Example:
+            ::
+
+                model = trainer.train(checkpoint="round1.ply.ckpt", eval_every=500, progress=False)
+                last = trainer.state.history[-1]  # HistoryRow
         """
         total = self.config.iterations if iterations is None else iterations
         st = self.state

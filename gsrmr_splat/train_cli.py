@@ -1,11 +1,6 @@
-"""``gsrmr-train`` (nerfstudio dataset → 3DGS .ply) and ``gsrmr-compact`` (.ply → the smallest .ply within a
-held-out PSNR tolerance): the torch tools of the splatting engine (``gsrmr-render`` is :mod:`.cli`, without torch).
-
-``gsrmr-train`` writes ``train.json`` beside the output .ply (:func:`train_record`): the held-out split
-(``holdout_every``, the counts and file names of the training and held-out frames — what ``gsrmr-survey`` reads,
-:func:`gsrmr_offline.deployment_survey.recorded_split`), the config, the initialisation used, iterations, CPU and
-wall time, the held-out PSNR at the recorded poses, the history and, with ``--pose-opt`` / ``--exposure-opt``,
-the learned per-frame corrections.
+"""``gsrmr-train`` (nerfstudio dataset → 3DGS .ply, and ``train.json`` beside it: :func:`train_record`) and
+``gsrmr-compact`` (.ply → the smallest .ply within a held-out PSNR tolerance), the torch tools of the splatting engine;
+``gsrmr-render`` is :mod:`.cli`. Options: docs/splatting.md, "CLIs".
 """
 
 from __future__ import annotations
