@@ -19,7 +19,7 @@ horizon, replan cadence, predictor or margin — slot by slot, with the informat
   publishes the sample); its value is the L_t the server measured live where the run sent an image there
   (``gs_loss``), else the truth loss plus the run's median measured − truth difference (the server compares
   the render with the decoded JPEG, not with the truth, and the JPEG's error adds to every sample: additive,
-  docs/scheduling.md item 7; a ratio, used until 2026-11-27, read low at low L).
+  docs/scheduling.md item 7).
 
 The replay scores the outcome as the demo does (energy, mean MR loss over the scored slots, regret against
 the hindsight optimum). It answers "what would this planner have done on that run" in milliseconds per

@@ -52,9 +52,9 @@ from gsrmr_splat.render import render
 
 #: the mock camera's node name (the ``round`` parameter set per scored round)
 CAMERA_NODE = "gsrmr_mock_camera"
-#: what a round's summary line keeps (issue 27's ``rounds`` list)
 #: the live model's held-out split of the mapping round (gsrmr_sim.models.ModelRecipe.holdout_every)
 MAPPING_HOLDOUT_EVERY = 8
+#: what a round's summary line keeps (its ``rounds`` list)
 ROUND_KEYS = ("energy_j", "images_sent", "mean_loss", "regret", "slots_on_time", "slots")
 
 

@@ -217,8 +217,8 @@ def _start_and_set_off(stack: ProcessStack, specs: Sequence[ProcessSpec], runs: 
     """Start every process but the route followers (each mock LIMO's pty before its driver opens it), wait until
     every server has composed :data:`WARM_ROWS` slots and every scheduler has planned (at most ``warm_s``), then
     start the route followers. Without the plan, the round's first slots go by the robot's default (an image at the
-    power its channel asks for, however deep the fade): on 2026-11-26 a scheduler whose kernels compiled afresh
-    planned 0.7 s into the round, and two such images at 18 mW doubled the round's energy (regret 3.2 against 1.6)."""
+    power its channel asks for, however deep the fade): a scheduler whose kernels compile afresh plans about 0.7 s
+    into the round, and two such images at 18 mW double a round's energy (regret 3.2 against 1.6)."""
     for spec in specs:
         if spec.executable != ROUTE_FOLLOWER:
             name = process_name(spec)
