@@ -1,5 +1,5 @@
-"""The simulated world: the "real" scene and camera, the mock LIMO, the route follower, the fault relay, the
-process stacks, the demo, the survey, the paper's experiments and the shared test data.
+"""The simulated world: scenes, mock camera and LIMO, simulated radio, route follower, scorer, fault relay, the
+process stacks, ``gsrmr-demo``, the paper's experiments and the shared test data (docs/world.md).
 
 Nothing else imports this package (import-linter contract in ``pyproject.toml``); it may import everything.
 """

@@ -1,12 +1,8 @@
 """CPU a stack's processes spend during a round (``gsrmr-demo``'s runner, :mod:`gsrmr_sim.stack_runner`).
 
-Each process of a :class:`~gsrmr_sim.supervisor.ProcessStack` runs in its own process group (its Popen pid is the
-group id), so its CPU — threads and children included — is the sum over that group in ``/proc/<pid>/stat``
-(user + system). A :class:`CpuMeter` takes snapshots of those sums and of the machine's busy time
-(``/proc/stat``) while the round runs; :meth:`CpuMeter.round_usage` turns the window from the last snapshot
-before the round's start to the last one into CPU seconds per process and cores of the whole machine.
-Processes are grouped as what they stand for (:func:`cpu_group`): the simulated world, the robot's own
-computer, the workstation.
+A :class:`CpuMeter` takes snapshots of each process group's CPU seconds (:func:`cpu_seconds_by_group`) and of the
+machine's busy time while the round runs; :meth:`CpuMeter.round_usage` turns the round's window into CPU seconds
+per process and cores of the whole machine, grouped by what the processes stand for (:func:`cpu_group`).
 """
 
 from __future__ import annotations

@@ -1,27 +1,9 @@
 """``gsrmr-demo`` (``make demo``): the paper's system end to end on the embedded sandbox scene.
 
-1. Build the scene's GS model from round 1 (the robot's mapping lap, recorded by the world simulator,
-   trained with the CPU engine) — cached under ``--cache`` keyed by the scene file and settings.
-2. Seed the scheduler's loss map with L_t of the model along the route's slot poses, against the
-   *mapping round's* world (what exists before round 2; no change events) — the running system keeps
-   correcting the map online from the losses it measures in image slots (cached). ``--oracle`` seeds it
-   from a headless rehearsal of round 2 itself instead and lets the scheduler plan with the simulator's
-   future channel: the paper's assumptions, reported as the upper bound they are.
-3. Run round 2 in real time over DDS, every node a separate process (the list of
-   :func:`gsrmr_sim.sim_stack.sim_stack`, the same as ``sim.launch.py``): mock LIMO on a pty, LIMO
-   driver, mock camera, simulated radio (the true channel, seeded by ``--channel-seed`` and the slot's
-   index in the round), route follower, robot, server, scheduler, the simulation's scorer — started, followed and
-   stopped by :func:`gsrmr_sim.stack_runner.run_round`, the runner ``--robots N`` (:mod:`gsrmr_sim.fleet`) uses too.
-4. Summarise (:mod:`gsrmr_sim.report`) from the server's per-slot log (loss/PSNR/SSIM of the MR images
-   actually produced against the simulator's ground truth, energy from the robot's ledger) and, after the
-   run, the hindsight optimum over what either choice would have cost and given in each slot (``regret`` =
-   energy / hindsight energy); write the report folder: MR image strip, x/p profile plot, ``slots.csv`` (with
-   ``scored``), ``run.mcap``, ``summary.json``. The last stdout line is the summary as one JSON object.
-
-``--model PLY`` replaces step 1 by a model from elsewhere (``gsrmr-train``, a GPU model brought into ``map`` by
-``gsrmr-align``), ``--loss-map JSON`` step 2 by a seed map from elsewhere (``gsrmr-survey``); both are checked before
-anything runs, and the summary names the model and the loss map used (path, SHA-256, where it came from;
-docs/hardware.md).
+The steps (mapping round and model, seed loss map, the scored round over DDS, the report) and the options:
+README.md, "Main job"; ``--model`` and ``--loss-map`` from elsewhere: docs/hardware.md, "A dry run with the
+simulator playing the robot"; ``--robots``, ``--rounds`` and ``--hosts``: :mod:`gsrmr_sim.fleet`,
+:mod:`gsrmr_sim.rounds`, docs/two_hosts.md.
 """
 
 from __future__ import annotations

@@ -1,40 +1,8 @@
 """Fault-injecting uplink relay (``gsrmr-uplink-relay``): robot namespace → server namespace, with faults.
 
-The relay sits between the robot's uplink topics and the server's. It subscribes
-``<input_prefix>/uplink/pose_key`` (``geometry_msgs/Vector3Stamped``) and
-``<input_prefix>/uplink/image_raw/compressed`` (``sensor_msgs/CompressedImage``) — both reliable,
-depth 50/10 like the robot's publishers — and republishes each message on the relative topics
-``uplink/pose_key`` and ``uplink/image_raw/compressed`` of its own namespace (the server's), after the
-pure :class:`FaultInjector` has decided what happens to it. At most one fault per message, drawn with
-the configured per-message probabilities from a seeded RNG (one stream per topic, so the key faults do
-not depend on how many images arrived):
-
-============== ===== ===== ==========================================================================
-fault          key   image what the server should see
-============== ===== ===== ==========================================================================
-drop           yes   yes   nothing for that slot → ``missing_key`` / ``missing_image``
-duplicate      yes   yes   the message twice → ``duplicate_key`` / ``duplicate_image``
-reorder        yes   yes   held until the next message of the topic was sent (one slot later) → ``late``
-delay          yes   yes   sent ``delay_slots`` (default 1.5) slots later → ``late``
-stale          yes   yes   stamp moved ``stale_slots`` slots back (an old slot index) → ``late``
-nan_key        yes   no    one of (a, b, θ) replaced by NaN, +inf or −inf → ``invalid_key``
-truncate       no    yes   JPEG cut to half its length → ``corrupt_image``
-corrupt        no    yes   one bit of a header marker byte flipped (a bit error the structure walk
-                           detects; entropy-data flips decode to a wrong image, which only the MR loss
-                           can see — JPEG has no checksum) → ``corrupt_image``
-wrong_size     no    yes   re-encoded at half width and height → ``wrong_size``
-forged_header  no    yes   frame header (SOF) rewritten to claim 20000×20000 → ``oversized_header``
-============== ===== ===== ==========================================================================
-
-Units: stamps and times are integer nanoseconds of the ROS clock; the slot length is ``slot_s``
-seconds (must equal the robot's and the server's). Pose keys are (a_m, b_m, theta_rad) in ``map``.
-
-Messages arriving while nothing subscribes to the output topic are discarded before any draw (counted
-as ``<kind>.no_subscriber`` under ``mutation_errors``), so every count refers to a message that had a
-receiver. Counts of what was injected are published on ``/diagnostics`` once a second (keys ``key.<fault>``,
-``image.<fault>``, ``key.forwarded``, …) and written as JSON to ``summary_path`` (and the log) on exit.
 This module is the core (:class:`FaultInjector`, the ``*_jpeg`` mutators), without rclpy; the node and its
-parameters are :mod:`gsrmr_sim.fault_relay_node`.
+parameters are :mod:`gsrmr_sim.fault_relay_node`. The faults, what the server should count for each and the
+relay's counts: docs/reliability.md, "The fault relay" and "The relay's core".
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """``gsrmr-uplink-relay``: the fault-injecting uplink relay as a ROS node (robot namespace → server namespace).
 
-What it relays, the faults, their counts and its summary: :mod:`gsrmr_sim.fault_relay` (the pure core).
+What it relays, the faults, their counts and its summary: :mod:`gsrmr_sim.fault_relay` and docs/reliability.md.
 Parameters: :class:`RelayParameters` (read-only) and one ``<fault>_rate`` per fault (live).
 """
 

@@ -1,26 +1,7 @@
 """``gsrmr-demo --robots N``: N simulated robots at once, each with its own server, scheduler and world.
 
-Every robot runs the single robot's closed loop (:func:`gsrmr_sim.sim_stack.fleet_stack`, the list of
-``fleet.launch.py``) in its own namespace ``/robot<k>`` of one ROS domain: mock LIMO on its own pty, LIMO
-driver, mock camera, simulated radio (channel seed + k − 1), route follower, robot node, server and
-scheduler. With ``--hosts 2`` every robot's processes run in the robot namespace and every server and
-scheduler in the server namespace of one :class:`gsrmr_sim.netns.TwoHosts`, all robots sharing the uplink. Every
-robot's nodes take their inputs only from the nodes of their own namespace: the writer lists of the stack
-(:data:`gsrmr_sim.sim_stack.SIM_WRITERS`, ``docs/security.md``) are relative names, resolved in each node's namespace,
-so a node of ``/robot1`` that publishes on ``/robot2``'s topics is a stranger there.
-
-:func:`run_fleet` runs them with the demo's one stack runner (:func:`gsrmr_sim.stack_runner.run_round`): every
-node but the route followers, all robots set in motion once every server composes, the stop once every robot has
-composed the round's slots. Over the round it reads each process's CPU time (:mod:`gsrmr_sim.cpu_usage`): the CPU
-each robot's server + scheduler, robot side (robot node, LIMO driver) and simulated world (mock LIMO, camera,
-radio, route follower, scorer) spent.
-:func:`fleet_demo` writes one report folder per robot (``<out>/robot<k>/``: ``slots.csv`` with ``scored``,
-``summary.json``, plots, ``run.mcap``, ``recording/``, ``scheduler_state/``; logs in ``<out>/logs/robot<k>/``)
-and prints one JSON line:
-``robots``, ``per_robot`` (each robot's summary, as the single-robot demo's, with ``robot``, ``namespace``
-and ``cpu``) and the fleet totals over every robot's scored slots (``slots``, ``slots_on_time``,
-``mean_loss``, ``energy_ratio_vs_upload_all`` …, worst robot's ``slots_on_time_min`` and ``mean_loss_max``,
-CPU in cores per robot).
+Namespaces, writer lists, the round and the output (a report folder per robot, one JSON line): docs/world.md,
+"A fleet". The runner is the demo's, :func:`gsrmr_sim.stack_runner.run_round`.
 """
 
 from __future__ import annotations

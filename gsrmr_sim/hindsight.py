@@ -1,13 +1,7 @@
 """The hindsight optimum of a finished run (pure; an evaluation, never used live).
 
-Given, per scored slot, what an image and what a key *would have* cost at the realised channel
-(``energy_image_j``: that slot's JPEG + key, ``energy_key_j``: the key alone) and given (``image_truth_loss``,
-``gs_truth_loss``: the MR loss against the simulator's truth), the best 0/1 schedule any scheduler could
-have chosen minimises Σ energy subject to mean loss ≤ L_th. Taking a key in slot t instead of an image
-saves ``v_t = E^img_t − E^key_t`` and adds ``w_t = L^gs_t − L^img_t`` to the loss: a 0/1 knapsack with
-capacity ``C = T·L_th − Σ L^img``. Slots where the key loses nothing (w ≤ 0) are keys for free; the rest
-is solved *exactly* by :func:`gsrmr_scheduler.solve` (``exact``, certified) through a problem
-whose channel gains are chosen so that its savings equal v_t.
+The best 0/1 schedule over the run's scored slots, a knapsack solved exactly by :func:`gsrmr_scheduler.solve`:
+formulation in docs/experiments.md, "The hindsight optimum".
 """
 
 from __future__ import annotations

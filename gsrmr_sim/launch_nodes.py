@@ -1,12 +1,7 @@
 """Launch ``Node`` actions from the process list (:mod:`gsrmr_sim.sim_stack`): one mapping for every launch file.
 
-``sim.launch.py`` and ``fleet.launch.py`` turn each :class:`~gsrmr_sim.sim_stack.ProcessSpec` into a
-``launch_ros`` ``Node`` here; the demo and the tests run the same specs as plain processes
-(:func:`gsrmr_sim.sim_stack.command_line`). Kept apart from :mod:`gsrmr_sim.sim_stack`, which non-launch code
-imports, so only launch files load ``launch_ros``.
-
-With a ``keystore`` (``sim.launch.py keystore:=KS``) every node runs under SROS2, enforced, in its enclave
-(:func:`enclave`), as the SROS2 tutorials run a node: docs/security.md.
+Kept apart from :mod:`gsrmr_sim.sim_stack`, which non-launch code imports, so that only launch files load
+``launch_ros`` (docs/architecture.md, "One pipeline each"). SROS2 with ``keystore:=``: docs/security.md.
 """
 
 from __future__ import annotations

@@ -1,8 +1,7 @@
-"""Changes of the two-host link during a round (``gsrmr-demo --hosts 2 --link-events``).
+"""Changes of the two-host link during a round (``gsrmr-demo --hosts 2 --link-events``, docs/two_hosts.md).
 
-A :class:`LinkEvent` takes the link of a :class:`gsrmr_sim.netns.TwoHosts` down or up, or changes its uplink rate,
-once the round has composed ``at_slot`` slots (the runner, :mod:`gsrmr_sim.stack_runner`, applies it);
-:func:`parse_link_events` reads the command line's ``ACTION@SLOT`` list.
+A :class:`LinkEvent` takes the link down or up or changes its uplink rate once the round has composed ``at_slot``
+slots (the runner, :mod:`gsrmr_sim.stack_runner`, applies it); :func:`parse_link_events` reads ``ACTION@SLOT``.
 """
 
 from __future__ import annotations

@@ -1,15 +1,9 @@
 """Building a scene's Gaussian-splatting model: one pipeline for the demo, the experiments and the tests.
 
-A :class:`ModelRecipe` says how: the scene, the mapping-round recording (frames, image size, seed) and
-the training (a :class:`~gsrmr_splat.train.TrainConfig`, an optional wall-time budget, the
-held-out split). :func:`build_model` records round 1 as a nerfstudio dataset, trains, and writes
-
-    <folder>/round1/            the dataset (transforms.json + images)
-    <folder>/model.ply          the 3DGS model
-    <folder>/train.json         what the training did (recipe, config, history, wall time, held-out PSNR)
-
-With ``cache`` the folder is ``<cache>/<scene>-<key>``, the key a hash of the scene file, the recipe
-and :data:`CACHE_VERSION`: a second call with the same recipe loads the model instead of training it.
+A :class:`ModelRecipe` says how; :func:`build_model` records round 1 as a nerfstudio dataset (``<folder>/round1/``),
+trains, and writes ``<folder>/model.ply`` and ``<folder>/train.json`` (recipe, config, history, wall time, held-out
+PSNR); with ``cache`` the folder is ``<cache>/<scene>-<key>`` (:meth:`ModelRecipe.key`), loaded instead of trained
+when it exists.
 """
 
 from __future__ import annotations

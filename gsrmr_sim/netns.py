@@ -1,18 +1,9 @@
 """Two simulated hosts on one machine: network namespaces joined by a veth pair with a rate-limited uplink.
 
-:class:`TwoHosts` creates a *robot* and a *server* network namespace, joins them by one veth pair (the
-Wi-Fi uplink, a /30 of 10.231.0.0/16 picked per process, addresses only inside the namespaces), brings up
-each namespace's loopback, adds a multicast route (DDS discovery) and limits the robot → server direction
-with a ``tbf`` qdisc of ``uplink_mbit`` Mbit/s on the robot's end. Processes started with :meth:`TwoHosts.popen`
-run inside a namespace with the DDS environment that makes them talk over that link: Fast DDS's UDPv4
-transport only (``FASTDDS_BUILTIN_TRANSPORTS=UDPv4`` — its shared-memory transport would bypass the veth
-through /dev/shm) and ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``. :meth:`TwoHosts.link_bytes` reads the veth
-byte counters (proof that the traffic crossed it); :meth:`TwoHosts.set_link` takes the link down or up and
-:meth:`TwoHosts.set_rate` changes the limit.
-
-Everything it creates is removed by :meth:`TwoHosts.close` (also when creation fails half-way; use it as a
-context manager). The kernel here has no ``netem``: rate limits and link up/down only, no delay or loss.
-Needs root and iproute2 (:func:`unavailable_reason`).
+What :class:`TwoHosts` creates, the DDS settings inside and why: docs/two_hosts.md, "What runs where". Everything
+it creates is removed by :meth:`TwoHosts.close` (also when creation fails half-way; a context manager). The kernel
+here has no ``netem``: rate limits and link up/down only, no delay or loss. Needs root and iproute2
+(:func:`unavailable_reason`).
 """
 
 from __future__ import annotations

@@ -1,21 +1,10 @@
 """The live server's slot core run offline over a recorded round: one composition/evaluation pipeline for
 the live server, the survey (seed loss map) and the experiments.
 
-For slot t of a :class:`~gsrmr_sim.world.recorder.Round2Record` and a delivery (what reached the server),
-:class:`OfflineServer` builds the :class:`~gsrmr_server.uplink.SlotUploads` the robot would have produced,
-runs :meth:`gsrmr_server.slot_core.ServerCore.process` (the node's own composition: decode, render Φ,
-virtual view and mask from the GS depth, m̂ = d·r̂ + (1 − d)·v, 8-bit image) and scores it with
-:func:`gsrmr_server.scoring.score_slot` against the true frame r_t (the simulator's camera at the true pose),
-exactly as ``gsrmr-demo``'s scorer scores its slots:
-
-* ``image`` — the robot's JPEG of r_t (``jpeg_quality``: the robot's configured quality) and its pose key;
-* ``key``   — the pose key only: the pose the robot reports (``reported_poses``; the true pose if None);
-* ``none``  — nothing arrived: the server renders at the last pose it received (the key of the latest
-  delivered slot, or nothing before the first one: the background colour), the live fallback.
-
-The loss of a key slot at the *true* pose is the paper's L_t (what the offline solvers are given); an image
-slot's loss is the JPEG's MR loss J_t. Losses are the 3DGS image loss (0.8·L1 + 0.2·(1 − SSIM)) of the
-published 8-bit m̂ against m; PSNR in dB. Renders are cached per (slot, pose) pair.
+:class:`OfflineServer` feeds :meth:`gsrmr_server.slot_core.ServerCore.process` what the robot would have uploaded
+for a delivery (``image``, ``key`` or ``none``) and scores the published 8-bit m̂ against the true m with
+:func:`gsrmr_server.scoring.score_slot`, as ``gsrmr-demo``'s scorer does: docs/experiments.md, "Data pipeline",
+item 3, and docs/architecture.md, "One pipeline each".
 """
 
 from __future__ import annotations

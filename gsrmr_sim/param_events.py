@@ -1,12 +1,8 @@
 """Parameter changes during a round, made as an operator makes them: ``ros2 param set`` (``gsrmr-demo --swap-model``).
 
 A :class:`ParamEvent` runs ``ros2 param set /NODE NAME VALUE`` in the stack's ROS domain once the round has composed
-``at_slot`` slots (the runner, :mod:`gsrmr_sim.stack_runner`, starts it and does not wait for it: the round goes on
-while the CLI discovers the node). The first use is issue 27's hot swap inside a live round: the server's
-``model_path`` set to a new model (the server must run with ``live_parameter_changes`` on); its log then says at
-which slot the new model took over (:func:`swap_slots`), and the round's slots on time say whether any was missed.
-The scheduler's seed loss map follows the same way (``gsrmr-demo --swap-loss-map``): its ``loss_map_file`` set to
-the new model's deployment survey (``gsrmr-survey``), logged as "loss map re-seeded from …" (:func:`reseeds`).
+``at_slot`` slots, without waiting for it; the hot swap of a model and of a seed loss map it makes:
+docs/model_update.md, "In the simulation".
 """
 
 from __future__ import annotations

@@ -1,31 +1,7 @@
 """Replay a recorded run through the online planner (pure; an offline study tool, never used live).
 
-A demo's ``slots.csv`` holds, for every slot, what the world was: the robot's reported pose, the channel
-gain the radio measured, what an image and what a key would have cost at that gain (``energy_image_j``,
-``energy_key_j``) and the MR loss either would have left against the simulator's truth
-(``image_truth_loss``, ``gs_truth_loss``). None of that depends on the scheduler: the robot drives its
-route whatever it uploads. So the same slots can be played again through a *different* planner — another
-horizon, replan cadence, predictor or margin — slot by slot, with the information flow of the live loop:
-
-* every ``replan_every`` slots (and at the slot after a drift alarm) the planner plans from the next slot
-  with the last reported pose, as the scheduler node does on its timer;
-* in slot t the robot sends an image iff the gain it measured reaches the schedule's threshold for t
-  (or, without thresholds, iff the schedule says image); the planner learns what it did (the ledger) and
-  the pose it reported; where the run's robot found a scene change (``scene_changes``, the slots its log names:
-  they depend on the camera's frames only, not on the planner) the robot's change probe
-  (:class:`gsrmr_robot.scene_change.ChangeProbe`) adds its image at the recorded gains, as the robot did live,
-  and its ledger row tells the planner of the change (``scene_change``);
-* an image slot's L_t reaches the planner ``measurement_delay`` slots later (the server composes, then
-  publishes the sample); its value is the L_t the server measured live where the run sent an image there
-  (``gs_loss``), else the truth loss plus the run's median measured − truth difference (the server compares
-  the render with the decoded JPEG, not with the truth, and the JPEG's error adds to every sample: additive,
-  docs/scheduling.md item 7; a ratio, used until 2026-11-27, read low at low L).
-
-The replay scores the outcome as the demo does (energy, mean MR loss over the scored slots, regret against
-the hindsight optimum). It answers "what would this planner have done on that run" in milliseconds per
-slot, which is how the horizon, cadence and predictor studies in ``bench/planner_replay.py`` are made; live
-runs (``bench/demo.py``) then confirm the chosen setting. Timing effects (late images, replans that land
-mid-slot) are not replayed.
+What is replayed (the live loop's information flow) and what is not (timing): docs/experiments.md, "Replaying a
+recorded run"; the studies made with it: docs/scheduling.md.
 """
 
 from __future__ import annotations

@@ -1,10 +1,6 @@
 """``gsrmr-demo``'s output, one robot's or each robot's of a fleet: its log lines, figures and report folder.
 
-:func:`summarise` gives a run's headline figures from its per-slot rows, :func:`run_summary` one robot's
-summary (figures, model, settings, the hindsight optimum), :func:`link_summary` what crossed the two-host link;
-:func:`copy_recording` and :func:`write_report` fill a report folder (``slots.csv`` with ``scored``,
-``run.mcap``, the x/p profile plot, the MR image strip, ``summary.json``). :func:`log` prints the demo's
-timestamped progress lines.
+The report folder and the summary's keys: README.md, "Main job"; the metrics: docs/experiments.md, "Metrics".
 """
 
 from __future__ import annotations

@@ -1,44 +1,8 @@
 """A rosbag2 bag of the simulated world, recorded the way a LIMO records one (``python -m gsrmr_sim.robot_bag``).
 
-What a real robot's ``ros2 bag record`` holds, written with the ``rosbags`` writer (no live recorder needed):
-
-=========================================  ==============================  ==========================================
-topic                                      type                            what
-=========================================  ==============================  ==========================================
-``/camera/color/image_raw/compressed``     ``sensor_msgs/CompressedImage``  JPEG, ``format`` ``rgb8; jpeg compressed
-                                                                           bgr8`` as image_transport writes it (or
-``/camera/color/image_raw``                ``sensor_msgs/Image``           ``rgb8`` with ``compressed=False``)
-``/camera/color/camera_info``              ``sensor_msgs/CameraInfo``      ROS K, plumb_bob D (non-zero, applied to the
-                                                                           frames), P of the alpha-0 rectified camera
-``/tf_static``                             ``tf2_msgs/TFMessage``          ``map → odom``, ``base_link → camera_link``,
-                                                                           ``camera_link → camera_color_optical_frame``
-``/tf``                                    ``tf2_msgs/TFMessage``          ``odom → base_link`` at 50 Hz (odometry)
-``/odom``                                  ``nav_msgs/Odometry``           the same odometry (``odom → base_link``)
-=========================================  ==============================  ==========================================
-
-Timing, as on a robot: image ``header.stamp`` at the camera rate (the scene's, 10 Hz) with an offset (7 ms) and a
-seeded jitter (± 3 ms) against the 50 Hz odometry, so no image stamp falls on a TF sample; every message's bag
-record time (log time) is its stamp plus a seeded transport latency (images 12–20 ms, TF and odometry 0.3–1.5 ms).
-The first and last ``frames_outside`` images lie outside the odometry's time span (the camera ran before the base
-driver started and after it stopped). ``blurred_frames`` seeded images inside the span carry motion blur (a line
-kernel of an odd 9–15 px at any image size, at a seeded angle).
-
-Frames and poses: the robot drives the scene's route closed loop (pure pursuit, unicycle integrated exactly per
-10 ms controller step: :class:`TrueTrajectory`); each image is rendered at the TRUE pose at its header stamp.
-``map → odom`` is static, the robot's true pose where odometry started; odometry (``odom → base_link``) is exact
-without drift, so the TF chain gives the true camera pose, and with ``drift`` it accumulates a seeded yaw error per
-metre travelled and a scale error (:class:`OdometryDrift`), so the map-frame poses in ``/tf`` are wrong by the drift —
-what a robot without localisation records.
-
-The distorted camera (:class:`DistortedCamera`): the pinhole view is rendered at a larger size that covers every raw
-ray, then each raw pixel centre (ROS: integer coordinates) is undistorted by OpenCV to its normalised ray and the
-render is sampled there (``cv2.remap``, bilinear) — the camera :class:`gsrmr_common.calibration.Rectifier` inverts.
-
-Written to ``OUT/bag`` (the rosbag2 directory; MCAP by default, sqlite3 as an option) and ``OUT/truth.json``: the
-recipe, the calibration (``camera_calibration`` YAML layout), the rectified intrinsics (pixel centres at +0.5) and per
-image its stamp, record time, true planar pose (``base_link`` in ``map``: a_m, b_m, theta_rad), true
-``map → optical`` 4×4 (OpenCV axes: x right, y down, z forward), blurred flag and whether it lies in the odometry's
-time span. Deterministic for a recipe (seed included).
+Written with the ``rosbags`` writer (no live recorder needed), deterministic for a :class:`RobotBagRecipe` (seed
+included). Topics, timing, frames and poses, the distorted camera, drift and ``truth.json``: docs/world.md, "A
+recorded bag, as a robot records one".
 """
 
 from __future__ import annotations

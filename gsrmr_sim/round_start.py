@@ -1,10 +1,7 @@
 """Where the scored round starts in a server's ``slots.csv`` rows (``gsrmr-demo``, one robot or a fleet).
 
-Round 2 starts when the robot sets off: the simulated radio then starts its round clock (``round_slot`` 0, the
-slot the channel's fading index starts from) and the mock camera its change events. The server learns it
-from the robot's ledger (``round_slot`` of each row, :func:`first_round_row`), else from the first pose key
-that moved (:func:`first_moving_slot`); a server so overloaded that neither reached it is placed by the
-radio's own log (:func:`radio_round_row`).
+Round 2 starts when the robot sets off: the robot's ledger says so (:func:`first_round_row`), else the first pose key
+that moved (:func:`first_moving_slot`), else the simulated radio's own log (:func:`radio_round_row`).
 """
 
 from __future__ import annotations

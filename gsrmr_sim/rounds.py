@@ -1,31 +1,12 @@
-"""``gsrmr-demo --rounds N [--update]``: N scored rounds, the model learning between them (issue 27, item 4).
+"""``gsrmr-demo --rounds N [--update]``: N scored rounds, the model learning between them.
 
-The mapping round is round 0 (the model and its seed loss map: :mod:`gsrmr_sim.demo`'s steps 1–2); scored rounds
-are 1…N, each a whole closed loop as one round of ``gsrmr-demo`` (:func:`gsrmr_sim.demo.run_stack`: every node a
-process over DDS) in the world as it is in that round — the mock camera's ``round`` parameter is k + 1, so a
-scene's persistent changes (``from_round``, :mod:`gsrmr_sim.world.events`) are there from their round on and its
-transient events happen in every round. Every round uses the same channel seed, so rounds differ by the world and
-the model, not by the fading.
-
-With ``--update``, after rounds 1…N−1, the robot stopped, the operator's procedure of ``docs/model_update.md`` runs
-on what the server received, each step the deployment's own command line (never the simulator's truth):
-
-1. ``gsrmr-dataset`` of the round's ``run.mcap``: the images the robot paid for, with their pose keys;
-2. ``gsrmr-update`` of the models folder (``model_vN.ply`` + ``.json``; version 0 is the mapping round's model) with
-   every round's received dataset so far and the mapping round's training frames as the replay buffer (its held-out
-   frames stay held out for step 3): fine-tuned,
-   compacted again, validated on the most recent received frames held out; accepted or refused with the reason;
-3. ``gsrmr-survey`` of the model now in use (:func:`survey_frames`): on the mapping round's held-out frames that the
-   round's received views do not supersede, and on the received frames the update held out — the next round's seed
-   map, from what the deployment knows (held-out views), never from the simulator.
-
-The next round starts with the model in use and its map. The CPU the update's processes spent is measured from
-their rusage (``update_cpu_s``; fine-tuning and compaction apart from the update's own JSON).
-
-Per round the summary has ``round``, ``energy_j``, ``images_sent``, ``mean_loss``, ``regret``, ``slots_on_time``,
-``slots``, ``model_version``, ``model_psnr_now_db`` (the model's render against the world as it is in that round,
-at the round's slot poses of a headless lap, pooled over the lap: computed by the simulator, after the round) and
-``update_cpu_s`` (the update that preceded the round, 0 for round 1).
+Round 0 is the mapping round (:mod:`gsrmr_sim.demo`'s model and seed map); scored rounds 1…N are each a whole
+closed loop in the world as it is in that round, with one channel seed. With ``--update`` the operator's procedure
+of docs/model_update.md runs between rounds on what the server received, each step the deployment's own command
+line (never the simulator's truth): step 1 ``gsrmr-dataset`` of the round's ``run.mcap``, step 2 ``gsrmr-update``
+(the mapping round's training frames as the replay buffer), step 3 ``gsrmr-survey`` of the model in use on
+:func:`survey_frames` (the next round's seed map). The rounds and their summary: docs/model_update.md, "In the
+simulation".
 """
 
 from __future__ import annotations
@@ -52,9 +33,9 @@ from gsrmr_splat.render import render
 
 #: the mock camera's node name (the ``round`` parameter set per scored round)
 CAMERA_NODE = "gsrmr_mock_camera"
-#: what a round's summary line keeps (issue 27's ``rounds`` list)
 #: the live model's held-out split of the mapping round (gsrmr_sim.models.ModelRecipe.holdout_every)
 MAPPING_HOLDOUT_EVERY = 8
+#: what a round's summary line keeps (its ``rounds`` list)
 ROUND_KEYS = ("energy_j", "images_sent", "mean_loss", "regret", "slots_on_time", "slots")
 
 

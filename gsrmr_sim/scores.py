@@ -1,12 +1,6 @@
 """The simulation's per-slot scores (``scores.csv``) and their join with the server's ``slots.csv``.
 
-``gsrmr-sim-scorer`` (:mod:`gsrmr_sim.world.scorer_node`) appends one row per MR image the server published to
-``<record_dir>/scores.csv``: the columns :data:`gsrmr_server.slot_row.SCORE_COLUMNS` (``slot``, ``loss``,
-``psnr_db``, ``ssim``, ``gs_truth_loss``, ``image_truth_loss``) with the cell rules of ``slots.csv`` (exact
-float reprs, empty = not measured: no true frame, or hindsight off), flushed after every row. The demo's and
-the fleet's reports wait until the scorer has caught up with the round (:func:`await_scores`), then fill
-those columns of the server's rows by slot (:func:`join_scores`): the report's ``slots.csv`` and
-``summary.json`` have the columns and figures the server's own scoring gave before it left the server.
+Columns, cell rules and when the report waits for them: docs/world.md, "The simulation's scorer".
 """
 
 from __future__ import annotations

@@ -1,10 +1,8 @@
 """The simulated system as a list of processes: one definition for ``sim.launch.py`` and ``make demo``.
 
-:func:`sim_stack` returns, for a scene and a GS model, every node of the closed loop with its
-executable, node name, parameter files, parameter overrides, arguments and remappings. The launch file
-turns each :class:`ProcessSpec` into a ``launch_ros`` ``Node``; the demo and the integration tests
-start the same executables as plain processes with :func:`command_line` — so what is tested here is
-what ``ros2 launch gsrmr sim.launch.py`` runs on a ROS install.
+:func:`sim_stack` (one robot) and :func:`fleet_stack` (N) return every node of the closed loop as a
+:class:`ProcessSpec`; launch files turn each into a ``launch_ros`` ``Node``, the demo and the tests run the same
+executables with :func:`command_line`, so what is tested is what ``ros2 launch gsrmr sim.launch.py`` runs.
 """
 
 from __future__ import annotations

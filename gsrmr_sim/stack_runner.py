@@ -1,23 +1,9 @@
 """``gsrmr-demo``'s round over DDS, one robot or a fleet, on one host or two: the one stack runner.
 
-:func:`run_round` takes the process list of :func:`gsrmr_sim.sim_stack.sim_stack` (one robot in the root
-namespace) or :func:`gsrmr_sim.sim_stack.fleet_stack` (robot k in ``/robot<k>``) and
-
-1. starts every process but the route followers under one :class:`~gsrmr_sim.supervisor.ProcessStack` (with
-   ``hosts`` = 2 the robots' processes in the robot namespace and the servers' in the server namespace of one
-   :class:`~gsrmr_sim.netns.TwoHosts`), and waits until every server composes and every scheduler has planned;
-2. sets the robots in motion (starts the route followers): round 2 then begins with every node up and warm, as
-   a run on the real system would; the mock camera starts its round clock when its robot moves;
-3. follows each robot's ``slots.csv`` until every robot has composed ``slots`` slots of its round (its start:
-   :mod:`gsrmr_sim.round_start`), applying the link events (:mod:`gsrmr_sim.link_events`) on the way and
-   taking CPU snapshots (:mod:`gsrmr_sim.cpu_usage`);
-4. stops the others and lets each robot's scorer catch up with the round (:func:`gsrmr_sim.scores.await_scores`);
-5. stops everything in ``finally`` (end of the round, Ctrl-C, SIGTERM as an exit, a dead process, a timeout),
-   removes the namespaces, the truth-frame folders and the mock LIMOs' ptys;
-
-and returns one :class:`RobotRun` per robot: its scored rows (scores joined), where its round starts and the CPU
-its processes spent during the round. Everything per robot comes from the process list: its ``slots.csv`` is in
-its server's ``record_dir``, its channel seed is its simulated radio's.
+:func:`run_round` starts a process list, sets the robots in motion once every server composes and every scheduler
+has planned (round 2 then begins with every node up and warm, as on the real system), follows the round, stops
+everything in ``finally`` (namespaces, truth-frame folders and ptys removed) and returns one :class:`RobotRun` per
+robot: docs/architecture.md, "One pipeline each".
 """
 
 from __future__ import annotations
@@ -217,8 +203,8 @@ def _start_and_set_off(stack: ProcessStack, specs: Sequence[ProcessSpec], runs: 
     """Start every process but the route followers (each mock LIMO's pty before its driver opens it), wait until
     every server has composed :data:`WARM_ROWS` slots and every scheduler has planned (at most ``warm_s``), then
     start the route followers. Without the plan, the round's first slots go by the robot's default (an image at the
-    power its channel asks for, however deep the fade): on 2026-11-26 a scheduler whose kernels compiled afresh
-    planned 0.7 s into the round, and two such images at 18 mW doubled the round's energy (regret 3.2 against 1.6)."""
+    power its channel asks for, however deep the fade): a scheduler whose kernels compile afresh plans about 0.7 s
+    into the round, and two such images at 18 mW double a round's energy (regret 3.2 against 1.6)."""
     for spec in specs:
         if spec.executable != ROUTE_FOLLOWER:
             name = process_name(spec)

@@ -1,10 +1,9 @@
 """Supervising a stack of processes: one implementation for the demo, the test stacks and the benches.
 
-:class:`ProcessStack` starts each process in its own process group (so a signal reaches the whole group), in the
-supervisor's session (:data:`OWN_PROCESS_GROUP`), logs its output to ``<log_dir>/<name>.log``, reports one that
-died, and stops them all the way a terminal's Ctrl-C would: SIGINT to every process (newest first), then SIGKILL
-to the group of any that is still running after ``stop_timeout_s``. A process is a
-:class:`~gsrmr_sim.sim_stack.ProcessSpec` (turned into a command line with its parameter file) or a plain argv.
+:class:`ProcessStack` starts each process in its own process group, in the supervisor's session
+(:data:`OWN_PROCESS_GROUP`), logs its output to ``<log_dir>/<name>.log``, reports one that died and stops them all
+as a terminal's Ctrl-C would (:meth:`ProcessStack.stop`). A process is a
+:class:`~gsrmr_sim.sim_stack.ProcessSpec` or a plain argv.
 """
 
 from __future__ import annotations

@@ -1,14 +1,9 @@
 """GS losses L_t of a recorded round: what each slot would lose with Φ(s_t) instead of r_t.
 
-``L_t = MR loss(m_t, m̂_t)`` with m̂_t the live server's composite of a key-only slot at the true pose s_t,
-and — with ``jpeg_quality`` — ``J_t``, the loss of an image slot (the robot's JPEG of r_t, with the pose key the
-robot reports), both made by the live slot core's composer and scored by the deployment's scoring library:
-:func:`gsrmr_offline.frame_loss.frame_loss`, the function the deployment survey (``gsrmr-survey``,
-:mod:`gsrmr_offline.deployment_survey`) scores a mapping round's frames with — here called with the simulator's
-true frames r_t, at each slot's time, with :class:`~gsrmr_sim.offline_server.OfflineServer`'s composer (the one
-composition pipeline). This is the L_t the paper's optimisation assumes known; the experiments use it directly,
-and ``make demo`` uses it to seed the scheduler's loss map (a rehearsal of the operating round), which the
-running system then corrects online from the losses it measures in image slots.
+L_t (a key-only slot at the true pose) and, with ``jpeg_quality``, J_t (an image slot) are composed by
+:class:`~gsrmr_sim.offline_server.OfflineServer` and scored by :func:`gsrmr_offline.frame_loss.frame_loss` (the
+deployment survey's scoring) against the simulator's true frames: docs/experiments.md, "Data pipeline", item 3.
+``make demo`` seeds the scheduler's loss map with them (docs/scheduling.md, "Seeding the loss map").
 """
 
 from __future__ import annotations

@@ -1,18 +1,9 @@
 """The simulator's true camera frames for scoring (pure, no ROS): the truth-frames backplane and the frame matcher.
 
-The simulation's scorer (``gsrmr-sim-scorer``, :mod:`gsrmr_sim.world.scorer_node`) scores every MR image the
-server publishes against the truth m = d·r + (1 − d)·v, which needs the true camera frame r the slot used. On
-one network stack the scorer subscribes to the mock camera's ``camera/image_raw`` and picks the frame with
-:func:`match_frame`; across two hosts that would send raw 320×240 RGB frames (≈ 18 Mbit/s at 10 Hz) over the
-robot's rate-limited uplink, which a real robot never does (it has no truth to send). So with two simulated
-hosts the truth takes the simulator's own path instead: the mock camera (``truth_dir``) writes each frame it
-publishes here, and the scorer (``truth_dir``) reads the frame a slot used — named by the capture stamp in the
-robot's ledger row — with :class:`TruthFrameReader`. Both hosts of the simulation share one filesystem, and no
-byte of it crosses the simulated link.
-
-Layout: one ``<stamp_us>.npy`` per frame (H×W×3 uint8 RGB, capture stamp in integer microseconds since the
-clock's epoch), written to a temporary name and renamed, so a reader never sees half a frame; the writer
-keeps the newest ``keep`` frames (default :data:`TRUTH_FRAMES_KEPT`: the scorer may lag the server by a round).
+Why the truth crosses two simulated hosts through a folder: docs/two_hosts.md, "Ground truth stays off the
+uplink". Layout: one ``<stamp_us>.npy`` per frame (H×W×3 uint8 RGB; capture stamp in integer microseconds since the
+clock's epoch), written to a temporary name and renamed, so a reader never sees half a frame; the writer keeps the
+newest ``keep`` (:data:`TRUTH_FRAMES_KEPT`: the scorer may lag the server by a round).
 """
 
 from __future__ import annotations

@@ -2,10 +2,9 @@
 
 ros2 launch gsrmr fleet.launch.py robots:=3 model_path:=/path/to/sandbox.ply record_dir:=/tmp/gsrmr_fleet
 
-Robot k runs in namespace /robot<k> (its MR stream on /robot<k>/mr/image, its scheduler's service on
-/robot<k>/gsrmr/replan), records to record_dir/robot<k>, its mock LIMO on the pty serial_link_robot<k>,
-and its simulated radio with channel seed channel_seed + k - 1. The process list comes from
-gsrmr_sim.sim_stack.fleet_stack (sim.launch.py's list once per robot), the one `gsrmr-demo --robots N` runs.
+Robot k runs in namespace /robot<k> (its MR stream on /robot<k>/mr/image). The process list is
+gsrmr_sim.sim_stack.fleet_stack, the one ``gsrmr-demo --robots N`` runs (docs/world.md, "A fleet"); arguments:
+README.md's launch table.
 """
 
 from launch import LaunchDescription

@@ -1,21 +1,10 @@
 """On the LIMO: base driver + uplink node. The camera driver is yours: remap its topics here.
 
-ros2 launch gsrmr robot.launch.py port:=/dev/ttyTHS1 camera_image_topic:=/camera/color/image_raw \
-    camera_info_topic:=/camera/color/camera_info
+ros2 launch gsrmr robot.launch.py port:=/dev/ttyTHS1 camera_image_topic:=/camera/color/image_raw
 
-Parameters: config/link.yaml (shared uplink model), config/limo_base.yaml, config/camera_mount.yaml (also
-loaded by the server), config/robot.yaml — every
-file keyed ``/**``, so the launch arguments below (passed after them) always win, also under
-``namespace:=…``.
-
-Known writers (docs/security.md, "Application checks"): the robot takes odom only from this launch file's
-gsrmr_limo_base and the base takes cmd_vel only from ``cmd_vel_source`` (a node name, relative to the namespace:
-your planner, or a twist_mux in front of several; ``*`` = any node, as a plain ROS base). Name the camera and
-radio drivers in config/robot.yaml (camera_writers, channel_writers).
-
-SROS2 (docs/security.md): ``keystore:=KS`` runs both nodes enforced — ROS_SECURITY_KEYSTORE=KS,
-ROS_SECURITY_ENABLE=true, ROS_SECURITY_STRATEGY=Enforce, each node in its enclave ``/gsrmr/<node>``
-(``--enclave /gsrmr/robot``, ``/gsrmr/limo_base``; config/security/policy.xml names them).
+Parameters: config/link.yaml, config/limo_base.yaml, config/camera_mount.yaml (also the server's) and
+config/robot.yaml, keyed ``/**``, then the launch arguments (README.md's launch table), which win. Name the camera
+and radio drivers in config/robot.yaml; known writers and ``keystore:=``: docs/security.md.
 """
 
 import os

@@ -1,19 +1,11 @@
 """On the workstation: MR composition server + online scheduler.
 
-ros2 launch gsrmr server.launch.py model_path:=/path/to/sandbox.ply loss_threshold:=0.03 \
-    loss_map_file:=/path/to/loss_map.json
+ros2 launch gsrmr server.launch.py model_path:=/path/to/sandbox.ply loss_map_file:=/path/to/loss_map.json
 
-The render intrinsics come from the robot's ``uplink/camera_info`` (latched); the camera's mount from
-config/camera_mount.yaml (the robot loads the same file). Parameters: config/link.yaml (shared uplink
-model), config/camera_mount.yaml, config/server.yaml, config/scheduler.yaml and the route file
-(``route_file:=``, default config/routes/sandbox.yaml) — every file keyed ``/**``, so the launch
-arguments below (passed after them) always win, also under ``namespace:=…``. ``loss_map_file:=`` seeds the
-scheduler's loss map (its ``loss_map_file`` parameter): the JSON ``gsrmr-survey MODEL DATASET --out FILE`` writes
-from the mapping round (docs/scheduling.md).
-
-SROS2 (docs/security.md): ``keystore:=KS`` runs both nodes enforced — ROS_SECURITY_KEYSTORE=KS,
-ROS_SECURITY_ENABLE=true, ROS_SECURITY_STRATEGY=Enforce, each node in its enclave ``/gsrmr/<node>``
-(``--enclave /gsrmr/server``, ``/gsrmr/scheduler``; config/security/policy.xml names them).
+Parameters: config/link.yaml, config/camera_mount.yaml (also the robot's), config/server.yaml,
+config/scheduler.yaml and the route file, keyed ``/**``, then the launch arguments (README.md's launch table),
+which win. The render intrinsics come from the robot's latched ``uplink/camera_info``; the seed loss map is
+``gsrmr-survey``'s (docs/hardware.md); ``keystore:=``: docs/security.md.
 """
 
 import os

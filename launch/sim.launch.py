@@ -2,16 +2,9 @@
 
 ros2 launch gsrmr sim.launch.py model_path:=/path/to/sandbox.ply record_dir:=/tmp/gsrmr_run
 
-The process list comes from gsrmr_sim.sim_stack, the same definition `make demo` runs, each process a
-launch Node by gsrmr_sim.launch_nodes. Every config file is keyed ``/**`` and the launch arguments come
-after them, so the arguments always win.
-
-Every node takes its inputs only from the stack's own nodes (gsrmr_sim.sim_stack.SIM_WRITERS; docs/security.md);
-the scheduler's live parameters may change while it runs (``ros2 param set /gsrmr_scheduler loss_threshold 0.04``),
-the other nodes' may not.
-
-SROS2 (docs/security.md): ``keystore:=KS`` runs every node enforced in its enclave ``/gsrmr/<node>``
-(gsrmr_sim.launch_nodes.security_arguments; config/security/policy.xml names them).
+The process list is gsrmr_sim.sim_stack's, the one ``make demo`` runs, each process a launch Node by
+gsrmr_sim.launch_nodes. Arguments: README.md's launch table; writers, live parameters and ``keystore:=``:
+docs/security.md.
 """
 
 from launch import LaunchDescription

@@ -1,11 +1,6 @@
 """``gsrmr-experiments``: regenerate the paper's Section V (and our trade-offs) into a report folder.
 
-Usage::
-
-    gsrmr-experiments --out reports/experiments            # full run (≤ 10 min with cached models)
-    gsrmr-experiments --out /tmp/x --quick --cache /tmp/c  # tiny run (≤ 2 min incl. model building)
-
-Writes PNG plots, CSV files, ``summary.md`` and ``summary.json`` (stable keys, see docs/experiments.md).
+Usage, options and the report's files and stable keys: docs/experiments.md.
 """
 
 from __future__ import annotations

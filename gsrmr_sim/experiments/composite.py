@@ -1,19 +1,8 @@
 """The MR images a schedule actually produces, composed by the live slot core and scored by the deployment's
 scoring library (:mod:`gsrmr_server.scoring`), and how far their loss is from the schedule's plan.
 
-Per slot t with delivered content (``Schedule.delivered``), :class:`gsrmr_sim.offline_server.OfflineServer`
-runs the server's own path (uplink assembler → :class:`~gsrmr_server.slot_core.ServerCore`):
-
-* ``image`` — the robot's JPEG of r_t at its configured quality (plus its pose key): m̂_t carries J_t;
-* ``key``   — Φ at the pose the robot *reports* (its odometry), not the true s_t the plan's L_t assumed;
-* ``none``  — nothing arrived (MaxRate/Fairness can starve a slot): the live fallback, Φ at the uplink
-  assembler's best pose (the last key, extrapolated at the recent velocity).
-
-The plan (the paper's model, which the offline solvers optimise) charges ``(1/T)·Σ_{key, none} L_t`` and
-nothing for image slots. :class:`CompositeResult` splits the measured mean loss into that plan plus three
-measured parts: ``jpeg`` (image slots' loss), ``pose`` (key slots: measured − L_t) and ``fallback`` (undelivered
-slots: measured − L_t). Metrics: :func:`gsrmr_common.metrics.image_quality` of the published 8-bit m̂ (loss =
-0.8·L1 + 0.2·(1 − SSIM)); PSNR pooled over slots and per-slot mean (docs/experiments.md, "Metrics").
+What each delivery composes, the split of the measured loss (``plan`` + ``jpeg`` + ``pose`` + ``fallback``) and the
+metrics: docs/experiments.md, "What is measured" (Table 1, Metrics).
 """
 
 from __future__ import annotations

@@ -1,23 +1,7 @@
 """Experiment data per scene, made by the live pipeline: the live model, round 2 at the live camera, L_t and
 J_t from the live slot core, the simulator's channel realisation, the poses the robot would report.
 
-* **Model**: the one ``gsrmr-demo`` renders (:func:`gsrmr_sim.models.live_recipe`: round-1 frames at the
-  scene camera's size, training at 160 px, compacted within 0.3 dB), cached under ``<cache>/<scene>-<key>/``
-  — the demo's cache by default, so the two share one model.
-* **Round 2**: T slots at the scene camera's size (320×240: the live resolution), recorded beside the model::
-
-      round2-T<slots>-s<seed>/                  gsrmr_sim.world.record_round2 (r_t, v_t, d_t, s_t)
-      losses-T<slots>-s<seed>-q<q>-v<v>.npz    per slot: L_t, its PSNR/SSIM, J_t    gsrmr_sim.survey.gs_losses
-
-* **L_t** (what the offline solvers are given, as in the paper): the live core's loss of a key-only slot
-  rendered at the *true* pose; **J_t**: the loss of an image slot (the robot's JPEG at its configured
-  quality), both through :class:`gsrmr_sim.offline_server.OfflineServer`.
-* **Channel** ``g_t = |h_t|²``: the simulator's realisation (:class:`gsrmr_sim.world.true_channel.TrueChannel`
-  rule, :meth:`gsrmr_common.link_model.LinkBudget.gain`): the fading of round slot k drawn from
-  (``channel_seed``, k), the path loss at the robot's true (a_t, b_t) against ``config/link.yaml``'s server
-  position — the channel a ``gsrmr-demo --channel-seed`` run with the same seed sees.
-* **Reported poses**: the LIMO odometry replayed along the drive (:mod:`gsrmr_sim.world.reported_pose`);
-  key slots are scored at these.
+Each part, its cache file and what the paper assumes: docs/experiments.md, "Data pipeline".
 """
 
 from __future__ import annotations

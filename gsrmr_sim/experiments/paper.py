@@ -1,8 +1,7 @@
-"""The paper's Section V on our data: Fig. 4a (APO convergence), Fig. 4b (energy vs L_th),
-Table 1 (composited quality at equal energy) and Fig. 5a/5b (qualitative strip, x_t/p_t profiles).
+"""The paper's Section V on our data: Fig. 4a, Fig. 4b, Table 1 and Fig. 5a/5b (docs/experiments.md).
 
-Every function takes a :class:`~gsrmr_sim.experiments.data.SceneData`, writes its CSV/PNG under
-``out`` and returns the numbers that go into ``summary.json``.
+Every function takes a :class:`~gsrmr_sim.experiments.data.SceneData`, writes its CSV/PNG under ``out`` and
+returns the numbers that go into ``summary.json``.
 """
 
 from __future__ import annotations

@@ -1,9 +1,5 @@
-"""Speed/accuracy trade-offs our users make, all measured on this machine:
-
-* scheduler time against energy gap to the certified optimum (APO's N, every method, horizon T);
-* renderer frame rate against PSNR (output resolution, Gaussian count by opacity rank, SH degree);
-* JPEG quality against bits per image and MR loss;
-* GS training time against held-out PSNR (the Trainer history recorded when the model was built).
+"""Speed/accuracy trade-offs, measured on this machine: scheduler, renderer, JPEG quality and GS training
+(docs/experiments.md, "What is measured", Trade-offs).
 """
 
 from __future__ import annotations

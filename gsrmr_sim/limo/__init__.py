@@ -1,3 +1,3 @@
-"""The simulated LIMO base: a byte-exact mock of the serial protocol on a pty (:mod:`mock`, no ROS) and its
-node module (:mod:`mock_ros`: ``gsrmr-mock-limo``, publishing the true pose). The real driver is
-:mod:`gsrmr_robot.limo`."""
+"""The simulated LIMO base: the pty mock (:mod:`~gsrmr_sim.limo.mock`, no ROS) and its node module
+(:mod:`~gsrmr_sim.limo.mock_ros`, ``gsrmr-mock-limo``). The real driver is :mod:`gsrmr_robot.limo`.
+"""

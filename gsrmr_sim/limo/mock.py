@@ -1,30 +1,9 @@
 """A byte-exact mock LIMO base on a pseudo-terminal, with fault injection and a true pose.
 
-``gsrmr-mock-limo --link /tmp/limo`` opens a pty, symlinks its slave end to ``/tmp/limo`` and then
-behaves like the base as seen from its serial port (protocol doc §2–§4):
-
-* accepts 0x421 (enable commanded mode) and 0x111 (motion command) frames;
-* applies a received command only in commanded mode, through the same kinematics as the driver
-  (:func:`kinematics.wire_to_body`, clamped to the LIMO limits), and stops by itself when no 0x111
-  has arrived for ``cmd_timeout_s`` (its own firmware watchdog);
-* integrates its **true pose** (x, y, yaw of ``base_link`` in ``map``; m, m, rad) at ``rate_hz``;
-* streams 0x211 (system state), 0x221 (motion state: the velocity applied over the last tick) and
-  0x323 (IMU Euler, yaw = true yaw to 0.01°) at ``rate_hz`` (50 Hz).
-
-Fault injection (base → host direction): ``garbage_rate`` (per frame: probability of 1–20 random
-bytes before it), ``bit_flip_rate`` (per frame: probability that one of its 112 bits, uniformly
-chosen, is flipped — the single-error model), ``byte_error_rate`` (per byte, independently: probability
-that one of its bits is flipped — frames can carry several errors, some of which an 8-bit additive
-checksum cannot detect), ``drop_rate`` (per byte: probability it is not sent), periodic silence (``silence_every_s`` /
-``silence_s``), periodic close-and-reopen of the port (``reopen_every_s`` / ``reopen_gap_s``; the
-symlink disappears during the gap and the base leaves commanded mode, as after a link reset), and
-the same on demand with :meth:`MockLimo.silence` and :meth:`MockLimo.reopen`.
-
-In-process API for tests: :class:`MockLimo` (``.true_pose()`` → ``(x_m, y_m, yaw_rad)``,
-``.sent_frames`` when ``record=True``: one ``(t_s, original_bytes, corrupted)`` per frame sent).
-This module has no rclpy: the console script is :func:`gsrmr_sim.limo.mock_ros.main`, which also publishes
-the true pose as ``nav_msgs/Odometry`` on :data:`GROUND_TRUTH_TOPIC` (frame ``map`` → ``base_link``,
-REP-103) at the stream rate, for the simulated camera (``--no-ros``: the pty base only).
+What it accepts, streams and injects, and the in-process API (:class:`MockLimo`): docs/limo.md, "Mock" (the
+serial protocol: the reference docs/limo.md cites, §2–§4). The true pose is (x_m, y_m, yaw_rad) of ``base_link``
+in ``map``. No rclpy here: the console script is :func:`gsrmr_sim.limo.mock_ros.main`, which also publishes the
+true pose (``--no-ros``: the pty base only).
 """
 
 from __future__ import annotations

@@ -1,10 +1,8 @@
 """``gsrmr-mock-limo``: the mock LIMO base (:mod:`gsrmr_sim.limo.mock`) as a process, publishing its true pose.
 
-:data:`~gsrmr_sim.limo.mock.GROUND_TRUTH_TOPIC` (``sim/ground_truth/odom``) ``nav_msgs/Odometry`` (relative:
-``/sim/ground_truth/odom`` in the root namespace, ``/robot2/sim/ground_truth/odom`` for robot 2 of a fleet):
-header.frame_id ``map``, child_frame_id ``base_link`` (REP-103: x forward, y left, yaw CCW; metres, radians),
-twist in ``base_link``, published at the mock's stream rate (50 Hz), reliable QoS, depth 10. With ``--no-ros``
-the process runs the pty base alone until SIGINT/SIGTERM.
+:data:`~gsrmr_sim.limo.mock.GROUND_TRUTH_TOPIC` (relative: ``/robot2/sim/ground_truth/odom`` for robot 2 of a fleet),
+``nav_msgs/Odometry``: frame ``map``, child ``base_link`` (REP-103: x forward, y left, yaw CCW; metres, radians),
+twist in ``base_link``, at the mock's stream rate (50 Hz), reliable QoS, depth 10.
 """
 
 from __future__ import annotations

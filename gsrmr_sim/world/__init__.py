@@ -1,7 +1,6 @@
-"""The loopback world: the paper's sandbox simulated on the CPU (see docs/world.md).
+"""The loopback world: the paper's sandbox simulated on the CPU (docs/world.md, its module table).
 
-Pure modules (no ROS): ``scene``, ``raycast``, ``points``, ``virtual``, ``route``, ``kinematics``,
-``recorder``, ``cli``. ROS nodes: ``camera_node`` (gsrmr-mock-camera), ``route_follower``.
+Every module is pure (no ROS) but the nodes ``camera_node``, ``channel_node``, ``route_follower`` and ``scorer_node``.
 The virtual agents are the server's MR content (:mod:`gsrmr_server.mr`).
 """
 

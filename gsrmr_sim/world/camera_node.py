@@ -1,33 +1,8 @@
 """``gsrmr-mock-camera``: the robot's camera in the simulated world, as a ROS 2 node.
 
-Publishes at ``rate_hz`` (default: the scene's camera rate, 10 Hz), all with the sensor-data QoS
-(best effort, keep last 5) and one shared stamp per frame:
-
-* ``camera/image_raw`` (sensor_msgs/Image, rgb8, frame ``camera_optical_frame``): the real image r_t
-* ``camera/camera_info`` (sensor_msgs/CameraInfo): K in the ROS convention (``Intrinsics.ros_k()``,
-  pixel centres at integers), plumb_bob with zero distortion, P = [K | 0]
-* ``camera/depth/image_raw`` (32FC1, metres = camera-space z, +inf where nothing is hit; parameter
-  ``publish_depth``): the LIMO's RGB-D depth, registered to the colour image
-
-With ``truth_dir`` set, every colour frame is also written there (:mod:`gsrmr_sim.truth_frames`): the
-simulation backplane the scorer's ground-truth evaluation reads across two simulated hosts, so the raw frames
-never cross the robot's uplink.
-
-The pose is the true pose from ``odom_topic`` (default ``sim/ground_truth/odom``, relative to the node's
-namespace: ``/sim/ground_truth/odom`` in the root one; nav_msgs/Odometry in
-``map``: x, y and yaw of base_link). Each frame is rendered at the newest true pose and stamped (Image, CameraInfo,
-depth, truth frame) with that pose's ``header.stamp`` — the time the pose holds for, so frame stamp and rendered pose
-agree exactly (:func:`frame_pose`; an unstamped pose, stamp 0, holds for its arrival time). Stamping with the tick's
-``now`` instead would pair the frame with a pose 0–20 ms older (the true pose comes at 50 Hz) plus the DDS latency:
-up to about 1 cm at 0.3 m/s, and rendering at a pose interpolated at ``now`` would have to extrapolate past the newest
-pose. A tick that finds no newer pose than the last frame's publishes nothing (a camera never stamps two frames
-alike). Until the first message arrives (or when the newest arrived more than ``odom_timeout_s`` ago) the node falls
-back to a scripted pose, stamped ``now``: the route driven open-loop at its nominal speed (arc length = speed · round
-time, heading along the path). Round time is the frame's stamp minus the round's start on the node clock (sim time
-if ``use_sim_time``): node start, or with ``clock_from_motion`` the stamp of the first true pose that moved; the
-scene's change events apply by it when ``round`` = 2.
-With ``round`` = 0 the node follows ``sim/route/lap`` (std_msgs/Int32 from the route follower): the
-round becomes 1 + laps (capped at 2) and the round clock restarts at every lap.
+Renders the real world at the robot's true pose. Topics, QoS, stamping, the round clock and the scripted fallback
+pose: docs/world.md, "Nodes"; parameters: :class:`MockCameraParameters`. ``camera/camera_info`` carries K in the
+ROS convention (pixel centres at integers), plumb_bob with zero distortion and P = [K | 0].
 """
 
 from __future__ import annotations

@@ -1,11 +1,8 @@
-"""``gsrmr-sim-channel``: the simulated radio — publishes the true uplink gain of every slot.
+"""``gsrmr-sim-channel``: the simulated radio, publishing the true uplink gain of every slot ``lead_s`` before it.
 
-Topic ``radio/channel_gain`` (:data:`gsrmr_common.wire.CHANNEL_TOPIC`, ``std_msgs/Float64MultiArray``,
-``layout.dim = [channel_sample(3)]``: slot, round_slot, gain), reliable, depth 10. The sample for slot
-t is published ``lead_s`` before t starts, so the robot has it when it decides slot t — on hardware the
-radio's driver publishes the same message from its own measurement. The truth is
-:class:`~gsrmr_sim.world.true_channel.TrueChannel` over the link parameters of ``config/link.yaml``
-(``channel_seed`` picks the realisation) at the true pose from ``odom_topic``.
+On hardware the radio's driver publishes the same message from its own measurement. The gain:
+:class:`~gsrmr_sim.world.true_channel.TrueChannel`; the node: docs/world.md, "Nodes"; parameters:
+:class:`SimChannelParameters` and ``config/link.yaml``.
 """
 
 from __future__ import annotations

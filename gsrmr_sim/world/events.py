@@ -1,20 +1,7 @@
-"""Change events and the real world's state at a time.
+"""Change events and the real world's state at a time (pure Python, no ROS).
 
-Events are what makes the operating rounds differ from the mapping round (the paper's GS discrepancies): an object
-moved, added or removed; a light's intensity/colour changed (or the ambient level, target ``ambient``); surfaces
-inside an axis-aligned region brightened or tinted; and two transient ones (issue 27) — a **walker** (a shape that
-crosses the scene from its ``shape.position`` to ``position`` while the event lasts, then is gone) and a
-**flicker** (a light at ``intensity_scale`` in the first half of every ``period_s``, at its own level in the other).
-
-Rounds are counted as the world sees them: round 1 is the mapping round (no event ever applies), round r ≥ 2 is
-scored round r − 1 (``gsrmr-demo --rounds N`` scores rounds 1…N). An event without ``from_round`` happens in every
-scored round, by its span ``from_s ≤ t < to_s`` (round seconds; ``to_s`` = inf: until the round ends) — it
-restarts with every round — at the same round time, unless ``round_shift_s`` moves it: in scored round r its span
-is shifted by ``round_shift_s[(r − 1) mod len]`` seconds (a person crosses at another time on every mission, so the
-robot sees the walker from another stretch of its lap, or not at all). An event with ``from_round`` k is a
-**persistent change**: it happens in scored round k at ``from_s`` and is there from the start of every later round
-(no ``to_s``). Validation of event entries lives
-with the rest of the scene schema in :mod:`gsrmr_sim.world.scene`. Pure Python, no ROS.
+The event kinds, how rounds are counted, transient events, ``round_shift_s`` and persistent changes
+(``from_round``): docs/world.md, "Scene files"; their validation is :mod:`gsrmr_sim.world.scene`'s.
 """
 from __future__ import annotations
 

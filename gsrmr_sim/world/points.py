@@ -1,18 +1,7 @@
 """A "real" world made of coloured points (e.g. the garden capture), drawn by a z-buffered splatter.
 
-Each point is projected with the shared camera model (pixel centres at +0.5) and drawn as a square
-of half-width ``clip(round(0.5 · f · point_size_m / z), 0, max_radius_px)`` pixels; the nearest point
-wins each pixel (depth = camera-space z, metres). Then ``fill_passes`` passes close pin-holes: an
-empty pixel with ≥ 5 of its 8 neighbours filled takes the nearest neighbour. Pixels still empty get the
-scene background and depth +inf. It is a point-cloud stand-in for a photograph — honest about holes and blockiness
-at close range — not a Gaussian-splatting render.
-
-Lighting: the points' colours are already lit (captured); round-2 events change them through the
-scene's ambient scale (``light`` events on ``ambient``) and ``region_light`` gains.
-
-File format: an ``.npz`` with ``means3d`` (N×3 float) and ``colors`` (N×3 uint8 or float in [0, 1]),
-mapped into the map frame by ``p_map = scale · Rz(yaw) · R_up · (p − origin) + (0, 0, height_m)``
-where ``R_up`` turns the file's ``up`` vector into +z.
+A point-cloud stand-in for a photograph, not a Gaussian-splatting render. The splatter: docs/world.md,
+"Rendering"; the file format and its mapping into ``map``: docs/world.md, "Points files".
 """
 
 from __future__ import annotations

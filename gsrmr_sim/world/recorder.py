@@ -1,21 +1,9 @@
-"""Headless recording of the paper's two rounds.
+"""Headless recording of the paper's two rounds: round 1 as a nerfstudio dataset, round 2 as per-slot records.
 
-Round 1 (mapping): the robot drives one lap of the route; H frames (colour, depth, pose, intrinsics)
-evenly spaced in time over the lap's T·τ seconds are written as a nerfstudio ``transforms.json``
-dataset by :func:`gsrmr_common.nerfstudio.write_dataset` (camera→world in OpenGL axes, depth PNG in
-millimetres, robot pose in ``gsrmr_pose``) plus ``gsrmr_world.json`` (scene, round, seed).
-
-Round 2 (operating): the robot starts again (start displaced by up to ``route.start_jitter_m``,
-seeded) and drives T slots of τ seconds; the scene's events apply by round time. Per slot t the
-record holds the real image r_t, its depth, the pose s_t, the virtual view v_t and the mask d_t::
-
-    DIR/index.json                 scene, τ, intrinsics (pixel centres at +0.5), mount, server
-                                   position, and per slot: t, time_s, pose [a_m, b_m, theta_rad],
-                                   control [v_mps, omega_rps], active event indices, file
-    DIR/slots/slot_00000.npz       image (H×W×3 uint8 RGB), depth_mm (H×W uint16 millimetres, 0 = none),
-                                   virtual (H×W×3 uint8), mask (H×W uint8, 1 = real, 0 = virtual)
-
-:class:`Round2Record` reads it back. Pure Python/numpy, no ROS.
+Layouts: docs/world.md, "Records" (round 1 through :func:`gsrmr_common.nerfstudio.write_dataset`: camera→world in
+OpenGL axes, depth PNG in millimetres). In a round-2 record poses are [a_m, b_m, theta_rad] in ``map``, controls
+[v_mps, omega_rps], intrinsics with pixel centres at +0.5, ``depth_mm`` uint16 millimetres (0 = none) and ``mask``
+1 = real, 0 = virtual. Pure Python/numpy, no ROS.
 """
 
 from __future__ import annotations

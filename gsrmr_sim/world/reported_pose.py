@@ -1,15 +1,7 @@
 """The pose the robot would report along a headless drive: the LIMO's odometry, replayed offline (pure).
 
-In the live stack the mock base (:mod:`gsrmr_sim.limo.mock`) integrates its true pose with the velocity
-it applied and streams that velocity (0x221, quantised by the wire format) and its yaw (0x323, 0.01°) to
-the base driver, whose :class:`~gsrmr_robot.limo.odometry.Odometry2D` integrates them into ``odom``; the
-robot maps ``odom`` into ``map`` from where it stood at start (:func:`~gsrmr_robot.uplink_core.odom_to_map`).
-:func:`reported_poses` replays that chain along a :class:`~gsrmr_sim.world.kinematics.Drive` (one feedback
-frame per controller step), so the error between the reported and the true pose is the one the simulated
-world makes: wire quantisation of velocity and yaw, and the driver's midpoint integration of the exact arcs.
-What the simulator does not model — host receive-time jitter, wheel slip — is absent here too.
-
-Poses are (a_m, b_m, theta_rad) of ``base_link`` in ``map`` (REP-103).
+What the replay models and what it leaves out: docs/world.md, "The reported pose". Poses are (a_m, b_m, theta_rad)
+of ``base_link`` in ``map`` (REP-103).
 """
 
 from __future__ import annotations

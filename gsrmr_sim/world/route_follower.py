@@ -1,14 +1,7 @@
 """``gsrmr-route-follower``: drive the scene's route loop by publishing cmd_vel (pure pursuit).
 
-Subscribes ``odom_topic`` (nav_msgs/Odometry; default ``odom``, or ``sim/ground_truth/odom`` for the
-true pose), publishes ``cmd_vel`` (geometry_msgs/Twist: linear.x in m/s, angular.z in rad/s, robot
-frame) at ``rate_hz``, and ``sim/route/lap`` (std_msgs/Int32, laps completed, on every change).
-After ``laps`` laps (0 = never stop) it publishes a zero Twist and stays stopped. Before the first
-odometry message it publishes nothing. Progress starts at the path point closest to the first pose.
-
-With ``wait_for_server`` it holds the robot still (zero Twist) until the server has composed its first
-MR slot (a message on ``mr/slot_info``), so that a round launched all at once (``sim.launch.py``) sets off
-with the server up and composing, as ``gsrmr-demo`` does by starting the follower last.
+Topics and ``wait_for_server``: docs/world.md, "Nodes"; parameters: :class:`RouteFollowerParameters`.
+``cmd_vel`` is a geometry_msgs/Twist in the robot frame: linear.x in m/s, angular.z in rad/s.
 """
 
 from __future__ import annotations

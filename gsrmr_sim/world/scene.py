@@ -1,16 +1,8 @@
-"""Scene files of the simulated world: YAML schema, defaults, validation and the state at a time.
+"""Scene files of the simulated world: YAML schema, defaults, validation and the state at a time (pure, no ROS).
 
-A scene declares only what it has; everything else takes the defaults documented in
-``docs/world.md``. Unknown keys and bad values raise :class:`SceneError` whose message starts with
-the key path, e.g. ``objects[2].size: must be 3 positive numbers``.
-
-Frames and units: the world is the ROS ``map`` frame (x forward, y left, z up, metres; REP-103).
-Angles in the YAML are in degrees (keys end in ``_deg``) and radians in the dataclasses (``_rad``).
-Colours are linear RGB in [0, 1]. Times (``*_s``) are seconds since the start of a round.
-
-Round 1 (mapping) never applies ``events``; a scored round applies every event whose time span contains the
-round time, and every persistent change (``from_round``) from its round on (:mod:`gsrmr_sim.world.events`). Pure
-Python, no ROS.
+Keys and defaults: docs/world.md, "Scene files"; frames, units and colours: docs/world.md, "Conventions". Angles
+are degrees in the YAML (keys end in ``_deg``) and radians in the dataclasses (``_rad``). Unknown keys and bad
+values raise :class:`SceneError`, its message starting with the key path.
 """
 
 from __future__ import annotations

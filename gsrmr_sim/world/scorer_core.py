@@ -1,17 +1,7 @@
 """The simulation scorer's parameters and backlog (pure: no ROS); the node is :mod:`gsrmr_sim.world.scorer_node`.
 
-:class:`ScoreBacklog` holds what the scorer receives until it scores a slot: the server's MR images
-(``mr/image``) and :class:`~gsrmr_common.wire.MRSlotInfo` records (``mr/slot_info``), paired by slot; the
-robot's ledger rows (``gsrmr/ledger``: the capture stamp of the frame each slot used); and the true camera frames
-(``camera/image_raw``), kept from shortly before the oldest slot still to be scored. Up to ``depth_slots`` slots
-wait at once (the scorer may lag the server by a whole round, then catch up); past that the oldest are dropped
-and counted. A paired slot is handed out once its ledger row is there, or ``ledger_grace_s`` after it was paired
-(a row that never comes: the newest frame at the slot start is the truth, :func:`gsrmr_sim.truth_frames.match_frame`).
-
-With ``idle_s`` > 0 nothing is handed out while the server streams: only once no MR image (or slot record) has
-arrived for ``idle_s`` — the round is over or paused — or once three quarters of ``depth_slots`` are ready. Scoring
-re-renders each slot (the GS view and the virtual view), as much work as the server's own composition: done during
-the round, on two cores, it slowed the system under test (fewer slots on time) even at the lowest priority.
+:class:`ScoreBacklog` holds what the scorer receives until it scores a slot. Which frame is the truth, and why
+the scorer waits for the round to end: docs/world.md, "The simulation's scorer".
 """
 
 from __future__ import annotations

@@ -1,20 +1,8 @@
 """``gsrmr-sim-scorer``: the simulation's ground-truth scoring of every MR image the server publishes.
 
-For each ``mr/image`` and its ``mr/slot_info`` (:class:`~gsrmr_common.wire.MRSlotInfo`: source, pose, MR content
-time) the node takes the true camera frame of the slot — the one whose capture stamp the robot's ledger row
-(``gsrmr/ledger``) names, from the truth-frames folder (``truth_dir``, :mod:`gsrmr_sim.truth_frames`) or else
-from ``camera/image_raw`` —, rebuilds the slot's virtual view, mask and GS composite with the server's model,
-MR content, camera mount, background and intrinsics (``uplink/camera_info``, adopted as the server does) and
-scores the image with the deployment library (:class:`gsrmr_server.scoring.SlotScorer`): loss, PSNR, SSIM and,
-with ``hindsight_jpeg_quality``, the hindsight losses. One row per slot goes to ``<record_dir>/scores.csv``
-(:mod:`gsrmr_sim.scores`), which the demo's report joins with the server's ``slots.csv`` by slot.
-
-The work runs on a thread of its own, off the executor that receives the messages, at the lowest priority
-(``gsrmr_sim.sim_stack.SCORER_NICE``), and only once the server has stopped streaming for
-``idle_before_scoring_s`` (or the backlog is three quarters full): scoring re-renders each slot, and during the
-round it would compete with the system under test for the two cores. It holds up to ``queue_slots`` slots
-(:class:`~gsrmr_sim.world.scorer_core.ScoreBacklog`) and catches up once the round is over. ``model_path`` is
-writable: set it when the server's model changes (slots scored afterwards use the new model). Parameters:
+Each slot is rebuilt with the server's model, MR content, mount, background and intrinsics and scored with the
+deployment library (:class:`gsrmr_server.scoring.SlotScorer`) into ``<record_dir>/scores.csv``
+(:mod:`gsrmr_sim.scores`). Design: docs/world.md, "The simulation's scorer"; parameters:
 :class:`~gsrmr_sim.world.scorer_core.ScorerParameters`.
 """
 

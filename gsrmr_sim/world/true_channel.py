@@ -1,13 +1,7 @@
 """The simulated world's true uplink channel (pure: no ROS): one gain per slot, reproducible per seed.
 
-The fading of slot t is drawn from (``channel_seed``, k) where k is the slot's index since the round
-started (the robot's true pose first moved, the same rule as the mock camera's round clock), and the
-path loss is taken at the robot's *true* position (map frame, metres) against the server position of
-:class:`~gsrmr_common.link_model.LinkBudget`. Two runs with one seed therefore see the same small-scale
-fading slot for slot, and the same path loss up to how exactly the robot retraces the route.
-
-Slots before the round starts (the stack warming up) draw from (``channel_seed``, absolute slot) and
-carry ``round_slot = −1``: they are never scored.
+The rule (fading from (``channel_seed``, round slot), path loss at the true position in ``map``, metres; slots
+before the round carry ``round_slot = −1``): docs/world.md, "Nodes", ``gsrmr-sim-channel``.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The MR content a scene is composited with, for the simulator's ground truth and recordings.
 
-The virtual world is the server's (:mod:`gsrmr_server.mr`); a scene only names it (``mr_content``). The
-simulator renders it with the *real* depth for occlusion, which only the world knows.
+The virtual world is the server's (:mod:`gsrmr_server.mr`), which a scene names (``mr_content``); the simulator
+occludes it with the *real* depth, which only the world knows (docs/world.md, "Virtual view v_t and mask d_t").
 """
 
 from __future__ import annotations
