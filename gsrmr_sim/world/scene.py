@@ -71,8 +71,8 @@ class Room:
 class PointsWorld:
     """The 'real' world as coloured points (e.g. the garden), mapped into the map frame.
 
-    ``p_map = scale · R(up→+z, yaw) · (p_file − origin)``; ``origin``/``up`` default to the mean
-    camera centre and mean camera up of the file's ``viewmats`` lifted by ``height_m``.
+    ``p_map = scale · R(up→+z, yaw) · (p_file − origin) + (0, 0, height_m)``; ``origin`` defaults to 0, ``up`` to
+    the mean camera up of the file's ``viewmats`` (else +z).
     """
 
     path: str
