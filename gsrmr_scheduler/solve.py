@@ -62,7 +62,7 @@ def solve(problem: Problem, method: str, **options: Any) -> Schedule:
             when neither their ``energy_budget_j`` nor the problem's gives one (default ``"exact"``).
 
     Returns:
-        The :class:`~gsrmr_scheduler.problem.Schedule`: per slot x (1 = image) and power (W), the energy (J),
+        :class:`~gsrmr_scheduler.problem.Schedule`: per slot x (1 = image) and power (W), the energy (J),
         the mean loss, ``feasible``, and the wall-clock seconds of this call at least (``solve_time_s``).
 
     Raises:

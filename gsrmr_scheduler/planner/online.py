@@ -233,7 +233,7 @@ class OnlinePlanner:
             pose: the robot's last reported pose (a_m, b_m, theta_rad) in ``map``; None: the route's start.
 
         Returns:
-            The :class:`PlanResult`: the wire schedule (per slot x, power in W and, with the in-slot rule, the gain
+            :class:`PlanResult`: the wire schedule (per slot x, power in W and, with the in-slot rule, the gain
             thresholds as dimensionless ``|h|²``), the images planned, the plan's energy (J), the mean predicted
             loss, the first block's loss budget per slot, whether every block was feasible, the solve time (s) and
             the predicted L_t (margin included).
