@@ -1,29 +1,9 @@
 """The scheduler's seed loss map from what the robot saw (pure, no ROS): the library behind ``gsrmr-survey``.
 
-Input: the trained model (3DGS .ply) and a nerfstudio dataset of the robot's frames
-(:mod:`gsrmr_common.nerfstudio`: per frame a rectified pinhole camera — camera→world in ``map`` — an image and
-``gsrmr_pose`` = [a_m, b_m, theta_rad], the planar pose of ``base_link`` in ``map``).
-
-1. **Which frames** (:func:`select_frames`): views the model was *not* trained on — the dataset's held-out split
-   (:func:`gsrmr_common.nerfstudio.holdout_split`, every N-th frame, N as the model's ``train.json`` records
-   it, :func:`recorded_split`) or every frame of a second lap (``all_frames``). Training views are optimistic (the
-   model was fitted to them) and are surveyed only when explicitly allowed. A frame without ``gsrmr_pose`` cannot
-   be keyed in the map: it is skipped and counted.
-2. **Each frame** (:func:`survey_frames`) is scaled to the width the server renders at (the robot's uplink width:
-   aspect kept, never enlarged, ``cv2.INTER_AREA`` as the trainer downscales: :func:`frame_at_width`) and scored
-   by :func:`gsrmr_offline.frame_loss.frame_loss` with the server's composer rendering at the frame's own camera
-   (the frame's mount relative to its ``gsrmr_pose``, :func:`frame_mount`): the key slot's GS loss L and the
-   image slot's loss J (the frame's JPEG at the robot's quality) and its sample bias (what the live server's loss
-   sample reads above the loss against the frame), with the MR content at the frame's content time.
-3. **Content time** (:func:`route_time_s`): the time since the round start at which a robot driving the route
-   from its start at the nominal speed — the scheduler's own prediction of a round (route file) — passes the
-   route point nearest the frame: the slot time the simulator's survey and the live server compose such a view at.
-4. **The map** (:func:`seed_loss_map`): L keyed by ``gsrmr_pose`` in the scheduler's
-   :class:`~gsrmr_scheduler.loss_map.LossMap`, the mean J as its ``image_loss`` and the mean sample bias as its
-   ``sample_offset``; a CSV of every frame
-   (:func:`write_frames_csv`).
-
-Units: metres, radians (degrees where named ``_deg``), seconds; losses are the MR loss 0.8·L1 + 0.2·(1 − SSIM).
+Which frames (:func:`select_frames`), how each is scored (:func:`survey_frames`), its content time
+(:func:`route_time_s`) and the map (:func:`seed_loss_map`): docs/scheduling.md, "Seeding the loss map from the mapping
+round: ``gsrmr-survey``". Units: metres, radians (degrees where named ``_deg``), seconds; ``gsrmr_pose`` =
+[a_m, b_m, theta_rad], ``base_link`` in ``map``; losses are the MR loss 0.8·L1 + 0.2·(1 − SSIM).
 """
 
 from __future__ import annotations
@@ -146,9 +126,9 @@ def has_pose(frame: DatasetFrame) -> bool:
 
 def select_frames(frames: list[DatasetFrame], *, split: TrainSplit | None, all_frames: bool = False,
                   allow_training_views: bool = False) -> Selection:
-    """The frames to survey (module docstring, 1.): every frame with ``all_frames`` (a lap the model was not
-    trained on), else the held-out split ``split`` names — and its training views too with
-    ``allow_training_views``. SurveyInputError when nothing is left to survey or the split does not fit."""
+    """The frames to survey: every frame with ``all_frames`` (a lap the model was not trained on), else the
+    held-out split ``split`` names — and its training views too with ``allow_training_views``. SurveyInputError when
+    nothing is left to survey or the split does not fit."""
     if all_frames:
         chosen = [SelectedFrame(i, f, UNSEEN) for i, f in enumerate(frames)]
         rule = "every frame (--all-frames: a lap the model was not trained on)"
@@ -269,7 +249,7 @@ def camera_vs_mount(camera: Camera, pose: tuple[float, float, float], mount: Cam
 
 
 def route_time_s(route: RoutePredictor, pose: tuple[float, float, float]) -> float:
-    """The content time of a frame at ``pose`` (module docstring, 3.): arc length from the route's start to the
+    """The content time of a frame at ``pose``: arc length from the route's start to the
     route point nearest (a_m, b_m), over the nominal speed [s]."""
     return route.nearest_s(pose[0], pose[1]) / route.speed_mps
 
@@ -277,7 +257,7 @@ def route_time_s(route: RoutePredictor, pose: tuple[float, float, float]) -> flo
 def survey_frames(selected: Sequence[SelectedFrame], base: MRComposer, *, dataset: str | Path, width_px: int,
                   jpeg_quality: int | None, content_times_s: Sequence[float],
                   mount: CameraMount) -> list[SurveyedFrame]:
-    """Score every selected frame (module docstring, 2.): its image loaded from ``dataset``, scaled to
+    """Score every selected frame: its image loaded from ``dataset``, scaled to
     ``width_px``, composed by ``base``'s pipeline at its own camera and content time (``content_times_s``, one per
     frame) and scored (:func:`~gsrmr_offline.frame_loss.frame_loss`); ``mount`` is the configured camera mount,
     compared with the frame's camera."""
