@@ -80,9 +80,9 @@ def ledger_problem(row: LedgerRow, now_slot: int, max_skew_slots: int = 50) -> s
 
 
 def ledger_image_sent(row: LedgerRow) -> int:
-    """1 when the row's slot carried an image: its x says so and it sent more than the pose key's bits. A robot
-    before 2026-11-28 wrote x = 1 for an image asked for with no fresh frame to send (the key alone left); read as an
-    image, such rows told the scheduler of images the server never composed (its uplink cap, its probe clock)."""
+    """1 when the row's slot carried an image: its x says so and it sent more than the pose key's bits. A row with
+    x = 1 and only the key's bits (an image asked for with no fresh frame to send) counts as a key slot, so the
+    scheduler's uplink cap and probe clock never count an image the server did not compose."""
     return int(row.x == 1 and row.bits_sent > POSE_KEY_BITS)
 
 

@@ -45,8 +45,8 @@ from gsrmr_common.tf_tree import yaw_quaternion
 NS_PER_S = 1_000_000_000
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
 SCHEDULE_LABELS = ("meta", "x", "power_w")  # + "gain_threshold" when the schedule has an in-slot rule
-# the encodings image_bridge converts to rgb8; image_from_msg has always matched their names
-# case-insensitively (image_bridge, like ROS, is case-sensitive)
+# the encodings image_bridge converts to rgb8; image_from_msg matches their names case-insensitively
+# (image_bridge, like ROS, is case-sensitive)
 _RGB_SOURCE_ENCODINGS = frozenset({"rgb8", "bgr8", "rgba8", "bgra8", "mono8", "mono16"})
 # YUV 4:2:2 as USB cameras send it (usb_cam, v4l2_camera): UYVY (``yuv422``, ``uyvy``), YUYV (``yuv422_yuy2``,
 # ``yuyv``); decoded by :mod:`gsrmr_common.image_decode`, as the dataset tool decodes a recorded frame
