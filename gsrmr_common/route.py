@@ -1,11 +1,10 @@
-"""The robot's route: a closed waypoint loop and a pure-pursuit controller producing (v, ω).
+"""The robot's route: a closed waypoint loop and a pure-pursuit controller producing (v, ω). Pure functions, no ROS.
 
-A library both wings use: the scheduler predicts future poses along the route (its waypoints and
-speed are scheduler parameters), the simulator's route follower drives it. Pure functions, no ROS.
-Map frame (x forward, y left), metres, radians (counter-clockwise yaw), m/s and rad/s. Progress along
-the loop is an *unwrapped* arc length ``s_m`` (it keeps growing past the loop length), so laps are
-``floor(s_m / length_m)``; the controller only searches for the closest path point in a window ahead
-of the previous progress, so it never jumps across the loop.
+Both wings use it: the scheduler predicts future poses along the route, the simulator's route follower drives it
+(the controller: docs/world.md, "Route and rounds"). Map frame (x forward, y left), metres, radians (yaw
+counter-clockwise), m/s and rad/s. Progress is an *unwrapped* arc length ``s_m`` (it keeps growing past the loop
+length: laps are ``floor(s_m / length_m)``), and the closest path point is searched only in a window ahead of the
+previous progress, so the controller never jumps across the loop.
 """
 
 from __future__ import annotations

@@ -1,27 +1,12 @@
 """A pure TF buffer: a tree of frames whose edges are static transforms or time series, looked up at any stamp.
 
-What ``tf2``'s buffer does for a recorded bag, without ROS: every edge ``parent → child`` holds either one
-static transform (``/tf_static``) or samples ``(stamp_ns, Transform)`` (``/tf``). A lookup at a stamp walks
-from both frames up to their common ancestor, evaluates every edge on the way at that stamp — static edges as
-they are; moving edges interpolated between the two samples that bracket the stamp, translation linearly and
-rotation by slerp (shortest arc) — and composes them.
-
-Conventions (as :mod:`gsrmr_common.tf_tree`): a :class:`~gsrmr_common.tf_tree.Transform` of an edge is the
-pose of the child frame in the parent frame, ``p_parent = R p_child + t`` (metres; quaternion x, y, z, w).
-:meth:`TfBuffer.lookup` returns ``target_from_source``, the 4×4 matrix taking points of ``source`` into
-``target`` — ``lookup("map", "camera_optical_frame", t)`` is the camera→world matrix at ``t``. Frame names
-lose their leading ``/`` (as tf2 strips it). Stamps are integer nanoseconds.
-
-Rules:
-
-* a stamp equal to a sample's stamp takes that sample (gap 0); otherwise the samples just before and just
-  after bracket it, and the bracket's length is the edge's gap at that stamp;
-* a stamp before the first or after the last sample of a moving edge on the chain is ``out_of_range``;
-* with ``max_gap_s``, a bracket longer than it on any moving edge is a ``gap`` (no extrapolation, no
-  interpolation across a dropout);
-* a frame has one parent: the first edge seen for a child decides it, samples naming another parent are
-  ignored and counted (:attr:`TfBuffer.parent_conflicts`); a static transform of an edge wins over samples
-  of the same edge (they are ignored too); a repeated sample stamp keeps the last sample added.
+What ``tf2``'s buffer does for a recorded bag, without ROS. An edge is a :class:`~gsrmr_common.tf_tree.Transform`
+(its convention); stamps are integer nanoseconds; :meth:`TfBuffer.lookup` returns ``target_from_source``, e.g.
+``lookup("map", "camera_optical_frame", t)`` is the camera→world matrix at ``t``. Interpolation (linear, slerp),
+``out_of_range`` and ``gap``: docs/dataset_tool.md, "Where the camera was". Besides: a frame has one parent (the
+first edge seen for a child decides; samples naming another parent are ignored and counted,
+:attr:`TfBuffer.parent_conflicts`), a static transform of an edge wins over its samples, and a repeated sample
+stamp keeps the last sample added.
 """
 
 from __future__ import annotations

@@ -1,22 +1,15 @@
 """The robot's TF tree (REP-105) as plain transforms: pure numpy, no ROS import.
 
-Tree (parent → child), each edge the pose of the child frame expressed in the parent frame::
+Tree (parent → child), each edge the pose of the child frame in the parent frame::
 
     map ──(robot parameter map_from_odom, static)──▶ odom
     odom ──(base driver's odometry, ~50 Hz)──▶ base_link
     base_link ──(camera mount, static)──▶ camera_optical_frame
     (on a robot whose description names the camera body: base_link ──▶ camera_link ──(fixed)──▶ optical)
 
-Frames (REP-103): ``map``, ``odom`` and ``base_link`` are x forward, y left, z up, in metres;
-``base_link`` sits on the floor (z = 0) at the robot's centre. ``camera_optical_frame`` has the
-OpenCV / ROS optical axes (REP-103 "_optical" suffix): x right, y down, z forward along the optical
-axis, origin at the optical centre (see :mod:`gsrmr_common.camera`, whose :class:`CameraMount`
-places it at ``(forward_m, left_m, height_m)`` in ``base_link``, pitched down by ``pitch_rad``).
-
-Every function returns a :class:`Transform`: ``translation`` (x, y, z) in metres and ``rotation`` a
-unit quaternion in ROS order (x, y, z, w), exactly the fields of ``geometry_msgs/Transform``. A
-transform maps points of the child frame into the parent frame: ``p_parent = R p_child + t``
-(:func:`transform_matrix` gives the 4×4 form). Quaternions are normalised with w ≥ 0.
+A :class:`Transform` maps child-frame points into the parent frame, ``p_parent = R p_child + t`` (metres; unit
+quaternion in ROS order x, y, z, w, normalised with w ≥ 0): the fields of ``geometry_msgs/Transform``. Frame axes
+and the mount: :mod:`gsrmr_common.camera`.
 """
 
 from __future__ import annotations
