@@ -20,6 +20,7 @@ import numpy as np
 from plyfile import PlyData, PlyElement, PlyParseError
 
 from gsrmr_common.camera import Camera, Intrinsics, opencv_w2c_to_opengl_c2w, opengl_c2w_to_opencv_w2c
+from gsrmr_common.pose2d import Pose2D
 
 DEPTH_SCALE_M = 1e-3  # depth PNG unit: millimetres
 POINT_CLOUD_KEY = "ply_file_path"  # nerfstudio: the sparse point cloud, relative to the dataset folder
@@ -33,7 +34,7 @@ class DatasetFrame:
     camera: Camera
     image: np.ndarray
     depth_m: np.ndarray | None = None
-    pose: tuple[float, float, float] | None = None  # robot (a_m, b_m, theta_rad) if known
+    pose: Pose2D | None = None  # robot (a_m, b_m, theta_rad) if known
     file_path: str = ""
 
 

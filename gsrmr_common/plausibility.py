@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from gsrmr_common.metrics import MR_LOSS_LAMBDA
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.wire import POSE_KEY_BITS, LedgerRow, LossSample, ScheduleMsg
 
 #: The largest MR loss images in [0, 1] can have: (1 − λ)·1 + λ·(1 − (−1)).
@@ -125,7 +126,7 @@ class LossSampleCheck:
         self._seen: OrderedDict[int, LossSample] = OrderedDict()  # slot → the sample it took
 
     def problem(self, sample: LossSample, image_sent: bool | None,
-                key_pose: tuple[float, float, float] | None) -> str | None:
+                key_pose: Pose2D | None) -> str | None:
         """Why ``sample`` is implausible: ``loss_range``, ``loss_repeat`` (a second, different sample for a slot),
         ``loss_key_slot`` (the ledger says the slot sent no image), ``loss_unledgered`` (no ledger row for it),
         ``loss_pose`` (not at the slot's reported key); :data:`REDELIVERED` for the very sample the slot already took

@@ -22,8 +22,8 @@ from gsrmr_common.camera import Intrinsics
 from gsrmr_common.image_bridge import imgmsg_to_numpy, numpy_to_imgmsg
 from gsrmr_common.image_decode import IMAGE_TYPE, ImageDecodeError, decode_colour
 from gsrmr_common.jpeg import ImageRejected, decode_jpeg
+from gsrmr_common.pose2d import quaternion_from_yaw
 from gsrmr_common.slot_clock import SlotClock
-from gsrmr_common.tf_tree import yaw_quaternion
 
 NS_PER_S = 1_000_000_000
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
@@ -88,7 +88,7 @@ def pose_key_pose_msg(key: wire.PoseKey, stamp_ns: int) -> PoseStamped:
     msg.header.frame_id = wire.MAP_FRAME
     msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = float(key.a_m), float(key.b_m), 0.0
     q = msg.pose.orientation
-    q.x, q.y, q.z, q.w = yaw_quaternion(float(key.theta_rad))
+    q.x, q.y, q.z, q.w = quaternion_from_yaw(float(key.theta_rad))
     return msg
 
 

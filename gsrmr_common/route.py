@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 
+from gsrmr_common.pose2d import Pose2D, wrap_angle
+
 
 class LoopPath:
     """A closed polyline through ``waypoints`` (last point connects back to the first)."""
@@ -69,7 +71,7 @@ class PurePursuit:
     lookahead_m: float = 0.3
     max_omega_rps: float = 1.5
 
-    def command(self, path: LoopPath, pose: tuple[float, float, float], s_hint_m: float
+    def command(self, path: LoopPath, pose: Pose2D, s_hint_m: float
                 ) -> tuple[float, float, float]:
         """(v_mps, omega_rps, s_m) for robot pose (x_m, y_m, theta_rad) and previous progress ``s_hint_m``.
 
@@ -85,7 +87,7 @@ class PurePursuit:
         if ld < 1e-9:
             return self.speed_mps, 0.0, s
         alpha = math.atan2(dy, dx) - th
-        alpha = math.atan2(math.sin(alpha), math.cos(alpha))
+        alpha = wrap_angle(alpha)
         v = self.speed_mps * max(0.0, math.cos(alpha))
         kappa = 2.0 * math.sin(alpha) / ld
         omega = float(np.clip((v if v > 1e-3 else self.speed_mps) * kappa, -self.max_omega_rps,

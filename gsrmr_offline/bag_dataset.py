@@ -31,6 +31,7 @@ from gsrmr_common.image_decode import (
     stamp_ns,
 )
 from gsrmr_common.nerfstudio import DatasetFrame, DatasetWriter
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.tf_buffer import (
     NS_PER_S,
     OUT_OF_RANGE,
@@ -118,7 +119,7 @@ class FrameRecord:
     angular_speed_radps: float | None = None
     sharpness: float | None = None
     camera_to_world: np.ndarray | None = field(default=None, repr=False)
-    robot_pose: tuple[float, float, float] | None = None  # base frame (a_m, b_m, theta_rad) in the world frame
+    robot_pose: Pose2D | None = None  # base frame (a_m, b_m, theta_rad) in the world frame
     depth_index: int | None = None
     depth_offset_s: float | None = None
     file_path: str = ""
@@ -396,7 +397,7 @@ def _camera_velocity(buffer: TfBuffer, world: str, frame: str, stamp: int) -> tu
     return None, None
 
 
-def _planar_pose(matrix: np.ndarray) -> tuple[float, float, float]:
+def _planar_pose(matrix: np.ndarray) -> Pose2D:
     return float(matrix[0, 3]), float(matrix[1, 3]), math.atan2(float(matrix[1, 0]), float(matrix[0, 0]))
 
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from gsrmr_common.camera import Camera, CameraMount, camera_to_world_from_pose
 from gsrmr_common.nerfstudio import DatasetFrame, holdout_split, read_dataset
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.tf_tree import planar_transform, transform_matrix
 from gsrmr_common.wire import PoseKey
 from gsrmr_offline.frame_loss import FrameLoss, frame_loss
@@ -85,7 +86,7 @@ class SurveyedFrame:
     index: int
     file_path: str
     split: str
-    pose: tuple[float, float, float]
+    pose: Pose2D
     content_time_s: float
     width_px: int
     height_px: int
@@ -223,14 +224,14 @@ def frame_at_width(frame: DatasetFrame, width_px: int) -> DatasetFrame:
     return resize_frames([frame], min(int(width_px), frame.camera.width))[0]
 
 
-def frame_mount(camera: Camera, pose: tuple[float, float, float]) -> CameraMount:
+def frame_mount(camera: Camera, pose: Pose2D) -> CameraMount:
     """The mount that puts ``camera`` (in ``map``) on a robot at ``pose`` (a_m, b_m, theta_rad): pose ∘ mount is
     the frame's own camera. ValueError for a camera looking straight up or down."""
     map_from_base = transform_matrix(planar_transform(*pose))
     return CameraMount.from_optical_pose(np.linalg.inv(map_from_base) @ camera.camera_to_world)
 
 
-def composer_for_frame(base: MRComposer, camera: Camera, pose: tuple[float, float, float]) -> MRComposer:
+def composer_for_frame(base: MRComposer, camera: Camera, pose: Pose2D) -> MRComposer:
     """``base``'s composer (model, MR content, background, render threads) rendering at ``camera`` for pose key
     ``pose``: the frame's intrinsics and its :func:`frame_mount`."""
     return MRComposer(base.model, base.virtual, camera.intrinsics, frame_mount(camera, pose),
@@ -238,7 +239,7 @@ def composer_for_frame(base: MRComposer, camera: Camera, pose: tuple[float, floa
                       render_threads=base.render_threads)
 
 
-def camera_vs_mount(camera: Camera, pose: tuple[float, float, float], mount: CameraMount) -> tuple[float, float]:
+def camera_vs_mount(camera: Camera, pose: Pose2D, mount: CameraMount) -> tuple[float, float]:
     """(centre distance [m], rotation angle [deg]) between ``camera`` and pose ∘ ``mount``, the camera the live
     server renders for this pose key."""
     live = camera_to_world_from_pose(*pose, mount)
@@ -248,7 +249,7 @@ def camera_vs_mount(camera: Camera, pose: tuple[float, float, float], mount: Cam
     return float(np.linalg.norm(live[:3, 3] - own[:3, 3])), math.degrees(math.acos(cos))
 
 
-def route_time_s(route: RoutePredictor, pose: tuple[float, float, float]) -> float:
+def route_time_s(route: RoutePredictor, pose: Pose2D) -> float:
     """The content time of a frame at ``pose``: arc length from the route's start to the
     route point nearest (a_m, b_m), over the nominal speed [s]."""
     return route.nearest_s(pose[0], pose[1]) / route.speed_mps

@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_scheduler.loss_map import LossMap
 
 _FLOOR = 1e-4  # a seed value below this carries no ratio information
@@ -39,7 +40,7 @@ class LossPredictor:
         self._changes: deque[int] = deque(maxlen=int(history_slots))  # slots the robot's change test fired in
 
     # ------------------------------------------------------------------ measurements
-    def observe(self, slot: int, pose: tuple[float, float, float], loss: float,
+    def observe(self, slot: int, pose: Pose2D, loss: float,
                 predicted: float | None = None) -> None:
         """An image slot's measured L at ``pose``; ``predicted``: what the plan had predicted for it."""
         if not math.isfinite(loss) or loss < 0:
@@ -116,7 +117,7 @@ class LossPredictor:
         """Expected L_t for future ``slots`` at predicted ``poses`` (N×3); the learned margin not included."""
         return self.seed_map.predict_many(poses) * self.ratio_ahead(slots)
 
-    def estimate(self, slot: int, pose: tuple[float, float, float]) -> float:
+    def estimate(self, slot: int, pose: Pose2D) -> float:
         """Best estimate (no margin) of the L a past key slot left, from the measurements around it: ℓ
         interpolated, or a step at the first change the robot found between them: the slots before the change take
         the earlier measurement's ℓ, the slots from it on the later one's."""

@@ -5,11 +5,11 @@ from __future__ import annotations
 from diagnostic_msgs.msg import DiagnosticStatus
 import pytest
 
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_robot.limo import kinematics as kin
 from gsrmr_robot.limo import protocol as p
 from gsrmr_robot.limo.driver import DriverSnapshot, LinkStatus
 from gsrmr_robot.limo.node import diagnose, diagnostic_values, yaw_pitch_roll_to_quaternion
-from gsrmr_robot.limo.odometry import Pose2D
 
 
 def snapshot(system: p.SystemState | None, connected: bool = True, rx_age_s: float = 0.01,

@@ -128,7 +128,7 @@ def check_bit_flip_run(r: dict, min_corrupted: int) -> None:
     (x, y, yaw), o = r["line_true"], r["line_odom"]
     assert x >= 2.0
     assert math.hypot(o.x_m - x, o.y_m - y) < 0.02, (o, (x, y, yaw))
-    assert abs(o.yaw_rad - yaw) < math.radians(0.5)
+    assert abs(o.theta_rad - yaw) < math.radians(0.5)
 
 
 def test_one_percent_bit_flips_no_corrupt_frame_and_odometry_within_2cm_over_2m(link):
@@ -231,7 +231,7 @@ def test_no_motion_before_the_mode_is_known_then_ackermann_from_0x211(link):
             v = mock.true_velocity()
             assert v.vx_mps == pytest.approx(0.3) and v.wz_radps == pytest.approx(0.5, rel=0.01)
             _, _, yaw_true = mock.true_pose()
-            assert drv.snapshot().pose.yaw_rad == pytest.approx(yaw_true, abs=0.03)
+            assert drv.snapshot().pose.theta_rad == pytest.approx(yaw_true, abs=0.03)
 
 
 def test_survives_garbage_drops_flips_and_silence_without_corrupt_frames(link):

@@ -4,8 +4,9 @@ import math
 
 import pytest
 
+from gsrmr_common.pose2d import Pose2D, wrap_angle
 from gsrmr_robot.limo import kinematics as kin
-from gsrmr_robot.limo.odometry import Odometry2D, Pose2D, wrap_angle
+from gsrmr_robot.limo.odometry import Odometry2D
 from gsrmr_robot.limo.protocol import MotionCommand, MotionMode, MotionState
 
 
@@ -81,7 +82,7 @@ def test_odometry_imu_heading_keeps_slow_turns_no_dead_band():
         odo.update_imu_yaw(wrap_angle(3.1 + k * step))  # crosses ±π on the way
         odo.update_velocity(kin.BodyVelocity(0.0, 0.0, 0.0), k * 0.02)
     assert odo.using_imu
-    assert odo.pose.yaw_rad == pytest.approx(399 * step, abs=1e-9)
+    assert odo.pose.theta_rad == pytest.approx(399 * step, abs=1e-9)
 
 
 def test_odometry_gap_is_not_integrated_and_counted():
@@ -111,7 +112,7 @@ def test_switching_heading_source_does_not_jump():
     odo.update_imu_yaw(1.0)
     for k in range(50):
         odo.update_velocity(kin.BodyVelocity(0.0, 0.0, 0.3), k * 0.02)
-    yaw = odo.pose.yaw_rad
+    yaw = odo.pose.theta_rad
     odo.set_heading_source("imu")
     odo.update_velocity(kin.BodyVelocity(), 1.0)
-    assert odo.pose.yaw_rad == pytest.approx(yaw)
+    assert odo.pose.theta_rad == pytest.approx(yaw)

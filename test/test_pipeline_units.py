@@ -8,9 +8,10 @@ import pytest
 from gsrmr_common.camera import CameraMount, Intrinsics
 from gsrmr_common.jpeg import decode_jpeg, encode_jpeg
 from gsrmr_common.link_model import LinkBudget, required_power_w
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.wire import LEDGER_FIELDS, POSE_KEY_BITS, LedgerRow, MRSlotInfo, PoseKey, RealSource, UplinkFault
 from gsrmr_robot.ledger import EnergyLedger
-from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, odom_to_map
+from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore
 from gsrmr_scheduler.loss_map import LossMap
 from gsrmr_scheduler.planner import OnlinePlanner, PlannerConfig, RoutePredictor
 from gsrmr_server.compose import MRComposer
@@ -125,7 +126,7 @@ def test_uplink_core_decides_each_slot_and_books_it():
     history.add(100, (0.0, 0.0, 0.0))
     history.add(200, (1.0, 0.0, 0.0))
     assert history.at(140) == (0.0, 0.0, 0.0) and history.at(160) == (1.0, 0.0, 0.0) and history.at(None)[0] == 1.0
-    a, b, t = odom_to_map((1.0, 2.0, math.pi / 2), 1.0, 0.0, math.pi)
+    a, b, t = Pose2D(1.0, 2.0, math.pi / 2).compose((1.0, 0.0, math.pi))
     assert (a, b) == pytest.approx((1.0, 3.0)) and t == pytest.approx(-math.pi / 2)
 
 

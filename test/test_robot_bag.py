@@ -23,6 +23,7 @@ from gsrmr_common import tf_tree
 from gsrmr_common.calibration import CameraCalibration, Rectifier
 from gsrmr_common.camera import Intrinsics, camera_from_pose
 from gsrmr_common.metrics import psnr as psnr_db
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_sim import robot_bag as rb
 from gsrmr_sim.world.points import make_world
 from gsrmr_sim.world.recorder import with_resolution
@@ -230,13 +231,13 @@ def test_odometry_drift_grows_with_distance_and_is_zero_without():
     map_poses = [trajectory.pose_at(t) for t in range(0, 12_000_000_001, TF_STEP_NS)]
     origin = map_poses[0]
     exact = rb.odometry_poses(map_poses, None)
-    assert max(math.dist(rb.compose_planar(origin, o)[:2], p[:2]) for o, p in zip(exact, map_poses, strict=True)) < 1e-9
+    assert max(math.dist(Pose2D.of(origin).compose(o)[:2], p[:2]) for o, p in zip(exact, map_poses, strict=True)) < 1e-9
     drift = rb.OdometryDrift(yaw_rad_per_m=0.03, scale_error=0.02)
     drifted = rb.odometry_poses(map_poses, drift)
     travelled_m = np.cumsum([0.0] + [math.dist(a[:2], b[:2]) for a, b in itertools.pairwise(map_poses)])
-    position_error_m = [math.dist(rb.compose_planar(origin, o)[:2], p[:2]) for o, p in zip(drifted, map_poses,
+    position_error_m = [math.dist(Pose2D.of(origin).compose(o)[:2], p[:2]) for o, p in zip(drifted, map_poses,
                                                                                            strict=True)]
-    yaw_error_rad = [math.remainder(rb.compose_planar(origin, o)[2] - p[2], math.tau)
+    yaw_error_rad = [math.remainder(Pose2D.of(origin).compose(o)[2] - p[2], math.tau)
                      for o, p in zip(drifted, map_poses, strict=True)]
     assert yaw_error_rad[-1] == pytest.approx(0.03 * travelled_m[-1], rel=1e-3)  # 3.6 m: 0.108 rad
     quarter = len(map_poses) // 4

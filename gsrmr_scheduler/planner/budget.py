@@ -11,10 +11,10 @@ from collections import deque
 from collections.abc import Callable
 import math
 
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.wire import ScheduleMsg
 
-Pose = tuple[float, float, float]  # (a_m, b_m, theta_rad) in map
-KeyLoss = Callable[[int, Pose | None], float]  # (slot, reported pose or None) → estimated loss of a key there
+KeyLoss = Callable[[int, Pose2D | None], float]  # (slot, reported pose or None) → estimated loss of a key there
 HISTORY_SLOTS = 1000  # ledger rows and reported poses kept this long before the slot is booked
 #: A slot the server composed at its fallback pose (its upload missing) is charged at this × the key's estimate: over
 #: 78 such slots of 90 recorded sandbox runs its true loss was 1.79× the burst model's estimate of a key there on
@@ -42,9 +42,9 @@ class LossBudget:
         self.refine_slots = int(refine_slots)
         self.slots_done = 0  # slots booked so far
         self._actual_x: dict[int, int] = {}  # slot → what the robot did (its ledger)
-        self._reported: dict[int, Pose] = {}  # slot → the pose it reported
+        self._reported: dict[int, Pose2D] = {}  # slot → the pose it reported
         self._composed: dict[int, str] = {}  # slot → what the server composed it from (its mr/slot_info source)
-        self._done: deque[tuple[int, int, Pose | None]] = deque()  # (slot, x, pose) still re-estimated
+        self._done: deque[tuple[int, int, Pose2D | None]] = deque()  # (slot, x, pose) still re-estimated
         self._frozen_spent = 0.0  # Σ estimated loss of the slots no longer re-estimated
         self._accounted_up_to: int | None = None  # last slot booked (or planned from)
         self._round_start: int | None = None  # first slot the reported pose left its start (round mode)
@@ -61,7 +61,7 @@ class LossBudget:
         for old in [k for k in self._actual_x if k < slot - HISTORY_SLOTS]:
             del self._actual_x[old]
 
-    def record_pose(self, slot: int, pose: Pose) -> None:
+    def record_pose(self, slot: int, pose: Pose2D) -> None:
         """The pose the robot reported for ``slot`` (its pose key): a key there is charged at it; in round mode
         the first move of more than ``round_start_m`` starts a round."""
         if not self._rebook(slot, pose=pose):
@@ -118,7 +118,7 @@ class LossBudget:
         planner send an image in 77–100 % of the slots left after a swap."""
         self._freeze(0)
 
-    def _rebook(self, slot: int, *, x: int | None = None, pose: Pose | None = None) -> bool:
+    def _rebook(self, slot: int, *, x: int | None = None, pose: Pose2D | None = None) -> bool:
         """Correct a booked slot that is still re-estimated with a ledger row or pose key that came after the plan
         that booked it (delayed on the way). True when ``slot`` is such a slot."""
         if self._accounted_up_to is None or slot > self._accounted_up_to:
@@ -137,7 +137,7 @@ class LossBudget:
         self._accounted_up_to = now_slot
 
     # ------------------------------------------------------------------ what it cost
-    def slot_loss(self, slot: int, x: int, pose: Pose | None) -> float:
+    def slot_loss(self, slot: int, x: int, pose: Pose2D | None) -> float:
         """Estimated MR loss a booked slot left: the image slot's loss J (``image_slot_loss``) for an image,
         ``key_loss`` for a key — as the server composed it when it said: an image it did not have in time but
         rendered at the key (``render``) counts as a key, a slot composed without its upload at the server's pose

@@ -13,10 +13,10 @@ from typing import Protocol
 
 import numpy as np
 
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_scheduler.loss_map import LossMap
 from gsrmr_scheduler.loss_predictor import LossPredictor
 
-Pose = tuple[float, float, float]  # (a_m, b_m, theta_rad) in map
 HISTORY_SLOTS = 1000  # predictions kept this long after the plan that made them
 
 
@@ -27,11 +27,11 @@ class SlotLossModel(Protocol):
     margin: float
     samples: int
 
-    def observe(self, slot: int, pose: Pose, loss: float, predicted: float | None = None) -> None: ...
+    def observe(self, slot: int, pose: Pose2D, loss: float, predicted: float | None = None) -> None: ...
 
     def predict(self, slots: np.ndarray, poses: np.ndarray) -> np.ndarray: ...
 
-    def estimate(self, slot: int, pose: Pose) -> float: ...
+    def estimate(self, slot: int, pose: Pose2D) -> float: ...
 
     def note_change(self, slot: int) -> None: ...
 
@@ -92,7 +92,7 @@ class LossForecast:
         """What the latest plan covering ``slot`` predicted for it (no margin), or None."""
         return self._predicted.get(slot)
 
-    def key_loss(self, slot: int, pose: Pose | None) -> float:
+    def key_loss(self, slot: int, pose: Pose2D | None) -> float:
         """Estimated L a past key slot left: from the measurements around it at the pose the robot reported,
         the plan's prediction without a reported pose (the map's prior without either)."""
         if pose is None:
@@ -107,7 +107,7 @@ class LossForecast:
         if self.model is not None:
             self.model.note_change(slot)
 
-    def observe(self, slot: int, pose: Pose, loss: float) -> float | None:
+    def observe(self, slot: int, pose: Pose2D, loss: float) -> float | None:
         """An image slot's measured L_t at ``pose``; returns what the plan had predicted for it (or None)."""
         predicted = self._predicted.get(slot)
         if self.model is not None:

@@ -11,6 +11,7 @@ import time
 import numpy as np
 
 from gsrmr_common.link_model import LinkBudget
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.wire import ScheduleMsg
 from gsrmr_scheduler.loss_map import LossMap
 from gsrmr_scheduler.planner.budget import LossBudget
@@ -204,7 +205,7 @@ class OnlinePlanner:
             out.append(self.link.gain(k if k >= 0 else first + i, poses[i, :2]))
         return np.array(out)
 
-    def plan(self, now_slot: int, pose: tuple[float, float, float] | None) -> PlanResult:
+    def plan(self, now_slot: int, pose: Pose2D | None) -> PlanResult:
         """Plan the ``horizon_slots`` slots from ``now_slot``, the slot in which the schedule is expected to reach
         the robot.
 

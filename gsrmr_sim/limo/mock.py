@@ -21,6 +21,7 @@ import threading
 import time
 import tty
 
+from gsrmr_common.pose2d import Pose2D, wrap_angle
 from gsrmr_robot.limo import kinematics as kin
 from gsrmr_robot.limo import protocol as proto
 
@@ -51,7 +52,7 @@ class MockLimo:
     def __init__(self, link_path: str, *, motion_mode: int = proto.MotionMode.DIFF,
                  cmd_timeout_s: float = 0.3, rate_hz: float = 50.0, battery_voltage_v: float = 12.3,
                  faults: FaultConfig | None = None,
-                 record: bool = False, start_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                 record: bool = False, start_pose: Pose2D = (0.0, 0.0, 0.0),
                  limits: kin.Limits = kin.DEFAULT_LIMITS, geometry: kin.Geometry = kin.DEFAULT_GEOMETRY) -> None:
         if rate_hz <= 0 or cmd_timeout_s <= 0:
             raise ValueError("rate_hz and cmd_timeout_s must be > 0")
@@ -115,12 +116,12 @@ class MockLimo:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def true_pose(self) -> tuple[float, float, float]:
+    def true_pose(self) -> Pose2D:
         """True pose of base_link in map: (x_m, y_m, yaw_rad), yaw unwrapped."""
         with self._lock:
             return self._x, self._y, self._yaw
 
-    def true_pose_stamped(self) -> tuple[int, tuple[float, float, float]]:
+    def true_pose_stamped(self) -> tuple[int, Pose2D]:
         """(system time in ns at which the pose is true — the integration tick that made it —, true pose):
         what a motion-capture system would stamp it with (0 before the first tick: the start pose)."""
         with self._lock:
@@ -299,7 +300,7 @@ class MockLimo:
         return proto.encode_message(proto.MotionState(v.vx_mps, v.wz_radps, v.vy_mps, 0.0))
 
     def _euler(self) -> bytes:
-        yaw = math.atan2(math.sin(self._yaw), math.cos(self._yaw))
+        yaw = wrap_angle(self._yaw)
         return proto.encode_message(proto.ImuEuler(yaw, 0.0, 0.0))
 
     def _inject(self, raw: bytes, now: float) -> bytes:
@@ -358,7 +359,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def pose_arg(text: str) -> tuple[float, float, float]:
+def pose_arg(text: str) -> Pose2D:
     """argparse type of ``--start-pose x_m,y_m,yaw_rad``."""
     try:
         values = tuple(float(v) for v in text.split(","))

@@ -6,14 +6,12 @@ of ``base_link`` in ``map`` (REP-103).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from gsrmr_common.pose2d import Pose2D, wrap_angle
 from gsrmr_robot.limo import protocol as proto
 from gsrmr_robot.limo.kinematics import feedback_to_body
 from gsrmr_robot.limo.odometry import Odometry2D
-from gsrmr_robot.uplink_core import odom_to_map
 from gsrmr_sim.world.kinematics import Drive, unicycle_step
 
 
@@ -33,7 +31,7 @@ def reported_poses(drive: Drive, slot_s: float) -> np.ndarray:
     out = np.zeros_like(drive.poses)
 
     def feed(v_mps: float, w_radps: float) -> None:
-        yaw = math.atan2(math.sin(true[2]), math.cos(true[2]))
+        yaw = wrap_angle(true[2])
         odo.update_imu_yaw(_wire(proto.ImuEuler(yaw, 0.0, 0.0)).yaw_rad)
         state = _wire(proto.MotionState(v_mps, w_radps, 0.0, 0.0))
         odo.update_velocity(feedback_to_body(proto.MotionMode.DIFF, state), now)
@@ -41,7 +39,7 @@ def reported_poses(drive: Drive, slot_s: float) -> np.ndarray:
     feed(0.0, 0.0)
     for t in range(drive.poses.shape[0]):
         p = odo.pose
-        out[t] = odom_to_map(start, p.x_m, p.y_m, p.yaw_rad)
+        out[t] = Pose2D.of(start).compose(p)
         for v, w in drive.step_controls[t]:
             true = unicycle_step(true, float(v), float(w), dt)
             now += dt
