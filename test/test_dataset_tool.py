@@ -154,6 +154,10 @@ class Recording:
     pose_stamped_topic: str | None = None  # "/robot_pose": PoseStamped of base_link in map
     camera_static_tf: bool = True
     image_stamp_shift_s: float = 0.0
+    map_from_odom_hz: float | None = None  # map → odom on /tf at this rate (half a period off the images), as a
+    #                                         localizer or a ROS 1 static_transform_publisher sends it …
+    map_from_odom_wobble_m: float = 0.0  # … its samples alternately this far off in x …
+    map_from_odom_drift_mps: float = 0.0  # … and moving this fast in x (a localizer correcting)
 
     def image_stamp(self, i: int) -> int:
         return T0 + round((self.first_image_s + i * 0.1 + self.image_stamp_shift_s) * NS) + 7_300_000
@@ -234,8 +238,14 @@ def messages(rec: Recording, m: Msgs) -> list[tuple[str, str, int, object]]:
     """(topic, type, log time, message) of the whole round, any order."""
     out: list[tuple[str, str, int, object]] = []
     tf_msg = "tf2_msgs/msg/TFMessage"
+    if rec.map_from_odom_hz:
+        period_ns = round(NS / rec.map_from_odom_hz)
+        for k in range(-1, round(rec.tf_until_s * rec.map_from_odom_hz) + 2):
+            s = T0 + k * period_ns + period_ns // 2
+            x_m = MAP_FROM_ODOM[0] + rec.map_from_odom_wobble_m * (k % 2) + rec.map_from_odom_drift_mps * (s - T0) / NS
+            out.append(("/tf", tf_msg, s + 1_000_000, m.tf(s, [("map", "odom", planar(x_m, *MAP_FROM_ODOM[1:]))])))
     if rec.tf_static:
-        edges = [("map", "odom", planar(*MAP_FROM_ODOM))]
+        edges = [] if rec.map_from_odom_hz else [("map", "odom", planar(*MAP_FROM_ODOM))]
         if rec.camera_static_tf:
             link = transform_matrix(base_from_camera_link_transform(MOUNT))
             optical = transform_matrix(type(base_from_camera_link_transform(MOUNT))((0.0, 0.0, 0.0), OPTICAL_IN_LINK))
@@ -682,3 +692,29 @@ def test_options_are_checked(tmp_path, capsys):
     assert exc.value.code == 2 and "--max-gap-s: expected a finite number > 0.0" in capsys.readouterr().err
     line = one_line_error(*run(capsys, tmp_path / "nothing", tmp_path / "o")[::2])
     assert "does not exist" in line
+
+
+@pytest.mark.parametrize("wobble_m", [0.0, 0.0004])
+def test_a_constant_map_to_odom_on_tf_moves_nothing(tmp_path, capsys, wobble_m):
+    """map → odom sent on /tf at 1 Hz, half a period off the images (a localizer, a ROS 1 static_transform_publisher):
+    its samples agree (within the tolerance: a 0.4 mm wobble too), so it moves nothing between them, and the bag keeps
+    the frames, at the poses, it keeps with the edge on /tf_static."""
+    assert run(capsys, write_bag(tmp_path / "static", Recording()), tmp_path / "a", *ALL_FRAMES)[0] == 0
+    dynamic = write_bag(tmp_path / "dynamic", Recording(map_from_odom_hz=1.0, map_from_odom_wobble_m=wobble_m))
+    code, _out, err = run(capsys, dynamic, tmp_path / "b", *ALL_FRAMES)
+    assert code == 0, err
+    a, b = read_csv(tmp_path / "a"), read_csv(tmp_path / "b")
+    assert [r["status"] for r in a] == [r["status"] for r in b] and sum(r["status"] == "kept" for r in b) >= 15
+    frames_a = json.loads((tmp_path / "a" / "transforms.json").read_text())["frames"]
+    frames_b = json.loads((tmp_path / "b" / "transforms.json").read_text())["frames"]
+    assert len(frames_a) == len(frames_b)
+    for fa, fb in zip(frames_a, frames_b, strict=True):
+        np.testing.assert_allclose(fb["transform_matrix"], fa["transform_matrix"], atol=1e-3)
+
+
+def test_a_moving_edge_sampled_slowly_is_still_a_gap(tmp_path, capsys):
+    """The same 1 Hz edge moving 5 cm a second (a localizer correcting): its brackets are 1 s, wider than
+    --max-gap-s, and no frame has poses to keep."""
+    bag = write_bag(tmp_path / "moving", Recording(map_from_odom_hz=1.0, map_from_odom_drift_mps=0.05))
+    code, _out, err = run(capsys, bag, tmp_path / "c", *ALL_FRAMES)
+    assert code != 0 and "max-gap-s" in err and "map → odom" not in err.split("—")[-1], err

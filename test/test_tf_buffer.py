@@ -18,6 +18,7 @@ from gsrmr_common.tf_buffer import GAP, NO_TF_PATH, OUT_OF_RANGE, TfBuffer, TfLo
 from gsrmr_common.tf_tree import Transform, quaternion_from_matrix, transform_matrix
 
 NS = 1_000_000_000
+MS = 1_000_000
 T0 = 1_700_000_000 * NS  # a realistic epoch stamp: float seconds would lose the nanoseconds here
 
 
@@ -185,3 +186,29 @@ def test_one_parent_per_frame_repeated_stamps_and_static_over_samples():
     assert buf.is_static_edge("base_link")
     assert buf.lookup("odom", "base_link", T0 + 7 * NS).target_from_source[0, 3] == 5.0
     assert buf.remove_edge_into("/base_link") and not buf.has_frame("base_link")
+
+
+def test_an_edge_whose_samples_agree_moves_nothing():
+    """A constant edge sent on /tf now and then is looked up as a static one (any stamp, no gap); in a moving edge, a
+    bracket whose two samples agree (within STILL_M, STILL_RAD) counts no gap; one that moves does."""
+    buf = TfBuffer()
+    fixed = Transform((1.0, 2.0, 0.0), quaternion_from_matrix(yaw(0.3)[:3, :3]))
+    for k in range(3):  # 1 Hz, a 0.2 mm wobble
+        wobbled = Transform((1.0 + 2e-4 * (k % 2), 2.0, 0.0), fixed.rotation)
+        buf.add_sample("map", "odom", (k * 1000 + 500) * MS, wobbled)
+    buf.add_sample("odom", "base_link", 0, Transform((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)))
+    buf.add_sample("odom", "base_link", 3000 * MS, Transform((3.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)))
+    assert buf.is_static_edge("odom") and buf.moving_edges("map", "base_link") == [("odom", "base_link")]
+    look = buf.lookup("map", "odom", 100 * MS, max_gap_s=0.1)  # before the first sample: a constant has no range
+    np.testing.assert_allclose(look.target_from_source, transform_matrix(fixed), atol=1e-12)
+    assert look.widest_gap_s == 0.0
+    with pytest.raises(TfLookupError) as err:  # the odometry's 3-s bracket does move
+        buf.lookup("map", "base_link", 1500 * MS, max_gap_s=0.1)
+    assert err.value.reason == GAP
+    still = TfBuffer()
+    for k, x in enumerate((0.0, 0.0, 0.5)):  # parked for a second, then moving
+        still.add_sample("odom", "base_link", k * 1000 * MS, Transform((x, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)))
+    assert not still.is_static_edge("base_link")
+    assert still.lookup("odom", "base_link", 500 * MS, max_gap_s=0.1).widest_gap_s == 0.0
+    with pytest.raises(TfLookupError):
+        still.lookup("odom", "base_link", 1500 * MS, max_gap_s=0.1)
