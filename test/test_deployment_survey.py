@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from stack_harness import make_point_model
+from support.stack_harness import make_point_model
 
 from gsrmr_common.camera import CameraMount, Intrinsics, camera_from_pose
 from gsrmr_common.nerfstudio import DatasetFrame, read_dataset, write_dataset

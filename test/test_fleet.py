@@ -21,7 +21,7 @@ import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import Image
-from stack_harness import HEIGHT, WIDTH, make_point_model
+from support.stack_harness import HEIGHT, WIDTH, make_point_model
 import yaml
 
 from gsrmr_sim.cpu_usage import CpuMeter, CpuSnapshot, cpu_group, cpu_seconds_by_group

@@ -1,4 +1,5 @@
-"""The hostile graph over DDS: a stranger (test/hostile.py) joins a running stack and lies with well-formed messages.
+"""The hostile graph over DDS: a stranger (test/support/hostile.py) joins a running stack and lies with well-formed
+messages.
 
 First the ROS adapter of the known-writer check alone, in one process (``ros``, a few seconds). Then one stack for
 the module (``ros`` + ``slow``) (the simulated closed loop as processes, every node's writer lists from
@@ -15,9 +16,9 @@ import os
 import signal
 import time
 
-from hostile import READER_NAME, ROGUE_NAME, DiagnosticsWatch, Rogue
 import pytest
-from stack_harness import Stack, make_point_model, ros_client, slot_rows, spin_until
+from support.hostile import READER_NAME, ROGUE_NAME, DiagnosticsWatch, Rogue
+from support.stack_harness import Stack, make_point_model, ros_client, slot_rows, spin_until
 
 
 @pytest.mark.ros

@@ -17,8 +17,8 @@ import unittest
 if str(Path(__file__).resolve().parent) not in sys.path:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from launch_support import isolate_this_process, require_ros_tooling
 import pytest
+from support.launch_support import isolate_this_process, require_ros_tooling
 
 needs_ros_tooling = require_ros_tooling()
 

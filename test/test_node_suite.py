@@ -23,7 +23,7 @@ from std_srvs.srv import Trigger
 
 sys.path.insert(0, str(Path(__file__).parent))
 from conftest import ros_env
-from stack_harness import HEIGHT, WIDTH, Stack, make_small_model, ros_client, slot_rows, spin_until
+from support.stack_harness import HEIGHT, WIDTH, Stack, make_small_model, ros_client, slot_rows, spin_until
 
 from gsrmr_server.recording import read_slots_csv
 from gsrmr_sim.scores import read_scores

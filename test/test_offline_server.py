@@ -36,7 +36,7 @@ def model(tmp_path_factory) -> GaussianModel:
     import sys
 
     sys.path.insert(0, str(Path(__file__).parent))
-    from stack_harness import make_point_model
+    from support.stack_harness import make_point_model
 
     return GaussianModel.load_ply(make_point_model(tmp_path_factory.mktemp("m"), n=3000))
 

@@ -36,7 +36,7 @@ from gsrmr_server import recording as rec
 from gsrmr_server.recording import RunRecorder, read_slots_csv
 
 sys.path.insert(0, str(Path(__file__).parent))
-from stack_harness import HEIGHT, WIDTH, make_point_model, ros_client, spin_until
+from support.stack_harness import HEIGHT, WIDTH, make_point_model, ros_client, spin_until
 
 CLOCK = SlotClock(0.1)
 SLOT_NS = CLOCK.slot_len_ns

@@ -293,7 +293,7 @@ def _harness():
     import sys
 
     sys.path.insert(0, str(Path(__file__).parent))
-    import stack_harness
+    from support import stack_harness
 
     return stack_harness
 

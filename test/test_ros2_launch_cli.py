@@ -16,7 +16,8 @@ import subprocess
 import time
 import xml.etree.ElementTree as ET
 
-from launch_support import (
+import pytest
+from support.launch_support import (
     DOMAIN_NOTE,
     exit_codes_from_launch_log,
     isolate_this_process,
@@ -26,12 +27,11 @@ from launch_support import (
     sim_process_names,
     start_ros2_launch,
 )
-import pytest
-from ros_domain import DOMAIN_MAX, DOMAIN_MIN
+from support.ros_domain import DOMAIN_MAX, DOMAIN_MIN
 
 pytestmark = require_ros_tooling()
 
-from stack_harness import make_point_model  # noqa: E402
+from support.stack_harness import make_point_model  # noqa: E402
 
 from gsrmr_common.wire import JPEG_FORMAT  # noqa: E402
 

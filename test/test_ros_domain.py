@@ -13,7 +13,7 @@ import random
 import socket
 
 import pytest
-from ros_domain import (
+from support.ros_domain import (
     DOMAIN_MAX,
     DOMAIN_MIN,
     RTPS_DOMAIN_GAIN,

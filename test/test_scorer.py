@@ -13,7 +13,7 @@ import pytest
 import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
-from stack_harness import make_point_model
+from support.stack_harness import make_point_model
 
 from gsrmr_common.camera import CameraMount
 from gsrmr_common.jpeg import encode_jpeg

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from stack_harness import make_point_model
+from support.stack_harness import make_point_model
 
 from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.link_model import required_power_w

@@ -268,7 +268,7 @@ def test_policy_is_the_live_graph(tmp_path):
     ros2cli itself are ignored (:data:`IGNORED_NODE_PREFIX`). Discovery on a loaded machine can report a node
     before all its endpoints: the graph is read again until it matches, within a bound."""
     from conftest import ros_env
-    from stack_harness import Stack, make_point_model
+    from support.stack_harness import Stack, make_point_model
 
     from gsrmr_sim.sim_stack import ProcessSpec, command_line
 
@@ -472,7 +472,7 @@ def refused_starts(tmp_path_factory):
     Yields {(executable, case): (exit code or None, its output)}, the node names seen on the graph, and the
     keystore path."""
     from conftest import ros_env
-    from stack_harness import ros_client
+    from support.stack_harness import ros_client
 
     from gsrmr_sim.sim_stack import executable_path
 

@@ -16,7 +16,7 @@ import pytest
 import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
-from stack_harness import make_point_model
+from support.stack_harness import make_point_model
 
 from gsrmr_common.camera import Intrinsics
 from gsrmr_common.ros_wire import camera_info_from_intrinsics, ledger_to_msg, mr_slot_info_from_msg

@@ -28,8 +28,8 @@ import unittest
 if str(Path(__file__).resolve().parent) not in sys.path:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from launch_support import isolate_this_process, launch_file, require_ros_tooling, ros2_until, sim_process_names
 import pytest
+from support.launch_support import isolate_this_process, launch_file, require_ros_tooling, ros2_until, sim_process_names
 
 needs_ros_tooling = require_ros_tooling()
 
@@ -37,7 +37,7 @@ import launch  # noqa: E402
 from launch.launch_description_sources import PythonLaunchDescriptionSource  # noqa: E402
 import launch_testing.actions  # noqa: E402
 import launch_testing.asserts  # noqa: E402
-from stack_harness import make_point_model  # noqa: E402
+from support.stack_harness import make_point_model  # noqa: E402
 
 from gsrmr_server.recording.slots_csv import read_slots_csv  # noqa: E402
 

@@ -16,7 +16,7 @@ import time
 
 from conftest import ros_env
 import pytest
-import stack_harness
+from support import stack_harness
 
 from gsrmr_server.recording import TOPIC_SLOT_LOG, read_mcap
 from gsrmr_sim.netns import TwoHosts, namespaces, unavailable_reason

@@ -25,9 +25,9 @@ import sys
 import time
 
 import pytest
-from ros_domain import free_domain_id, in_pytest_session, next_domain_id, stop_ros2_daemons
 
 from gsrmr_sim.sim_stack import sim_stack
+from support.ros_domain import free_domain_id, in_pytest_session, next_domain_id, stop_ros2_daemons
 
 DOMAIN_NOTE = "[launch_support] ROS_DOMAIN_ID="  # how a plain launch_test run says which domain it picked
 

@@ -25,8 +25,8 @@ Cases (:data:`CASES`; the issue's list, each at the rate the issue names where i
 ``cmd_vel``  ``cmd_vel`` at full speed (1 m/s, 1 rad/s), 20/s, while the route follower drives;
 ``impostor_loss``  loss samples of 5.0 from a node named ``gsrmr_server`` (the right name: detected, not refused).
 
-CLI (the bench's rogue process): ``python test/hostile.py CASE --duration-s S --out result.json`` in the domain of
-``ROS_DOMAIN_ID``; SIGINT/SIGTERM end it early (the result is written either way).
+CLI (the bench's rogue process): ``python test/support/hostile.py CASE --duration-s S --out result.json`` in the
+domain of ``ROS_DOMAIN_ID``; SIGINT/SIGTERM end it early (the result is written either way).
 """
 
 from __future__ import annotations
@@ -498,5 +498,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root, for its packages
     sys.exit(main())
