@@ -267,7 +267,7 @@ def test_fleet_launch_file_declares_the_sim_arguments_and_robots():
 
 @pytest.mark.parametrize("robots", [1, 3])
 def test_fleet_launch_file_runs_every_robot_in_its_namespace(robots):
-    from test_launch_files import console_scripts
+    from support.setup_scripts import console_scripts
 
     nodes = _launch_nodes(robots, record_dir="/rec")
     assert len(nodes) == robots * len(NODES)

@@ -9,17 +9,10 @@ from pathlib import Path
 import re
 
 import pytest
+from support.setup_scripts import console_scripts
 
 REPO = Path(__file__).resolve().parents[1]
 LAUNCH_FILES = sorted((REPO / "launch").glob("*.launch.py"))
-
-
-def console_scripts() -> set[str]:
-    tree = ast.parse((REPO / "setup.py").read_text())
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Assign) and any(getattr(t, "id", "") == "CONSOLE_SCRIPTS" for t in node.targets):
-            return {ast.literal_eval(e).split("=")[0].strip() for e in node.value.elts}
-    raise AssertionError("CONSOLE_SCRIPTS not found in setup.py")
 
 
 def test_launch_files_exist():

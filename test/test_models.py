@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 import numpy as np
-from test_splatting_train import small_frames
+from support.splat_scene import small_frames
 import torch
 
 from gsrmr_sim.models import BuiltModel, ModelRecipe, compact_built, live_recipe

@@ -20,7 +20,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
-from test_calibration import interior, pinhole_view, raw_view
+from support.calibration_pattern import interior, pinhole_view, raw_view
 
 from gsrmr_common.calibration import CalibrationError, CameraCalibration, rectified_intrinsics
 from gsrmr_common.camera import Intrinsics

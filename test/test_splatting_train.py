@@ -8,32 +8,18 @@ import math
 import cv2
 import numpy as np
 import pytest
+from support.splat_scene import small_frames
 import torch
 
 from gsrmr_common.camera import CameraMount, Intrinsics, camera_from_pose
 from gsrmr_common.metrics import ssim
 from gsrmr_common.nerfstudio import write_dataset
 from gsrmr_splat.cli import render_main
-from gsrmr_splat.datasets import look_at, orbit_cameras, render_views
+from gsrmr_splat.datasets import look_at
 from gsrmr_splat.model import GaussianModel
 from gsrmr_splat.render import render
-from gsrmr_splat.sh import C0
 from gsrmr_splat.train import TrainConfig, Trainer, max_blend_weight, ssim_torch
 from gsrmr_splat.train_cli import train_main
-
-
-def small_scene(n: int = 300, seed: int = 0) -> GaussianModel:
-    rng = np.random.default_rng(seed)
-    means = rng.uniform(-0.4, 0.4, (n, 3))
-    sh = ((rng.uniform(0, 1, (n, 1, 3)) - 0.5) / C0)
-    return GaussianModel(means, rng.normal(size=(n, 4)), np.log(rng.uniform(0.02, 0.08, (n, 3))),
-                         rng.normal(1, 1, n), sh)
-
-
-def small_frames(n_views: int = 10, w: int = 48, h: int = 36, depth: bool = True):
-    cams = orbit_cameras(n_views, Intrinsics.from_fov(w, h, math.radians(60)), radius_m=1.4,
-                         heights_m=(0.3, 0.6), target_m=(0.0, 0.0, 0.0))
-    return render_views(small_scene(), cams, with_depth=depth)
 
 
 @pytest.mark.parametrize("shape", [(40, 30, 3), (23, 57, 1)])
