@@ -5,8 +5,8 @@ and a sourced ``install/setup.bash``, which ``make test`` does), and the CLI is 
 (``ros2cli`` from ``../shared/ros-tooling`` or a ROS install). Where that tooling is missing (a fresh
 clone without ``../shared``), :func:`require_ros_tooling` skips the module with the reason.
 
-No conftest needed: a launch test run by plain ``launch_test test/<file>`` (no pytest) imports this module
-too, after putting its own folder on ``sys.path`` (:func:`isolate_this_process` then picks a free ROS
+No conftest needed: a launch test run by plain ``launch_test test/launch/<file>`` (no pytest) imports this
+module too, after putting ``test/`` on ``sys.path`` (:func:`isolate_this_process` then picks a free ROS
 domain itself and says which).
 """
 
@@ -84,7 +84,7 @@ def isolate_this_process() -> int:
     """Give this test process (and what it launches) a fresh ROS domain with localhost discovery; the domain.
 
     Under pytest (``colcon test``, ``make test``) the session's conftest hands the domain out. Under a
-    plain ``launch_test test/<file>`` there is no conftest: the domain is a free one of this host
+    plain ``launch_test test/launch/<file>`` there is no conftest: the domain is a free one of this host
     (:func:`ros_domain.free_domain_id`), printed on stdout, and any ros2 daemon the test's CLI calls
     started in it is stopped when the process exits. There, missing tooling is an error with its reason
     (``launch_test`` ignores the pytest skip mark).

@@ -1,7 +1,7 @@
 """ROS domains for test processes, without pytest: which domain a test's processes use, and clean-up.
 
 Imported by ``conftest.py`` (a pytest session hands out :func:`next_domain_id`, one per test) and by
-``launch_support.py``, which a launch test run by plain ``launch_test test/<file>`` imports with no
+``launch_support.py``, which a launch test run by plain ``launch_test test/launch/<file>`` imports with no
 conftest at all: then :func:`free_domain_id` picks a domain that no DDS participant on this host is
 using. Fast DDS (and Cyclone DDS) bind their UDP ports of domain ``d`` in ``7400 + 250 d`` …
 ``7400 + 250 d + 249`` (RTPS port mapping: PB 7400, DG 250), so a bound port there means "in use".

@@ -10,7 +10,7 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 # pip name -> rosdep key (checked against rosdistro rosdep/python.yaml); None: no key, pip only.
 ROSDEP_KEYS = {
@@ -70,7 +70,7 @@ def test_every_ros_import_is_declared():
     ros_packages = {"rclpy", "ament_index_python", "builtin_interfaces", "rcl_interfaces", "std_msgs", "std_srvs",
                     "sensor_msgs", "geometry_msgs", "nav_msgs", "diagnostic_msgs", "tf2_ros", "tf2_msgs",
                     "cv_bridge", "launch", "launch_ros", "launch_testing", "launch_testing_ros"}
-    sources = [*REPO.glob("gsrmr_*/**/*.py"), *REPO.glob("launch/*.py"), *REPO.glob("test/*.py")]
+    sources = [*REPO.glob("gsrmr_*/**/*.py"), *REPO.glob("launch/*.py"), *REPO.glob("test/**/*.py")]
     used = set()
     for path in sources:
         for match in re.finditer(r"^\s*(?:from|import)\s+([a-z_0-9]+)", path.read_text(), re.MULTILINE):

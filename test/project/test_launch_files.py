@@ -11,7 +11,7 @@ import re
 import pytest
 from support.setup_scripts import console_scripts
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 LAUNCH_FILES = sorted((REPO / "launch").glob("*.launch.py"))
 
 

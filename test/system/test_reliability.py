@@ -292,7 +292,7 @@ def _harness():
     from pathlib import Path
     import sys
 
-    sys.path.insert(0, str(Path(__file__).parent))
+    sys.path.insert(0, str(Path(__file__).parents[1]))
     from support import stack_harness
 
     return stack_harness

@@ -25,7 +25,7 @@ import pytest
 
 from gsrmr_common.interrupts import CONSOLE_MAIN_MARK
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PACKAGES = ("gsrmr_common", "gsrmr_offline", "gsrmr_robot", "gsrmr_scheduler", "gsrmr_server", "gsrmr_shapes",
             "gsrmr_sim", "gsrmr_splat")
 HEAVY = ("numba", "llvmlite", "cvxpy", "scipy", "torch", "plyfile", "matplotlib")

@@ -42,7 +42,7 @@ from gsrmr_sim.stack_runner import process_name, robot_runs
 from gsrmr_sim.world.camera_node import MockCameraParameters
 from gsrmr_sim.world.channel_node import SimChannelParameters
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 FLEET_LAUNCH = REPO / "launch" / "fleet.launch.py"
 NODES = ("gsrmr_mock_limo", "gsrmr_limo_base", "gsrmr_mock_camera", "gsrmr_route_follower", "gsrmr_sim_channel",
          "gsrmr_robot", "gsrmr_server", "gsrmr_sim_scorer", "gsrmr_scheduler")

@@ -18,7 +18,7 @@ import pytest
 from gsrmr_common.node_help import NodeInterface, format_help, wants_help
 from gsrmr_common.node_params import NodeParameters, ros_parameter
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 SCRIPTS = {ep.name: ep.value for ep in entry_points(group="console_scripts") if ep.name.startswith("gsrmr-")}
 
 

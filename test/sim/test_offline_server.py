@@ -35,7 +35,7 @@ def record(tmp_path_factory, scene) -> Round2Record:
 def model(tmp_path_factory) -> GaussianModel:
     import sys
 
-    sys.path.insert(0, str(Path(__file__).parent))
+    sys.path.insert(0, str(Path(__file__).parents[1]))
     from support.stack_harness import make_point_model
 
     return GaussianModel.load_ply(make_point_model(tmp_path_factory.mktemp("m"), n=3000))

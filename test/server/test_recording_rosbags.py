@@ -35,7 +35,7 @@ from gsrmr_common.wire import LEDGER_FIELDS
 from gsrmr_server import recording as rec
 from gsrmr_server.recording import RunRecorder, read_slots_csv
 
-sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).parents[1]))
 from support.stack_harness import HEIGHT, WIDTH, make_point_model, ros_client, spin_until
 
 CLOCK = SlotClock(0.1)

@@ -21,7 +21,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
 
-sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).parents[1]))
 from conftest import ros_env
 from support.stack_harness import HEIGHT, WIDTH, Stack, make_small_model, ros_client, slot_rows, spin_until
 

@@ -14,10 +14,10 @@ import sys
 import tempfile
 import unittest
 
-# `launch_test test/<file>` loads this file by its path, with no conftest and test/ not on sys.path: put it there
-# for the helpers below (under pytest, which imports test/conftest.py first, it already is).
-if str(Path(__file__).resolve().parent) not in sys.path:
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
+# `launch_test test/launch/<file>` loads this file by its path, with no conftest and test/ not on sys.path: put it
+# there for the helpers below, test/support/ (under pytest, whose pythonpath is test/, it already is).
+if str(Path(__file__).resolve().parents[1]) not in sys.path:
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import pytest
 from support.launch_support import isolate_this_process, launch_file, require_ros_tooling, ros2, ros2_until

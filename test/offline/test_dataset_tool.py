@@ -481,7 +481,7 @@ def test_pose_topic_with_the_mount_from_static_tf_and_from_a_yaml(tmp_path, caps
     code, out, err = run(capsys, bag, tmp_path / "default-out", *ALL_FRAMES, "--pose-topic", "/robot_pose")
     assert code == 0, err
     assert "from camera_mount.yaml" in out
-    config = yaml.safe_load((Path(__file__).parents[1] / "config" / "camera_mount.yaml").read_text())
+    config = yaml.safe_load((Path(__file__).parents[2] / "config" / "camera_mount.yaml").read_text())
     params = {k.split(".", 1)[1]: v for k, v in config["/**"]["ros__parameters"].items()}
     for i, frame in enumerate(read_dataset(tmp_path / "default-out", load_images=False)):
         pos_m, rot_deg = pose_errors(frame.camera.camera_to_world, true_camera(rec.image_stamp(i),

@@ -273,7 +273,7 @@ def test_server_node_records_the_images_it_received_with_their_keys(server_node,
         assert (position.x, position.y, position.z) == (keys[slot].a_m, keys[slot].b_m, 0.0)
         assert 2 * math.atan2(q.z, q.w) == pytest.approx(keys[slot].theta_rad) and q.x == q.y == 0.0
     # the run as a dataset, as an operator would make it (every received frame kept: no blur or spacing rule)
-    mount_file = Path(__file__).resolve().parents[1] / "config" / "camera_mount.yaml"
+    mount_file = Path(__file__).resolve().parents[2] / "config" / "camera_mount.yaml"
     build_dataset(BagDatasetOptions(run, tmp_path / "ds", image_topic=TOPIC_RECEIVED_IMAGE,
                                     camera_info_topic=TOPIC_CAMERA_INFO, pose_topic=TOPIC_RECEIVED_POSE,
                                     camera_mount_file=mount_file, blur_ratio=0.0, min_translation_m=0.0,

@@ -23,7 +23,7 @@ from gsrmr_robot.robot_node import RobotNode
 from gsrmr_robot.robot_params import LIVE_PARAMETERS, RobotParameters
 from gsrmr_sim.sim_stack import link_budget
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 # name: (default, (min, max) or None, read_only, description) — what the robot node declared inline before
 # (and uplink_width_px, added with the uplink's rectification).

@@ -387,7 +387,7 @@ def head_step(self: Trainer) -> tuple[float, float]:
 def test_options_off_leave_training_bit_identical(tmp_path, depth):
     """With pose and exposure optimisation off (the defaults) there is no new state, the checkpoint holds the
     keys it held before, and 20 steps (densifying at 10 and 20) of the torch engine equal 20 steps of the step as
-    it was (the fused engine, the default, has its own tests: test_splatting_fused.py)."""
+    it was (the fused engine, the default, has its own tests: test_fused.py)."""
     frames = views(scene(), 6, depth=depth)
     cfg = TrainConfig(iterations=20, densify_from=10, densify_until=20, densify_interval=10, init_points=1500,
                       sh_degree=1, sh_increase_interval=10, engine="torch")

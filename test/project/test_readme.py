@@ -16,7 +16,7 @@ import pytest
 from gsrmr_common import wire
 from gsrmr_common.ros_wire import SCHEDULE_LABELS
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 README = (REPO / "README.md").read_text()
 REQUIRED = "required"
 NOT_A_LITERAL = object()

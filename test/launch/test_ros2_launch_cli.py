@@ -35,7 +35,7 @@ from support.stack_harness import make_point_model  # noqa: E402
 
 from gsrmr_common.wire import JPEG_FORMAT  # noqa: E402
 
-PACKAGE_ROOT = Path(__file__).resolve().parents[1]  # where a ROS user types `launch_test test/<file>`
+PACKAGE_ROOT = Path(__file__).resolve().parents[2]  # where a ROS user types `launch_test test/launch/<file>`
 NUMPY_CORE_LIBRARY = "_multiarray_umath"  # numpy's core extension: mapped only once the start-up guard is in
 
 
@@ -147,14 +147,14 @@ def test_ros2_launch_robot_ctrl_c(ros_processes, tmp_path, stop_after_s):
 
 @pytest.mark.ros
 def test_launch_test_command_runs_the_link_check(tmp_path):
-    """``launch_test test/test_link_check_launch.py`` typed in the package root, as a ROS user runs a launch test:
-    no pytest and no conftest, so the file must import its helpers by itself, and the helper picks a free ROS
+    """``launch_test test/launch/test_link_check_launch.py`` typed in the package root, as a ROS user runs a launch
+    test: no pytest and no conftest, so the file must import its helpers by itself, and the helper picks a free ROS
     domain of its own and says which. Every test of the file (active and post-shutdown) must pass."""
     exe = shutil.which("launch_test")
     assert exe is not None, "launch_test is not on PATH (launch_testing installs it)"
     junit = tmp_path / "launch_test.xml"
-    result = subprocess.run([exe, "test/test_link_check_launch.py", "--junit-xml", str(junit)], capture_output=True,
-                            text=True, timeout=180, cwd=PACKAGE_ROOT,
+    result = subprocess.run([exe, "test/launch/test_link_check_launch.py", "--junit-xml", str(junit)],
+                            capture_output=True, text=True, timeout=180, cwd=PACKAGE_ROOT,
                             env=dict(os.environ, ROS_LOG_DIR=str(tmp_path / "log"), PYTHONUNBUFFERED="1"))
     said = result.stdout + result.stderr
     assert result.returncode == 0, said[-3000:]

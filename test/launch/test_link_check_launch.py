@@ -2,7 +2,7 @@
 
 The probe sends 50 pings to the echo over DDS and prints one JSON report on stdout; the test parses
 it and checks that every ping came back and that the echo counted all of them. ``launch_test
-test/test_link_check_launch.py`` runs it too (README "Use it from ROS 2"), in a free ROS domain of its own.
+test/launch/test_link_check_launch.py`` runs it too (README "Use it from ROS 2"), in a free ROS domain of its own.
 """
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ from pathlib import Path
 import sys
 import unittest
 
-# `launch_test test/<file>` loads this file by its path, with no conftest and test/ not on sys.path: put it there
-# for the helpers below (under pytest, which imports test/conftest.py first, it already is).
-if str(Path(__file__).resolve().parent) not in sys.path:
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
+# `launch_test test/launch/<file>` loads this file by its path, with no conftest and test/ not on sys.path: put it
+# there for the helpers below, test/support/ (under pytest, whose pythonpath is test/, it already is).
+if str(Path(__file__).resolve().parents[1]) not in sys.path:
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import pytest
 from support.launch_support import isolate_this_process, require_ros_tooling

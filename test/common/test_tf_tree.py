@@ -25,7 +25,7 @@ import pytest
 from gsrmr_common import tf_tree, wire
 from gsrmr_common.camera import CameraMount, Intrinsics, camera_from_pose, camera_to_world_from_pose
 
-sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).parents[1]))
 from conftest import next_domain_id
 
 MOUNTS = [CameraMount(), CameraMount(height_m=0.15, pitch_rad=math.radians(5.0), forward_m=0.1),

@@ -30,7 +30,7 @@ import xml.etree.ElementTree as ET
 import pytest
 import yaml
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 POLICY = REPO / "config" / "security" / "policy.xml"
 DEPLOYMENT = {"gsrmr-robot": "gsrmr_robot", "gsrmr-server": "gsrmr_server", "gsrmr-scheduler": "gsrmr_scheduler",
               "gsrmr-limo-base": "gsrmr_limo_base"}

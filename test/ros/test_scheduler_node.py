@@ -18,7 +18,7 @@ from rclpy.parameter import Parameter
 
 from gsrmr_scheduler.scheduler_node import SchedulerNode
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 # every module that drives an OnlinePlanner from outside the planner package
 PLANNER_USERS = ["gsrmr_scheduler/scheduler_node.py", "gsrmr_scheduler/replan_log.py", "bench/planner_replay.py",
                  "gsrmr_sim/replay.py", "bench/scheduler.py", "bench/scheduler_start.py"]
