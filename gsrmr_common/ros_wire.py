@@ -189,6 +189,18 @@ def channel_sample_from_msg(msg: Float64MultiArray) -> wire.ChannelSample:
     return wire.ChannelSample.from_data(np.asarray(msg.data, dtype=np.float64))
 
 
+def map_correction_to_msg(correction: wire.MapCorrection) -> Float64MultiArray:
+    """Map correction → ``Float64MultiArray`` (``layout.dim = [map_correction(8)]``,
+    :data:`gsrmr_common.wire.MAP_CORRECTION_FIELDS` order)."""
+    return _flat_record_msg("map_correction", correction.to_data())
+
+
+def map_correction_from_msg(msg: Float64MultiArray) -> wire.MapCorrection:
+    """``Float64MultiArray`` → map correction; ValueError if it does not parse."""
+    _check_flat_layout(msg, "map_correction")
+    return wire.MapCorrection.from_data(np.asarray(msg.data, dtype=np.float64))
+
+
 def mr_slot_info_to_msg(info: wire.MRSlotInfo) -> Float64MultiArray:
     """MR slot info → ``Float64MultiArray`` (``layout.dim = [mr_slot_info(6)]``: slot, source, a_m, b_m, theta_rad,
     content_time_s; see :class:`gsrmr_common.wire.MRSlotInfo`)."""

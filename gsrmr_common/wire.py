@@ -15,6 +15,8 @@ stamped with its slot's start, so the stamp names the slot (:class:`gsrmr_common
   scene_change]``;
 * loss sample (:class:`LossSample`): ``[slot, a_m, b_m, theta_rad, loss]``;
 * channel sample (:class:`ChannelSample`): ``[slot, round_slot, gain]``;
+* map correction (:class:`MapCorrection`): ``[seq, stamp_s, a_m, b_m, theta_rad, var_a_m2, var_b_m2,
+  var_theta_rad2]``;
 * MR slot info (:class:`MRSlotInfo`): ``[slot, source, a_m, b_m, theta_rad, content_time_s]``. ``source`` indexes
   :data:`REAL_SOURCES`; the pose is the one the MR image was composed at (the slot's key, or the fallback estimate;
   NaN ×3 for source ``none``); ``content_time_s`` is the MR content time, seconds since the first composed slot.
@@ -225,6 +227,41 @@ class MRSlotInfo:
         if not (np.all(np.isfinite(pose)) or (source == RealSource.NONE and np.all(np.isnan(pose)))):
             raise ValueError("MR slot info: the pose must be finite (NaN ×3 only for source none)")
         return cls(int(arr[0]), source, float(pose[0]), float(pose[1]), float(pose[2]), float(arr[5]))
+
+
+MAP_CORRECTION_FIELDS = ("seq", "stamp_s", "a_m", "b_m", "theta_rad", "var_a_m2", "var_b_m2", "var_theta_rad2")
+#: Topic (relative: in the robot's namespace) of the server's :class:`MapCorrection`, latched.
+MAP_CORRECTION_TOPIC = "gsrmr/map_correction"
+
+
+@dataclass(frozen=True)
+class MapCorrection:
+    """The server's correction of the robot's ``map → odom``: the robot's ``map_from_odom`` parameter M₀ becomes
+    ``X ∘ M₀`` with X = (a_m, b_m, theta_rad) in ``map``; absolute (not relative to the previous one), numbered by
+    ``seq`` (≥ 1, growing), its variances [m², m², rad²], ``stamp_s`` the time of the newest fix it holds."""
+
+    seq: int
+    stamp_s: float
+    a_m: float
+    b_m: float
+    theta_rad: float
+    var_a_m2: float
+    var_b_m2: float
+    var_theta_rad2: float
+
+    def to_data(self) -> list[float]:
+        """Flat float64 list for ``Float64MultiArray.data`` (:data:`MAP_CORRECTION_FIELDS` order)."""
+        return [float(v) for v in astuple(self)]
+
+    @classmethod
+    def from_data(cls, data: list[float] | np.ndarray) -> MapCorrection:
+        """Parse ``Float64MultiArray.data``; ValueError unless 8 finite values, a whole ``seq`` ≥ 1, variances ≥ 0."""
+        arr = np.asarray(data, dtype=np.float64)
+        if arr.shape != (len(MAP_CORRECTION_FIELDS),) or not np.all(np.isfinite(arr)) or arr[0] < 1 \
+                or arr[0] != int(arr[0]) or np.any(arr[5:] < 0):
+            raise ValueError(f"map correction: expected {len(MAP_CORRECTION_FIELDS)} finite values "
+                             f"{MAP_CORRECTION_FIELDS}, seq a whole number ≥ 1, variances ≥ 0")
+        return cls(int(arr[0]), *(float(v) for v in arr[1:]))
 
 
 CHANNEL_SAMPLE_FIELDS = ("slot", "round_slot", "gain")
