@@ -157,7 +157,7 @@ def _check_flat_layout(msg: Float64MultiArray, label: str) -> None:
 
 
 def ledger_to_msg(row: wire.LedgerRow) -> Float64MultiArray:
-    """Ledger row → ``Float64MultiArray`` (``layout.dim = [ledger(14)]``, fields in ``LEDGER_FIELDS`` order)."""
+    """Ledger row → ``Float64MultiArray`` (``layout.dim = [ledger(15)]``, fields in ``LEDGER_FIELDS`` order)."""
     return _flat_record_msg("ledger", wire.ledger_row_to_data(row))
 
 

@@ -12,7 +12,7 @@ stamped with its slot's start, so the stamp names the slot (:class:`gsrmr_common
   ``gain_threshold``; ``first_slot`` is exact in float64 up to 2^53;
 * ledger row (:class:`LedgerRow`, units in the names): ``[slot, x, scheduled_power_w, bits_sent, gain, power_w,
   energy_j, upload_all_bits, upload_all_energy_j, frame_stamp_s, round_slot, held_back, uplink_rate_bps,
-  scene_change]``;
+  scene_change, correction_seq]``;
 * loss sample (:class:`LossSample`): ``[slot, a_m, b_m, theta_rad, loss]``;
 * channel sample (:class:`ChannelSample`): ``[slot, round_slot, gain]``;
 * map correction (:class:`MapCorrection`): ``[seq, stamp_s, a_m, b_m, theta_rad, var_a_m2, var_b_m2,
@@ -145,6 +145,7 @@ class LedgerRow:
     held_back: int = 0  # 1: an image was asked for and the robot sent the key only (its last image still queued)
     uplink_rate_bps: float = float("nan")  # the robot's estimate of the uplink's throughput from image acks, bit/s
     scene_change: int = 0  # 1: the robot's scene-change test fired on this slot's frame (the view changed suddenly)
+    correction_seq: int = 0  # the map → odom correction the slot's key was made with (MapCorrection.seq; 0: none)
 
 
 # Order of the values in a ``gsrmr/ledger`` Float64MultiArray (one message per slot).
@@ -309,7 +310,8 @@ def ledger_row_from_data(data: list[float] | np.ndarray) -> LedgerRow:
     if arr.shape != (len(LEDGER_FIELDS),):
         raise ValueError(f"ledger row: expected {len(LEDGER_FIELDS)} values {LEDGER_FIELDS}, got {arr.size}")
     row = dict(zip(LEDGER_FIELDS, arr.tolist(), strict=True))
-    integers = ("slot", "x", "bits_sent", "upload_all_bits", "round_slot", "held_back", "scene_change")
+    integers = ("slot", "x", "bits_sent", "upload_all_bits", "round_slot", "held_back", "scene_change",
+                "correction_seq")
     if not all(math.isfinite(row[k]) for k in integers):
         raise ValueError(f"ledger row: {', '.join(integers)} must be finite")
     for k in integers:

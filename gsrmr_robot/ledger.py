@@ -44,7 +44,7 @@ class EnergyLedger:
     def record(self, slot: int, x: int, scheduled_power_w: float, jpeg_bytes: int | None, gain: float,
                reference_jpeg_bytes: int | None, frame_stamp_s: float = float("nan"),
                round_slot: int = -1, held_back: int = 0, uplink_rate_bps: float = float("nan"),
-               scene_change: int = 0) -> LedgerRow:
+               scene_change: int = 0, correction_seq: int = 0) -> LedgerRow:
         """Record one slot. ``jpeg_bytes`` is None for a key-only slot; ``reference_jpeg_bytes`` is the
         size this slot's frame has (or would have) as a JPEG, for the upload-all reference; ``scene_change`` 1
         when the robot's scene-change test fired on this slot's frame."""
@@ -54,7 +54,7 @@ class EnergyLedger:
         _, ref_energy_j = self._energy(ref_bits, gain)
         row = LedgerRow(slot, int(x), float(scheduled_power_w), bits, float(gain), power_w, energy_j,
                         ref_bits, ref_energy_j, float(frame_stamp_s), int(round_slot), int(held_back),
-                        float(uplink_rate_bps), int(scene_change))
+                        float(uplink_rate_bps), int(scene_change), int(correction_seq))
         self.slots += 1
         self.images += int(jpeg_bytes is not None)
         self.keys_only += int(jpeg_bytes is None)

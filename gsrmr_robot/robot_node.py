@@ -23,7 +23,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Float64MultiArray
 
 from gsrmr_common.interrupts import console_main
-from gsrmr_common.plausibility import Implausible, ScheduleLimits
+from gsrmr_common.plausibility import Implausible
 from gsrmr_common.pose2d import Pose2D, yaw_from_quaternion
 from gsrmr_common.ros_admission import GatedInputs, ParameterAudit
 from gsrmr_common.ros_node import (
@@ -37,27 +37,23 @@ from gsrmr_common.ros_node import (
 from gsrmr_common.ros_wire import (
     CAMERA_INFO_QOS,
     IMAGE_UPLOAD_QOS,
-    SCHEDULE_QOS,
     UPLINK_QOS,
-    channel_sample_from_msg,
     compressed_to_msg,
     image_from_msg,
     ledger_to_msg,
     pose_key_to_msg,
-    schedule_from_msg,
     stamp_to_ns,
 )
 from gsrmr_common.slot_clock import SlotClock, SlotTicker
-from gsrmr_common.wire import CHANNEL_TOPIC
 from gsrmr_robot.dds_profile import use_uplink_profile
 from gsrmr_robot.image_acks import ImageAcks
-from gsrmr_robot.robot_inputs import REPEAT, ChannelGains, ScheduleInbox
 from gsrmr_robot.robot_params import INTERFACE, RobotParameters
 from gsrmr_robot.scene_change import SceneChangeDetector
 from gsrmr_robot.static_tf import StaticFrames
 from gsrmr_robot.uplink_backlog import UplinkBacklog
 from gsrmr_robot.uplink_camera_port import UplinkCameraPort
 from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, stale
+from gsrmr_robot.workstation_inputs import WorkstationInputs
 
 
 class RobotNode(Node):
@@ -79,7 +75,7 @@ class RobotNode(Node):
         self._frame: np.ndarray | None = None
         self._frame_ns = 0
         self._frame_stamp_ns = 0
-        # Recent poses in map: the key is the pose at the capture time of the frame it stands for.
+        # Recent odometry poses (odom): the key is map → odom ∘ the pose at the capture time of its frame.
         self._poses = PoseHistory()
         self.schedule_misses = self.no_frame = self.no_pose = 0
         detector = (SceneChangeDetector(ratio=self.params.scene_change_ratio)
@@ -99,20 +95,18 @@ class RobotNode(Node):
         self.camera = self.port.camera
         # what is taken from the graph, and from whom (docs/security.md, "Application checks")
         self.implausible = Implausible()
-        self.schedules = ScheduleInbox(self.slot_s, ScheduleLimits(max_power_w=p.max_tx_power_w), self.implausible)
-        self.gains = ChannelGains(self.link, self.implausible)
         self.inputs = GatedInputs(self)
         for kind, topic, callback, qos, writers, rate_hz, burst in (
                 (Image, "camera/image_raw", self._on_image, qos_profile_sensor_data, p.camera_writers, 100.0, 100.0),
                 (CameraInfo, "camera/camera_info", self._on_camera_info, qos_profile_sensor_data, p.camera_writers,
                  100.0, 100.0),
-                (Odometry, "odom", self._on_odom, 20, p.odom_writers, 200.0, 200.0),
-                (Float64MultiArray, CHANNEL_TOPIC, self._on_channel, 10, p.channel_writers, 40.0, 40.0)):
+                (Odometry, "odom", self._on_odom, 20, p.odom_writers, 200.0, 200.0)):
             self.inputs.subscribe(kind, topic, lambda msg, _gid, cb=callback: cb(msg), qos, writers, rate_hz=rate_hz,
                                   burst=burst)
-        # the schedule's seq must grow per writer endpoint: its callback takes the GID
-        self.inputs.subscribe(Float64MultiArray, "gsrmr/schedule", self._on_schedule, SCHEDULE_QOS,
-                              p.schedule_writers, rate_hz=20.0, burst=20.0)
+        self.workstation = WorkstationInputs(self, self.inputs, p, self.link, self.clock, self._lock, self.implausible,
+                                             self._position)
+        self.schedules, self.gains, self.maps = (self.workstation.schedules, self.workstation.gains,
+                                                 self.workstation.maps)
         self.acks = ImageAcks(self, self._pub_img, p.image_readers, self.backlog, self._lock)
         # 5 ms tick: slot starts are detected with ≤ 5 ms jitter without a drifting periodic timer.
         # run each slot 1 ms after it starts (polling the clock at 200 Hz cost ~5 % of a core)
@@ -124,8 +118,7 @@ class RobotNode(Node):
                                f"server at {self.link.server_position_m}")
 
     def _send_static_tf(self) -> None:
-        self.static_tf.send(self.params.map_from_odom, self.odom_frame, self.base_frame, self.params.camera_frame_id,
-                            self.mount)
+        self.static_tf.send_mount(self.base_frame, self.params.camera_frame_id, self.mount)
 
     def _validate(self, params) -> SetParametersResult:
         """On-set: refuse a change :class:`RobotParameters` gives a reason for (read-only, type, range, an empty
@@ -142,7 +135,10 @@ class RobotNode(Node):
             self.core.default_upload_image = self.params.default_upload_image
             self.backlog.stale_after_s = self.params.uplink_ack_stale_s
             self.camera.set_uplink_width(self.params.uplink_width_px)
-        if any(p.name in ("map_from_odom", "camera_frame_id") for p in params):
+        if any(p.name == "map_from_odom" for p in params):
+            with self._lock:
+                self.maps.set_parameter(Pose2D.of(self.params.map_from_odom))
+        if any(p.name == "camera_frame_id" for p in params):
             self._send_static_tf()
         self.port.publish(self.params.camera_frame_id)  # a new uplink width or camera_frame_id is a new uplink camera
 
@@ -169,37 +165,13 @@ class RobotNode(Node):
             self.get_logger().warning(f"odometry refused: {err}", throttle_duration_sec=5.0)
             return
         with self._lock:
-            odom_pose = (p.position.x, p.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
-            self._poses.add(stamp_ns, Pose2D.of(self.params.map_from_odom).compose(odom_pose),
+            self._poses.add(stamp_ns, Pose2D(p.position.x, p.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)),
                             self.get_clock().now().nanoseconds)
 
-    def _on_channel(self, msg: Float64MultiArray) -> None:
-        try:
-            sample = channel_sample_from_msg(msg)
-        except ValueError as err:
-            self.get_logger().warning(f"channel sample refused: {err}", throttle_duration_sec=5.0)
-            return
-        with self._lock:
-            pose = self._poses.latest
-            reason = self.gains.offer(sample, None if pose is None else pose[:2])
-        if reason:
-            self.get_logger().warning(f"channel sample refused ({reason}): gain {sample.gain:.3g} for slot "
-                                      f"{sample.slot}", throttle_duration_sec=5.0)
-
-    def _on_schedule(self, msg: Float64MultiArray, gid: bytes = b"") -> None:
-        """A schedule from an admitted writer: refused (counted) when malformed, of another τ, implausible (T, slots,
-        powers) or not newer than the last one of the same writer endpoint (seq)."""
-        try:
-            sched = schedule_from_msg(msg)
-        except ValueError as err:
-            self.implausible["schedule_malformed"] += 1
-            self.get_logger().error(f"schedule refused: {err}", throttle_duration_sec=5.0)
-            return
-        with self._lock:  # the one before stays for the slots the new one starts after (one that began)
-            reason = self.schedules.offer(sched, gid, self.clock.slot_at(self.get_clock().now().nanoseconds))
-        if reason not in (None, REPEAT):
-            self.get_logger().warning(f"schedule seq {sched.seq} refused ({reason}) from "
-                                      f"{self.inputs.writer_of('gsrmr/schedule', gid)}", throttle_duration_sec=5.0)
+    def _position(self) -> tuple[float, float] | None:
+        """The robot's latest (x, y) in map (the caller holds the lock)."""
+        latest = self._poses.latest
+        return None if latest is None else self.maps.map_from_odom().compose(latest)[:2]
 
     # ---------------------------------------------------------------- slots
     def _tick(self) -> None:
@@ -220,7 +192,9 @@ class RobotNode(Node):
             raw = self._frame if fresh else None
             frame = self.port.frame(raw) if raw is not None else None
             frame_stamp_ns = self._frame_stamp_ns if frame is not None else None
-            pose = self._poses.at(frame_stamp_ns, now_ns, round(self.params.max_pose_age_s * 1e9))
+            odom_pose = self._poses.at(frame_stamp_ns, now_ns, round(self.params.max_pose_age_s * 1e9))
+            map_from_odom = self.maps.map_from_odom()
+            pose = None if odom_pose is None else map_from_odom.compose(odom_pose)
             sched = self.schedules.covering(slot)
             frame_id = self.params.camera_frame_id
             gain, round_slot = self.gains.take(slot)
@@ -229,7 +203,8 @@ class RobotNode(Node):
             decision = self.core.run_slot(SlotInputs(slot, frame, frame_stamp_ns, pose,
                                                      sched.lookup(slot) if sched is not None else None, gain,
                                                      sched.threshold(slot) if sched is not None else None,
-                                                     round_slot, queued, self.backlog.rate_bps))
+                                                     round_slot, queued, self.backlog.rate_bps, self.maps.seq))
+        self.static_tf.send_map_to_odom(map_from_odom, self.odom_frame)
         if decision.scene_changed:
             det = self.core.scene_change
             self.get_logger().info(f"scene change in slot {slot} (frame difference {det.last_score:.4f}, recent "
@@ -251,6 +226,8 @@ class RobotNode(Node):
         totals = self.ledger.totals()
         extra = {"schedule_misses": self.schedule_misses, "no_frame": self.no_frame, "no_pose": self.no_pose,
                  "schedule_seq": self.schedules.newest.seq if self.schedules.newest else -1,
+                 "correction_seq": self.maps.seq, "map_from_odom": json.dumps([round(v, 4) for v in
+                                                                              self.maps.map_from_odom()]),
                  "channel_unmeasured": self.gains.unmeasured,
                  "camera_info_changes": self.port.changes, "frames_uncalibrated": self.port.frames_withheld,
                  "uplink_camera": self.camera.describe(), "tf_published": self.static_tf.published,

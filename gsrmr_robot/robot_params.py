@@ -25,7 +25,10 @@ LIVE_PARAMETERS = frozenset({"jpeg_quality", "uplink_width_px", "default_upload_
                              "uplink_ack_stale_s"})
 #: The read-only lists of node names (relative: in the robot's namespace; ``*``: any) allowed to write an input
 #: topic, or — ``image_readers`` — whose acknowledgements the hold-back waits for.
-WRITER_LISTS = ("schedule_writers", "channel_writers", "camera_writers", "odom_writers", "image_readers")
+WRITER_LISTS = ("schedule_writers", "channel_writers", "camera_writers", "odom_writers", "image_readers",
+                "correction_writers")
+#: Where map → odom comes from: the server's corrections of ``map_from_odom``, or the parameter alone.
+LOCALIZATION_SOURCES = ("server", "off")
 
 
 @dataclass(frozen=True)
@@ -83,6 +86,17 @@ class RobotParameters(NodeParameters):
     max_tx_power_w: float = ros_parameter(
         0.1, "The radio's maximum transmit power [W]: a schedule asking for more is refused", min_value=1e-6,
         max_value=10.0, read_only=True)
+    localization: str = ros_parameter(
+        "server", "Where map → odom comes from: server = map_from_odom corrected by the server's gsrmr/map_correction "
+        "(the server localizes the robot from its images), off = map_from_odom alone (another localizer sets it)",
+        read_only=True, constraints="one of: server, off")
+    correction_writers: tuple[str, ...] = ros_parameter(
+        ("gsrmr_server",), "Nodes whose gsrmr/map_correction is taken", read_only=True)
+    max_correction_step_m: float = ros_parameter(
+        0.5, "A correction moving map → odom further than this from the one in force is refused [m]", min_value=0.01,
+        max_value=10.0, read_only=True)
+    max_correction_step_deg: float = ros_parameter(
+        20.0, "… or turning it more than this [deg]", min_value=0.1, max_value=180.0, read_only=True)
     # Declared read-only by gsrmr_common.ros_node.declare_camera_mount / declare_link_budget (config/*.yaml).
     camera_mount: CameraMount = field(default_factory=CameraMount)
     link: LinkBudget = field(default_factory=LinkBudget)
@@ -96,6 +110,8 @@ class RobotParameters(NodeParameters):
             return "scene_change_ratio must be 0 (off) or > 1"
         if name == "camera_frame_id" and not value:
             return "camera_frame_id must not be empty"
+        if name == "localization" and value not in LOCALIZATION_SOURCES:
+            return f"localization must be one of {', '.join(LOCALIZATION_SOURCES)}, got {value!r}"
         if name in WRITER_LISTS:
             return writer_list_problem(name, value)
         return None
@@ -110,12 +126,15 @@ INTERFACE = NodeInterface(
                 Endpoint("camera/camera_info", "sensor_msgs/msg/CameraInfo", "the driver's calibration"),
                 Endpoint("odom", "nav_msgs/msg/Odometry", "odom → base_link (REP-105)"),
                 Endpoint("gsrmr/schedule", "std_msgs/msg/Float64MultiArray", "the plan (x_t, p_t), latched"),
-                Endpoint("radio/channel_gain", "std_msgs/msg/Float64MultiArray", "the radio's gain per slot")),
+                Endpoint("radio/channel_gain", "std_msgs/msg/Float64MultiArray", "the radio's gain per slot"),
+                Endpoint("gsrmr/map_correction", "std_msgs/msg/Float64MultiArray", "the server's map → odom "
+                         "correction (localization server)")),
     publishes=(Endpoint("uplink/pose_key", "geometry_msgs/msg/Vector3Stamped", "(a_m, b_m, theta_rad) in map"),
                Endpoint("uplink/image_raw/compressed", "sensor_msgs/msg/CompressedImage", "JPEG, image slots"),
                Endpoint("uplink/camera_info", "sensor_msgs/msg/CameraInfo", "the uploaded pinhole camera, latched"),
                Endpoint("gsrmr/ledger", "std_msgs/msg/Float64MultiArray", "one energy-ledger row per slot"),
-               Endpoint("/tf_static", "tf2_msgs/msg/TFMessage", "map → odom, base_link → camera (with tf2_ros)"),
+               Endpoint("/tf", "tf2_msgs/msg/TFMessage", "map → odom, corrected (with tf2_ros)"),
+               Endpoint("/tf_static", "tf2_msgs/msg/TFMessage", "base_link → camera (with tf2_ros)"),
                Endpoint("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray")),
     parameters=(ParameterGroup(RobotParameters), ParameterGroup(CameraMountParameters, MOUNT_PREFIX),
                 ParameterGroup(LinkParameters)))

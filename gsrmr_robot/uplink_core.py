@@ -91,6 +91,7 @@ class SlotInputs:
     round_slot: int = -1  # the radio's index of this slot in the round (−1: unknown)
     uplink_queued: bool = False  # the last image is still unacknowledged (gsrmr_robot.uplink_backlog): hold back
     uplink_rate_bps: float = float("nan")  # the robot's estimate of the uplink throughput (for the ledger)
+    correction_seq: int = 0  # the map → odom correction the pose was made with (for the ledger)
 
 
 @dataclass(frozen=True)
@@ -185,6 +186,6 @@ class UplinkCore:
             else float("nan")
         row = self.ledger.record(inputs.slot, x, power_w, len(upload) if upload is not None else None, gain,
                                  len(jpeg) if jpeg is not None else None, stamp_s, inputs.round_slot, held_back,
-                                 inputs.uplink_rate_bps, int(changed))
+                                 inputs.uplink_rate_bps, int(changed), inputs.correction_seq)
         return SlotDecision(inputs.slot, x, key, upload, row, inputs.entry is not None,
                             publish_row=key is not None or upload is not None, scene_changed=changed)

@@ -10,6 +10,7 @@ import math
 import multiprocessing as mp
 from multiprocessing.connection import Connection
 import os
+import signal
 import time
 
 import numba
@@ -41,12 +42,16 @@ def _worker(conn: Connection, model_path: str, background: tuple[float, float, f
             threads: int) -> None:
     """The registration process: loads the model, then answers ``(job id, image u8, intrinsics, w2c)`` with
     ``(job id, accepted, refused, camera_to_world, inliers, seconds)`` until it reads None."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the server stops it (a terminal's Ctrl-C reaches the group)
     os.nice(nice)
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     model = GaussianModel.load_ply(model_path)
     conn.send(("ready", model.num_gaussians))
     while True:
-        job = conn.recv()
+        try:
+            job = conn.recv()
+        except EOFError:  # the server is gone
+            return
         if job is None:
             return
         if job[0] == "model":

@@ -42,11 +42,15 @@ from gsrmr_common.ros_wire import (
     image_to_msg,
     intrinsics_or_problem,
     loss_sample_to_msg,
+    map_correction_to_msg,
     mr_slot_info_to_msg,
 )
 from gsrmr_common.slot_clock import ComposeCursor, SlotClock
 from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
-from gsrmr_common.wire import MR_SLOT_INFO_TOPIC, RealSource, UplinkFault
+from gsrmr_common.wire import MAP_CORRECTION_TOPIC, MR_SLOT_INFO_TOPIC, RealSource, UplinkFault
+from gsrmr_server.compose import to_u8
+from gsrmr_server.localizer import LocalizerConfig, ServerLocalizer, correction_record
+from gsrmr_server.map_correction import TRACKING
 from gsrmr_server.model_swap import ModelSwap
 from gsrmr_server.recording import TOPIC_CAMERA_INFO, RunRecorder
 from gsrmr_server.render_intrinsics import RenderIntrinsics
@@ -55,6 +59,9 @@ from gsrmr_server.server_params import INTERFACE, ServerParameters
 from gsrmr_server.server_stats import ServerStats, diagnostic_report
 from gsrmr_server.slot_core import WARM_UP_INTRINSICS, build_server_core, count_composition_faults
 from gsrmr_splat.model import GaussianModel
+
+#: A slot composed later than this fraction of τ after its start skips its registration (the localizer is shed first).
+LATE_FRACTION = 0.5
 
 
 class ServerNode(Node):
@@ -92,6 +99,10 @@ class ServerNode(Node):
         self._pub_mr_c = self.create_publisher(CompressedImage, "mr/image/compressed", 5)
         self._pub_loss = self.create_publisher(Float64MultiArray, "gsrmr/loss_sample", LOSS_SAMPLE_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._pub_correction = self.create_publisher(Float64MultiArray, MAP_CORRECTION_TOPIC, CAMERA_INFO_QOS)
+        self.localizer = (ServerLocalizer(p.model_path, p.camera_mount, p.background_rgb,
+                                          LocalizerConfig(min_interval_s=p.localization_interval_s))
+                          if p.localization else None)
         # what is taken from the graph, and from whom (docs/security.md, "Application checks"); per writer endpoint:
         # a few messages per slot sustained (relay duplicates and reorderings come in bursts)
         self.inputs = GatedInputs(self, callback_group=io)
@@ -194,11 +205,32 @@ class ServerNode(Node):
         compressed = compressed_to_msg(out.jpeg, start_ns, CAMERA_OPTICAL_FRAME)
         self._pub_mr_c.publish(compressed)
         self.stats.record(latency_ms, out.composed.source, out.composed.timings_ms)
+        if self.localizer is not None:
+            self._localize(out, uploads, plan.ledger, start_ns, latency_ms, swapped)
         if self.recorder is not None:
             if out.composed.source == RealSource.IMAGE and uploads.key is not None and uploads.jpeg is not None:
                 self.recorder.write_received(uploads.jpeg, uploads.key, start_ns)  # training data for an update
             self.recorder.write_slot(replace(out.row, latency_ms=latency_ms), compressed, self._cmd,
                                      stamp_ns=start_ns)
+
+    def _localize(self, out, uploads, ledger, start_ns: int, latency_ms: float, swapped) -> None:
+        """Hand an image slot's decoded image and key to the localizer (off the slot path; shed when this slot ran
+        late) and publish the correction a fix gives."""
+        now_s = self.get_clock().now().nanoseconds / 1e9
+        if swapped is not None:
+            self.localizer.swap_model(swapped.path)
+        if uploads.key is not None:
+            self.localizer.note_key(uploads.key)
+        if out.composed.source == RealSource.IMAGE and uploads.key is not None and ledger is not None:
+            self.localizer.offer(to_u8(out.composed.real_estimate), uploads.key, ledger.correction_seq,
+                                 self.camera.intrinsics, start_ns / 1e9, now_s,
+                                 late=latency_ms > LATE_FRACTION * 1e3 * self.params.slot_s)
+        correction = self.localizer.poll(now_s)
+        if correction is not None:
+            self._pub_correction.publish(map_correction_to_msg(correction_record(correction)))
+            x, sd = correction.x, [v ** 0.5 for v in correction.variance]
+            self.get_logger().info(f"map correction {correction.seq}: ({x.x_m:+.4f} m, {x.y_m:+.4f} m, "
+                                   f"{x.theta_rad:+.5f} rad) ± ({sd[0]:.4f}, {sd[1]:.4f}, {sd[2]:.5f})")
 
     def security_summary(self) -> dict:
         """What the known-writer and plausibility checks refused, and the live parameter changes (JSON-able)."""
@@ -210,6 +242,12 @@ class ServerNode(Node):
             values.update({k: json.dumps(v) if isinstance(v, dict) else v for k, v in self.security_summary().items()})
             values.update(self.model_swap.diagnostic_values(), model_gaussians=self.composer.model.num_gaussians)
             problems += self.inputs.problems() + self.checked.problems() + self.model_swap.problems()
+            if self.localizer is not None:
+                now_s = self.get_clock().now().nanoseconds / 1e9
+                values.update({k: json.dumps(v) if isinstance(v, dict) else v
+                               for k, v in self.localizer.diagnostic_values(now_s).items()})
+                if values["localization"] != TRACKING:
+                    problems.append(f"localization {values['localization']}")
         self._pub_diag.publish(diagnostics_msg(self, name=f"{self.get_name()}: MR composition",
                                                hardware_id="gsrmr_server", values=values, problems=problems))
 
@@ -217,6 +255,8 @@ class ServerNode(Node):
         """Close the recording and write ``server_summary.json`` beside it (called by run_node on exit); log what the
         input checks refused."""
         self.inputs.log_summary(self.checked.implausible, relocalisations=self.checked.poses.relocalisations)
+        if self.localizer is not None:
+            self.localizer.close()
         if self.recorder is not None:
             self.recorder.close()
             summary = {**self.stats.summary(self.uplink.faults), **self.security_summary()}

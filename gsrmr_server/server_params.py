@@ -66,6 +66,12 @@ class ServerParameters(NodeParameters):
         1.5, "The robot's top speed: pose keys moving faster are refused (a relocalisation is accepted after 5 keys "
         "that agree with each other); the LIMO clamps each axis to 1 m/s, √2 diagonally in mecanum mode [m/s]",
         min_value=0.01, max_value=20.0, read_only=True)
+    localization: bool = ros_parameter(
+        True, "Localize the robot from the images it uploads (one registration a second at most, off the slot path) "
+        "and publish map → odom corrections on gsrmr/map_correction", read_only=True)
+    localization_interval_s: float = ros_parameter(
+        1.0, "Register at most one received image per this many seconds", min_value=0.1, max_value=60.0,
+        read_only=True)
     # Declared read-only by gsrmr_common.ros_node.declare_camera_mount / declare_link_budget (config/*.yaml).
     camera_mount: CameraMount = field(default_factory=CameraMount)
     link: LinkBudget = field(default_factory=LinkBudget)
@@ -111,6 +117,8 @@ INTERFACE = NodeInterface(
                Endpoint("mr/image/compressed", "sensor_msgs/msg/CompressedImage"),
                Endpoint("mr/slot_info", "std_msgs/msg/Float64MultiArray", "what each MR image was composed from"),
                Endpoint("gsrmr/loss_sample", "std_msgs/msg/Float64MultiArray", "the GS loss at an image slot's key"),
+               Endpoint("gsrmr/map_correction", "std_msgs/msg/Float64MultiArray", "the robot's map → odom "
+                        "correction, latched (localization)"),
                Endpoint("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray")),
     parameters=(ParameterGroup(ServerParameters), ParameterGroup(CameraMountParameters, MOUNT_PREFIX),
                 ParameterGroup(LinkParameters)))

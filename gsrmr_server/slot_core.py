@@ -99,7 +99,9 @@ class ServerCore:
             round_slot=ledger.round_slot if ledger else None,
             held_back=ledger.held_back if ledger else None,
             uplink_rate_bps=ledger.uplink_rate_bps if ledger and math.isfinite(ledger.uplink_rate_bps) else None,
-            scene_change=ledger.scene_change if ledger else None)
+            scene_change=ledger.scene_change if ledger else None,
+            frame_stamp_s=ledger.frame_stamp_s if ledger and math.isfinite(ledger.frame_stamp_s) else None,
+            correction_seq=ledger.correction_seq if ledger else None)
         info = MRSlotInfo.of(result.slot, result.source, result.pose, time_s)
         return SlotOutcome(result, to_u8(result.mr), row, sample, info, self.jpeg_quality)
 

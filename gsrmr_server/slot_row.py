@@ -46,6 +46,8 @@ class SlotRow:
     held_back: int | None = None  # 1: an image was asked for, the robot sent the key (its last image still queued)
     uplink_rate_bps: float | None = None  # the robot's estimate of the uplink throughput from image acks
     scene_change: int | None = None  # 1: the robot's scene-change test fired on this slot's frame (its ledger)
+    frame_stamp_s: float | None = None  # capture stamp of the frame the key stands for [s, ROS time] (its ledger)
+    correction_seq: int | None = None  # the map → odom correction the key was made with (its ledger; 0: none)
 
 
 SLOT_ROW_COLUMNS = tuple(f.name for f in fields(SlotRow))

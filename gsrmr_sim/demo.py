@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Sequence
 import hashlib
+import math
 from pathlib import Path
 import signal
 import sys
@@ -22,17 +23,19 @@ import yaml
 from gsrmr_scheduler.loss_map import LossMap
 from gsrmr_sim import netns
 from gsrmr_sim.fleet import fleet_demo
+from gsrmr_sim.limo.odometry_errors import OdometryErrors, run_settings
 from gsrmr_sim.link_events import LinkEvent, parse_link_events
 from gsrmr_sim.models import LIVE_MAX_PSNR_DROP_DB, BuiltModel, live_model, live_recipe
 from gsrmr_sim.param_events import ParamEvent, swap_loss_map_event, swap_model_event, swap_summary
+from gsrmr_sim.pose_errors import key_pose_errors, read_truth
 from gsrmr_sim.report import copy_recording, link_summary, log, run_summary, summary_json, write_report
 from gsrmr_sim.round_start import first_moving_slot as first_moving_slot  # re-exported: test_pipeline_units
 from gsrmr_sim.rounds import run_rounds, worlds_cache
-from gsrmr_sim.sim_stack import config_dir, robot_jpeg_quality, sim_stack
+from gsrmr_sim.sim_stack import TRUTH_LOG, config_dir, robot_jpeg_quality, sim_stack
 from gsrmr_sim.stack_runner import RobotRun, limo_link_path, run_round
 from gsrmr_sim.survey import SURVEY_VERSION, gs_losses, loss_map_from
 from gsrmr_sim.world.recorder import Round2Record, record_round2
-from gsrmr_sim.world.scene import load_scene
+from gsrmr_sim.world.scene import Scene, load_scene
 from gsrmr_splat.model import GaussianModel
 
 REPO = Path(__file__).resolve().parents[1]
@@ -118,7 +121,9 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
               oracle_channel: bool = False, hosts: int = 1, uplink_mbit: float = 5.0,
               link_events: Sequence[LinkEvent] = (), link_log: dict | None = None,
               overrides: dict[str, dict] | None = None, label: str = "round 2",
-              param_events: Sequence[ParamEvent] = (), param_log: list | None = None) -> RobotRun:
+              param_events: Sequence[ParamEvent] = (), param_log: list | None = None,
+              odometry: OdometryErrors = OdometryErrors(), odometry_seed: int = 0,
+              localization: bool = True) -> RobotRun:
     """Run the single robot's closed loop (:func:`gsrmr_sim.sim_stack.sim_stack`: recording in
     ``<run_dir>/recording``) with :func:`gsrmr_sim.stack_runner.run_round`: every node a process over DDS, stopped
     after ``slots`` composed slots of the round; return the robot's run (its scored rows).
@@ -135,11 +140,27 @@ def run_stack(*, scene: str, model_path: Path, loss_map: Path, run_dir: Path, lo
                       loss_threshold=loss_threshold, link_path=limo_link_path(), laps=1, method=method,
                       loss_map_file=str(loss_map), state_dir=str(run_dir / "scheduler_state"),
                       channel_seed=channel_seed, oracle_channel=oracle_channel,
-                      truth_dir=str(run_dir / "truth_frames") if hosts == 2 else "", overrides=overrides)
+                      truth_dir=str(run_dir / "truth_frames") if hosts == 2 else "", overrides=overrides,
+                      odometry=odometry, odometry_seed=odometry_seed, localization=localization)
     (run,) = run_round(specs, run_dir=run_dir, slots=slots, timeout_s=timeout_s, hosts=hosts,
                        uplink_mbit=uplink_mbit, link_events=link_events, link_log=link_log, label=label,
                        param_events=param_events, param_log=param_log, log=log)
     return run
+
+
+def odometry_settings(args: argparse.Namespace, scene: Scene) -> dict:
+    """``run_stack``'s odometry arguments from the demo's options (:func:`gsrmr_sim.limo.odometry_errors.run_settings`:
+    ``--odometry``, ``--odometry-error-scale``, ``--odometry-seed``, ``--no-localization``)."""
+    return run_settings(args.odometry, args.odometry_error_scale, args.odometry_seed, args.channel_seed,
+                        not args.no_localization, scene.odometry)
+
+
+def pose_summary(args: argparse.Namespace, rows: list[dict], record_dir: Path) -> dict:
+    """The summary's odometry settings and, in hindsight, the keys' pose errors (:mod:`gsrmr_sim.pose_errors`)."""
+    truth_log = Path(record_dir) / TRUTH_LOG
+    errors = key_pose_errors(rows, read_truth(truth_log)) if truth_log.exists() else key_pose_errors([], None)
+    return {"odometry": args.odometry, "odometry_error_scale": args.odometry_error_scale,
+            "localization": not args.no_localization, **errors}
 
 
 def parse_params(items: Sequence[str]) -> dict[str, dict]:
@@ -163,7 +184,7 @@ def rounds_demo(args: argparse.Namespace, *, scene_name: str, slots: int, slot_s
         run = run_stack(scene=scene_name, model_path=model, loss_map=loss_map, run_dir=run_dir,
                         loss_threshold=args.loss_threshold, slots=slots, method=args.method,
                         timeout_s=slots * slot_s + 120.0, channel_seed=args.channel_seed, overrides=overrides,
-                        label=f"round {k}")
+                        label=f"round {k}", **odometry_settings(args, load_scene(scene_name)))
         copy_recording(run_dir, run.record_dir, run.first_moving, len(run.rows))
         summary = {**run_summary(args, run.rows, slot_s, built, args.channel_seed), "round": k,
                    "model_path": str(model), "loss_map_path": str(loss_map), "report_dir": str(run_dir)}
@@ -261,12 +282,23 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="N scored rounds after the mapping round, in the world as it is in each (a scene's "
                          "persistent changes stay from their round on; gsrmr_sim.rounds); the last JSON line then "
                          "carries 'rounds'")
+    ap.add_argument("--odometry", choices=("realistic", "perfect"), default="realistic",
+                    help="the mock LIMO's odometry: the scene's errors (slip, IMU drift, start error; docs/world.md) "
+                         "or none")
+    ap.add_argument("--odometry-error-scale", type=float, default=1.0, metavar="K",
+                    help="every odometry error times K (sweeps)")
+    ap.add_argument("--odometry-seed", type=int, default=None, help="seed of the odometry errors (default: the "
+                    "channel seed)")
+    ap.add_argument("--no-localization", action="store_true",
+                    help="the server does not localize the robot (its keys are its odometry's)")
     ap.add_argument("--update", action="store_true",
                     help="with --rounds N >= 2: update the model between rounds from what the server received "
                          "(gsrmr-dataset, gsrmr-update, gsrmr-survey; docs/model_update.md)")
     args = ap.parse_args(argv)
     if args.rounds < 1:
         ap.error("--rounds must be >= 1")
+    if not (math.isfinite(args.odometry_error_scale) and args.odometry_error_scale >= 0):
+        ap.error("--odometry-error-scale must be >= 0")
     if args.update and args.rounds < 2:
         ap.error("--update needs --rounds N >= 2 (an update follows rounds 1 … N-1)")
     if args.rounds > 1 and (args.robots is not None or args.hosts == 2 or args.oracle):
@@ -361,10 +393,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                     timeout_s=slots * scene.slot_s + 120.0, channel_seed=args.channel_seed,
                     oracle_channel=args.oracle, hosts=args.hosts, uplink_mbit=args.uplink_mbit,
                     link_events=link_events, link_log=link_log, overrides=args.overrides,
-                    param_events=swap_events, param_log=param_log)
+                    param_events=swap_events, param_log=param_log, **odometry_settings(args, scene))
     rows = run.rows
     copy_recording(out, run.record_dir, run.first_moving, len(rows))
     summary = {**run_summary(args, rows, scene.slot_s, built, args.channel_seed), **inputs,
+               **pose_summary(args, rows, run.record_dir),
                **({"model_compacted": None} if outside_model is not None else {}),  # not known of an outside model
                "hosts": args.hosts, **(link_summary(link_log, rows, args.uplink_mbit) if args.hosts == 2 else {}),
                **(swap_summary(param_log, (out / "logs" / "gsrmr_server.log").read_text(errors="replace"), rows,

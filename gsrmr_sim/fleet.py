@@ -14,10 +14,12 @@ import time
 from typing import TYPE_CHECKING
 
 from gsrmr_sim.cpu_usage import CPU_GROUPS
+from gsrmr_sim.limo.odometry_errors import OdometryErrors, run_settings
 from gsrmr_sim.link_events import LinkEvent
 from gsrmr_sim.report import copy_recording, link_summary, log, run_summary, summarise, summary_json, write_report
 from gsrmr_sim.sim_stack import fleet_stack
 from gsrmr_sim.stack_runner import RobotRun, limo_link_path, run_round
+from gsrmr_sim.world.scene import load_scene
 
 if TYPE_CHECKING:
     from gsrmr_sim.models import BuiltModel
@@ -28,7 +30,9 @@ def run_fleet(*, robots: int, scene: str, model_path: Path, loss_map: Path | str
               oracle_channel: bool = False, hosts: int = 1, uplink_mbit: float = 5.0,
               link_events: Sequence[LinkEvent] = (), link_log: dict | None = None,
               overrides: dict[str, dict] | None = None, kill_safe: bool = False,
-              warm_timeout_s: float | None = None, domain_id: int | None = None) -> list[RobotRun]:
+              warm_timeout_s: float | None = None, domain_id: int | None = None,
+              odometry: OdometryErrors = OdometryErrors(), odometry_seed: int | None = None,
+              localization: bool = True) -> list[RobotRun]:
     """Run ``robots`` closed loops (:func:`gsrmr_sim.sim_stack.fleet_stack`; robot k's recording, scheduler state
     and truth frames under ``<run_dir>/robot<k>/``) with :func:`gsrmr_sim.stack_runner.run_round`: stop once every
     robot has composed ``slots`` slots of its round; return each robot's run.
@@ -42,7 +46,8 @@ def run_fleet(*, robots: int, scene: str, model_path: Path, loss_map: Path | str
                         record_dir=per_robot + "/recording", loss_threshold=loss_threshold, link_path=limo_link_path(),
                         laps=1, method=method, loss_map_file=str(loss_map), state_dir=per_robot + "/scheduler_state",
                         channel_seed=channel_seed, oracle_channel=oracle_channel,
-                        truth_dir=per_robot + "/truth_frames" if hosts == 2 else "", overrides=overrides)
+                        truth_dir=per_robot + "/truth_frames" if hosts == 2 else "", overrides=overrides,
+                        odometry=odometry, odometry_seed=odometry_seed, localization=localization)
     return run_round(specs, run_dir=run_dir, slots=slots, timeout_s=timeout_s, hosts=hosts, uplink_mbit=uplink_mbit,
                      link_events=link_events, link_log=link_log, kill_safe=kill_safe, warm_timeout_s=warm_timeout_s,
                      domain_id=domain_id, log=log)
@@ -78,7 +83,10 @@ def fleet_demo(args: argparse.Namespace, *, slots: int, slot_s: float, out: Path
                      loss_threshold=args.loss_threshold, slots=slots, method=args.method,
                      timeout_s=slots * slot_s + 120.0, channel_seed=args.channel_seed, oracle_channel=args.oracle,
                      hosts=args.hosts, uplink_mbit=args.uplink_mbit, link_events=link_events, link_log=link_log,
-                     overrides=getattr(args, "overrides", None) or None)
+                     overrides=getattr(args, "overrides", None) or None,
+                     **run_settings(getattr(args, "odometry", "perfect"), getattr(args, "odometry_error_scale", 1.0),
+                                    getattr(args, "odometry_seed", None), args.channel_seed,
+                                    not getattr(args, "no_localization", False), load_scene(args.scene).odometry))
     per_robot = []
     for run in runs:
         copy_recording(run.report_dir, run.record_dir, run.first_moving, len(run.rows))

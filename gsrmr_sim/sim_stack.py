@@ -7,7 +7,7 @@ executables with :func:`command_line`, so what is tested is what ``ros2 launch g
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 import os
 from pathlib import Path
 import shutil
@@ -19,7 +19,9 @@ import yaml
 
 from gsrmr_common.link_model import LinkBudget
 from gsrmr_common.link_params import LinkParameters
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_sim.limo.mock import GROUND_TRUTH_TOPIC
+from gsrmr_sim.limo.odometry_errors import OdometryErrorDraw, OdometryErrors
 from gsrmr_sim.world.kinematics import start_pose
 from gsrmr_sim.world.scene import load_scene
 
@@ -70,7 +72,7 @@ SCORER_NICE = 19
 SIM_WRITERS: dict[str, dict[str, list[str]]] = {
     "gsrmr_robot": {"schedule_writers": ["gsrmr_scheduler"], "channel_writers": ["gsrmr_sim_channel"],
                     "camera_writers": ["gsrmr_mock_camera"], "odom_writers": ["gsrmr_limo_base"],
-                    "image_readers": ["gsrmr_server"]},
+                    "image_readers": ["gsrmr_server"], "correction_writers": ["gsrmr_server"]},
     "gsrmr_server": {"robot_writers": ["gsrmr_robot"], "schedule_writers": ["gsrmr_scheduler"],
                      "cmd_vel_writers": ["gsrmr_route_follower"]},
     "gsrmr_scheduler": {"robot_writers": ["gsrmr_robot"], "loss_writers": ["gsrmr_server"],
@@ -110,7 +112,8 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
               link_path: str = "/tmp/gsrmr_limo", laps: int = 1, method: str = "exact",
               loss_map_file: str = "", state_dir: str = "", overrides: dict[str, dict] | None = None,
               config: Path | None = None, channel_seed: int | None = None,
-              oracle_channel: bool = False, truth_dir: str = "") -> list[ProcessSpec]:
+              oracle_channel: bool = False, truth_dir: str = "", odometry: OdometryErrors = OdometryErrors(),
+              odometry_seed: int = 0, localization: bool = True) -> list[ProcessSpec]:
     """Every process of the simulated closed loop (mock base, camera and radio, robot, server, scheduler).
 
     Each process says which machine it belongs to (``host``): the robot (base, camera, robot node and the
@@ -122,13 +125,17 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
     ``channel_seed`` overrides ``config/link.yaml``'s for the simulated radio (and the scheduler, which
     only uses it with ``oracle_channel``: planning with the simulator's future fading, an upper bound).
     ``overrides``: parameters per node name (``{"gsrmr_server": {...}}``), applied last; ValueError for a
-    name that is no node of the stack.
+    name that is no node of the stack. ``odometry``: what the mock base's odometry gets wrong (drawn from
+    ``odometry_seed``): the robot is set down off its believed start (``map_from_odom``) by the draw's start error.
+    ``localization``: the server localizes the robot and the robot takes its corrections.
     """
     cfg = config or config_dir()
     link, base, robot, server, scheduler = (
         str(cfg / n) for n in ("link.yaml", "limo_base.yaml", "robot.yaml", "server.yaml", "scheduler.yaml"))
     sc = load_scene(scene)
-    a0, b0, t0 = start_pose(sc.route)
+    a0, b0, t0 = start_pose(sc.route)  # where the robot believes it starts
+    draw = OdometryErrorDraw(odometry, odometry_seed)
+    ta, tb, tt = draw.true_start(Pose2D(a0, b0, t0))  # where it really does
     m = sc.camera.mount  # the simulated camera's mount: the robot's /tf_static and the server's render pose
     mount = m.as_parameters()
     over = overrides or {}
@@ -139,7 +146,11 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
     composition.update({k: v for k, v in over.get("gsrmr_server", {}).items() if k in composition})
     specs = [
         ProcessSpec("gsrmr-mock-limo", "gsrmr_mock_limo", ros=True,
-                    arguments=["--link", link_path, f"--start-pose={a0},{b0},{t0}"], nice=WORLD_NICE),
+                    arguments=["--link", link_path, f"--start-pose={ta},{tb},{tt}", "--odometry",
+                               ",".join(f"{f.name}={getattr(odometry, f.name)!r}" for f in fields(odometry)),
+                               f"--odometry-seed={odometry_seed}",
+                               *([f"--truth-log={Path(record_dir) / TRUTH_LOG}"] if record_dir else [])],
+                    nice=WORLD_NICE),
         ProcessSpec("gsrmr-limo-base", "gsrmr_limo_base", [base], {"port": link_path}),
         ProcessSpec("gsrmr-mock-camera", "gsrmr_mock_camera", [],
                     {"scene": scene, "round": 2, "clock_from_motion": True, "truth_dir": truth_dir}, nice=WORLD_NICE),
@@ -147,9 +158,9 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
                     {"scene": scene, "laps": laps, "odom_topic": GROUND_TRUTH_TOPIC}, nice=WORLD_NICE),
         ProcessSpec("gsrmr-sim-channel", "gsrmr_sim_channel", [link], seed, nice=WORLD_NICE),
         ProcessSpec("gsrmr-robot", "gsrmr_robot", [link, robot],
-                    {"map_from_odom": [a0, b0, t0], **mount}),
+                    {"map_from_odom": [a0, b0, t0], "localization": "server" if localization else "off", **mount}),
         ProcessSpec("gsrmr-server", "gsrmr_server", [link, server], host="server",
-                    params={**composition, "record_dir": record_dir}),
+                    params={**composition, "record_dir": record_dir, "localization": localization}),
         # the simulation's ground-truth scoring of the server's MR images, beside the server (scores.csv in its
         # record_dir); composes as the server does, at the lowest priority (SCORER_NICE)
         ProcessSpec("gsrmr-sim-scorer", "gsrmr_sim_scorer", [link], host="server", nice=SCORER_NICE,
@@ -174,6 +185,9 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
     return specs
 
 
+#: The mock base's true poses, in the record folder (``stamp_ns,x_m,y_m,yaw_rad``): the hindsight pose errors.
+TRUTH_LOG = "truth_poses.csv"
+
 ROBOT_NAMESPACE_PREFIX = "robot"
 
 
@@ -195,7 +209,8 @@ def fleet_stack(*, robots: int, scene: str = "sandbox", model_path: str, record_
                 method: str = "exact", loss_map_file: str = "", state_dir: str = "",
                 overrides: dict[str, dict] | None = None, config: Path | None = None,
                 channel_seed: int | None = None, oracle_channel: bool = False, truth_dir: str = "",
-                prefix: str = ROBOT_NAMESPACE_PREFIX) -> list[ProcessSpec]:
+                prefix: str = ROBOT_NAMESPACE_PREFIX, odometry: OdometryErrors = OdometryErrors(),
+                odometry_seed: int | None = None, localization: bool = True) -> list[ProcessSpec]:
     """``robots`` closed loops side by side: every process of :func:`sim_stack` once per robot, robot k
     (1-based) in namespace ``/robot<k>`` with its own server, scheduler and simulated world.
 
@@ -218,7 +233,9 @@ def fleet_stack(*, robots: int, scene: str = "sandbox", model_path: str, record_
                               method=method, loss_map_file=loss_map_file,
                               state_dir=per_robot_path(state_dir, name), overrides=overrides, config=cfg,
                               channel_seed=base_seed + k - 1, oracle_channel=oracle_channel,
-                              truth_dir=per_robot_path(truth_dir, name)):
+                              truth_dir=per_robot_path(truth_dir, name), odometry=odometry,
+                              odometry_seed=(base_seed if odometry_seed is None else odometry_seed) + k - 1,
+                              localization=localization):
             spec.namespace = ns
             specs.append(spec)
     return specs

@@ -15,7 +15,8 @@ from gsrmr_server.slot_row import SLOT_ROW_COLUMNS
 
 CSV_COLUMNS = SLOT_ROW_COLUMNS  # the fields of gsrmr_server.slot_row.SlotRow, in order
 CSV_NAME = "slots.csv"
-_INT_COLUMNS = frozenset({"slot", "x", "bytes_sent", "scored", "round_slot", "held_back", "scene_change"})
+_INT_COLUMNS = frozenset({"slot", "x", "bytes_sent", "scored", "round_slot", "held_back", "scene_change",
+                          "correction_seq"})
 _STR_COLUMNS = frozenset({"source", "faults"})
 SOURCES = tuple(s.value for s in RealSource)  # the source column: where r̂_t came from
 

@@ -364,6 +364,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--odometry", default="", type=odometry_arg, metavar="NAME=VALUE,...",
                    help="odometry errors (gsrmr_sim.limo.odometry_errors.OdometryErrors fields; '' = perfect)")
     p.add_argument("--odometry-seed", type=int, default=0, help="seed of the IMU bias and random walk")
+    p.add_argument("--truth-log", default="", metavar="CSV",
+                   help=f"also write every true pose published on {GROUND_TRUTH_TOPIC} here (stamp_ns,x_m,y_m,yaw_rad)")
     p.add_argument("--ros", action=argparse.BooleanOptionalAction, default=True,
                    help=f"publish the true pose on {GROUND_TRUTH_TOPIC} (relative to the node's namespace)")
     return p

@@ -8,6 +8,7 @@ twist in ``base_link``, at the mock's stream rate (50 Hz), reliable QoS, depth 1
 from __future__ import annotations
 
 import math
+from pathlib import Path
 import signal
 import sys
 import threading
@@ -31,20 +32,26 @@ INTERFACE = NodeInterface(
 class GroundTruthPublisher(Node):
     """Publishes ``MockLimo.true_pose()`` as nav_msgs/Odometry."""
 
-    def __init__(self, mock: MockLimo, **node_kwargs) -> None:
+    def __init__(self, mock: MockLimo, truth_log: str = "", **node_kwargs) -> None:
         super().__init__("gsrmr_mock_limo", **node_kwargs)
         self.mock = mock
+        if truth_log:
+            Path(truth_log).parent.mkdir(parents=True, exist_ok=True)
+        self._log = open(truth_log, "w", buffering=1 << 16) if truth_log else None  # noqa: SIM115 (closed on exit)
+        if self._log is not None:
+            self._log.write("stamp_ns,x_m,y_m,yaw_rad\n")
         self._pub = self.create_publisher(Odometry, GROUND_TRUTH_TOPIC, 10)
         self.create_timer(1.0 / mock.rate_hz, self._tick)
         self.get_logger().info(f"mock LIMO on {mock.link_path}; true pose on {self._pub.topic_name}")
 
     def _tick(self) -> None:
         stamp_ns, (x, y, yaw) = self.mock.true_pose_stamped()
+        stamp_ns = stamp_ns or self.get_clock().now().nanoseconds
         v = self.mock.true_velocity()
         msg = Odometry()
         # stamped with the time the pose is true at (the mock's integration tick, up to one tick before now),
         # so the mock camera renders each frame at exactly the pose its stamp names
-        msg.header.stamp = Time(nanoseconds=stamp_ns or self.get_clock().now().nanoseconds).to_msg()
+        msg.header.stamp = Time(nanoseconds=stamp_ns).to_msg()
         msg.header.frame_id = "map"
         msg.child_frame_id = "base_link"
         msg.pose.pose.position.x = x
@@ -55,6 +62,13 @@ class GroundTruthPublisher(Node):
         msg.twist.twist.linear.y = v.vy_mps
         msg.twist.twist.angular.z = v.wz_radps
         self._pub.publish(msg)
+        if self._log is not None:
+            self._log.write(f"{stamp_ns},{x!r},{y!r},{yaw!r}\n")
+
+    def on_shutdown(self) -> None:
+        """Close the truth log (called by run_node on exit)."""
+        if self._log is not None:
+            self._log.close()
 
 
 def _wait_for_a_signal() -> None:
@@ -80,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"mock LIMO ready: {mock.link_path} -> {mock.slave_name}", flush=True)
     try:
         if ns.ros:
-            return run_node(lambda: GroundTruthPublisher(mock), [argv[0], *rest], interface=INTERFACE)
+            return run_node(lambda: GroundTruthPublisher(mock, ns.truth_log), [argv[0], *rest], interface=INTERFACE)
         _wait_for_a_signal()
         return 0
     finally:

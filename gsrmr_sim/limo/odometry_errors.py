@@ -80,3 +80,13 @@ class OdometryErrorDraw:
             step = float(self._walk_rng.normal(0.0, walk * math.sqrt(dt_s))) if walk else 0.0
             self.imu_offset_rad += self.imu_bias_radps * dt_s + step
         return self.imu_offset_rad
+
+
+def run_settings(mode: str, scale: float, seed: int | None, channel_seed: int | None, localization: bool,
+                 scene_errors: OdometryErrors) -> dict:
+    """A run's odometry arguments (``sim_stack``'s ``odometry``, ``odometry_seed``, ``localization``) from
+    ``gsrmr-demo --odometry MODE --odometry-error-scale K --odometry-seed N [--no-localization]``: the scene's errors
+    times K (``realistic``) or none (``perfect``), drawn from N, else the channel seed."""
+    errors = scene_errors.scaled(scale) if mode == "realistic" else OdometryErrors()
+    return {"odometry": errors, "odometry_seed": int(seed if seed is not None else (channel_seed or 0)),
+            "localization": bool(localization)}

@@ -248,7 +248,9 @@ def test_transform_to_msg_fields() -> None:
     assert _as_transform(msg)[2] == tf
 
 
-def test_robot_node_sends_static_tf_and_resends_on_map_from_odom_change(fake_tf2_ros, ros_context) -> None:
+def test_robot_node_sends_the_mount_static_and_map_to_odom_on_tf(fake_tf2_ros, ros_context) -> None:
+    """base_link → camera on /tf_static (once, and again when camera_frame_id changes); map → odom on /tf every slot,
+    from map_from_odom (and the server's corrections): it is no longer static."""
     from rclpy.parameter import Parameter
 
     from gsrmr_robot.robot_node import RobotNode
@@ -260,32 +262,34 @@ def test_robot_node_sends_static_tf_and_resends_on_map_from_odom_change(fake_tf2
         Parameter("camera_mount.pitch_rad", value=mount.pitch_rad),
         Parameter("camera_mount.forward_m", value=mount.forward_m),
         Parameter("camera_mount.left_m", value=mount.left_m),
-        Parameter("live_parameter_changes", value=True)])  # issue 28: live changes are off unless started on
+        Parameter("live_parameter_changes", value=True)])  # live changes are off unless started on
     try:
         (static,) = fake_tf2_ros.StaticTransformBroadcaster.instances
-        assert not fake_tf2_ros.TransformBroadcaster.instances  # odom → base_link is the base driver's
+        (dynamic,) = fake_tf2_ros.TransformBroadcaster.instances
         assert len(static.sent) == 1
-        edges = {(p, c): t for p, c, t in map(_as_transform, static.sent[0])}
-        assert set(edges) == {("map", "odom"), ("base_link", "camera_optical_frame")}
+        assert {(p, c) for p, c, _ in map(_as_transform, static.sent[0])} == {("base_link", "camera_optical_frame")}
+        now_ns = node.get_clock().now().nanoseconds
+        node.run_slot(node.clock.slot_at(now_ns), now_ns)
+        ((parent, child, map_odom),) = map(_as_transform, dynamic.sent[-1])
+        assert (parent, child) == ("map", "odom")
+        (_, _, mount_tf) = _as_transform(static.sent[0][0])
         odom_pose = (0.4, 0.3, -1.2)
-        chain = (tf_tree.transform_matrix(edges["map", "odom"])
+        chain = (tf_tree.transform_matrix(map_odom)
                  @ tf_tree.transform_matrix(tf_tree.odom_from_base_transform(*odom_pose))
-                 @ tf_tree.transform_matrix(edges["base_link", "camera_optical_frame"]))
+                 @ tf_tree.transform_matrix(mount_tf))
         np.testing.assert_allclose(chain, camera_to_world_from_pose(
             *compose_planar((1.0, -2.0, 0.5), odom_pose), mount), atol=1e-12)
 
         assert node.set_parameters([Parameter("map_from_odom", value=[3.0, 4.0, -1.0])])[0].successful
-        assert len(static.sent) == 2
-        # Every send carries both static edges: tf2_ros latches only the last /tf_static message.
-        edges = {(p, c): t for p, c, t in map(_as_transform, static.sent[1])}
-        assert edges["map", "odom"] == tf_tree.map_from_odom_transform(3.0, 4.0, -1.0)
-        assert edges["base_link", "camera_optical_frame"] == tf_tree.base_from_camera_optical_transform(mount)
-
+        node.run_slot(node.clock.slot_at(now_ns) + 1, now_ns + 100_000_000)
+        assert _as_transform(dynamic.sent[-1][0])[2] == tf_tree.map_from_odom_transform(3.0, 4.0, -1.0)
         assert not node.set_parameters([Parameter("map_from_odom", value=[1.0, 2.0])])[0].successful
         assert node.params.map_from_odom == (3.0, 4.0, -1.0)  # a refused value changes nothing
         assert node.set_parameters([Parameter("jpeg_quality", value=70)])[0].successful
         assert node.params.jpeg_quality == node.core.jpeg_quality == 70  # applied after it was accepted
-        assert len(static.sent) == 2  # neither a refused value nor another parameter re-sends
+        assert len(static.sent) == 1  # the mount is re-sent only for a new camera_frame_id
+        assert node.set_parameters([Parameter("camera_frame_id", value="cam2")])[0].successful
+        assert len(static.sent) == 2 and _as_transform(static.sent[1][0])[1] == "cam2"
     finally:
         node.destroy_node()
 

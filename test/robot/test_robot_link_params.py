@@ -69,6 +69,14 @@ ROBOT_DECLARED = {
                       "throughput instead"),
     "max_tx_power_w": (0.1, (1e-06, 10.0), True, "The radio's maximum transmit power [W]: a schedule asking for more "
                        "is refused"),
+    # the server's localization: where map → odom comes from and which corrections are taken
+    "localization": ("server", None, True, "Where map → odom comes from: server = map_from_odom corrected by the "
+                     "server's gsrmr/map_correction (the server localizes the robot from its images), off = "
+                     "map_from_odom alone (another localizer sets it)"),
+    "correction_writers": (["gsrmr_server"], None, True, "Nodes whose gsrmr/map_correction is taken"),
+    "max_correction_step_m": (0.5, (0.01, 10.0), True, "A correction moving map → odom further than this from the one "
+                              "in force is refused [m]"),
+    "max_correction_step_deg": (20.0, (0.1, 180.0), True, "… or turning it more than this [deg]"),
 }
 # config/link.yaml's parameters, as ros_node.declare_link_budget declared them inline before.
 LINK_DECLARED = {

@@ -45,6 +45,9 @@ SERVER_DECLARED = {
     "schedule_writers": (["gsrmr_scheduler"], None, True),
     "cmd_vel_writers": (["*"], None, True),
     "max_speed_mps": (1.5, (0.01, 20.0), True),
+    # the server's localization of the robot
+    "localization": (True, None, True),
+    "localization_interval_s": (1.0, (0.1, 60.0), True),
 }
 SCHEDULER_DECLARED = {
     "slot_s": (0.1, (0.01, 10.0), True),
