@@ -38,7 +38,6 @@ import tempfile
 import time
 
 from demo import run_once
-from machine import machine_line
 import numpy as np
 
 from gsrmr_common.camera import Camera, opencv_w2c_to_opengl_c2w
@@ -46,6 +45,7 @@ from gsrmr_common.metrics import psnr
 from gsrmr_common.nerfstudio import holdout_split, read_dataset
 from gsrmr_offline import survey_cli
 from gsrmr_sim.demo import ensure_survey
+from gsrmr_sim.machine_probe import machine_line
 from gsrmr_sim.models import BuiltModel, ModelRecipe, build_model, live_model, live_recipe
 from gsrmr_sim.world.scene import load_scene
 from gsrmr_splat.align import Similarity, rotation_angle_deg, transform_model
@@ -136,8 +136,8 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="tiny model, alignment and survey only, no demo")
     ap.add_argument("demo_args", nargs="*", help="passed to gsrmr-demo (after --)")
     args = ap.parse_args()
-    print(f"# bench/align_demo.py{' --quick' if args.quick else ''} (before: {machine_line()} (bench/machine.py))",
-          flush=True)
+    print(f"# bench/align_demo.py{' --quick' if args.quick else ''} (before: {machine_line()} "
+          "(gsrmr_sim.machine_probe))", flush=True)
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="align_demo-"))
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()

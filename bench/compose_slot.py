@@ -20,25 +20,21 @@ import argparse
 import math
 import os
 from pathlib import Path
-import sys
 import time
 
 import numpy as np
 
+from gsrmr_common.camera import CameraMount, Intrinsics
+from gsrmr_common.jpeg import encode_jpeg
+from gsrmr_common.wire import PoseKey
+from gsrmr_server.compose import MRComposer
+from gsrmr_server.mr.content import AgentsView, load_mr_content
+from gsrmr_server.uplink import SlotUploads
+from gsrmr_sim.machine_probe import machine_line
+from gsrmr_sim.shared_data import garden_model
+from gsrmr_splat.model import GaussianModel
+
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
-
-from machine import machine_line  # noqa: E402
-
-from gsrmr_common.camera import CameraMount, Intrinsics  # noqa: E402
-from gsrmr_common.jpeg import encode_jpeg  # noqa: E402
-from gsrmr_common.wire import PoseKey  # noqa: E402
-from gsrmr_server.compose import MRComposer  # noqa: E402
-from gsrmr_server.mr.content import AgentsView, load_mr_content  # noqa: E402
-from gsrmr_server.uplink import SlotUploads  # noqa: E402
-from gsrmr_sim.shared_data import garden_model  # noqa: E402
-from gsrmr_splat.model import GaussianModel  # noqa: E402
 
 
 class _InSequence:

@@ -27,7 +27,7 @@ import subprocess
 import sys
 import time
 
-from machine import machine_line
+from gsrmr_sim.machine_probe import machine_line
 
 COLUMNS = ("slots", "slots_on_time", "images_sent", "energy_ratio_vs_upload_all", "energy_upload_all_j", "mean_loss",
            "psnr_db", "psnr_slot_mean_db", "ssim", "regret", "hindsight_images", "latency_ms_p50", "latency_ms_p95",
@@ -117,7 +117,7 @@ def main() -> int:
     if args.method:
         args.demo_args += ["--method", args.method]
     print(f"# bench/demo.py: {args.runs} × gsrmr-demo {' '.join(args.demo_args)} (before the runs: {machine_line()} "
-          f"(bench/machine.py); {args.load} busy process(es) during the runs)", flush=True)
+          f"(gsrmr_sim.machine_probe); {args.load} busy process(es) during the runs)", flush=True)
     busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.load)]
     try:
         return _runs(args)

@@ -36,7 +36,7 @@ import threading
 import time
 from typing import Any
 
-from machine import machine_line
+from gsrmr_sim.machine_probe import machine_line
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "test"))
@@ -248,7 +248,7 @@ def main() -> int:
         args.runs, args.cases, args.demo_args = 1, ["schedule"], ["--slots", "100", *args.demo_args]
     out_root = Path(tempfile.mkdtemp(prefix="gsrmr-hostile-"))
     print(f"# bench/hostile_graph.py: {args.runs} run(s) per case of gsrmr-demo --channel-seed 3 "
-          f"{' '.join(args.demo_args)} (before the runs: {machine_line()} (bench/machine.py); rogue at nice "
+          f"{' '.join(args.demo_args)} (before the runs: {machine_line()} (gsrmr_sim.machine_probe); rogue at nice "
           f"{ROGUE_NICE}; reports in {out_root}; {time.strftime('%Y-%m-%d %H:%M')})", flush=True)
     print("| case | run | images | mean loss | regret (true channel) | energy ratio (true) | on time | refused "
           "(by writer) | implausible | named by | rogue sent |")

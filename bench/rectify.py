@@ -25,13 +25,13 @@ import statistics
 import time
 
 import cv2
-from machine import machine_line
 import numpy as np
 
 from gsrmr_common.calibration import CameraCalibration, Rectifier
 from gsrmr_common.camera import camera_from_pose
 from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_robot.camera_rectify import UplinkCamera
+from gsrmr_sim.machine_probe import machine_line
 from gsrmr_sim.world.kinematics import start_pose
 from gsrmr_sim.world.points import make_world
 from gsrmr_sim.world.recorder import with_resolution

@@ -39,13 +39,13 @@ import sys
 import tempfile
 import time
 
-from machine import machine_line
 import numpy as np
 
 from gsrmr_common.camera import camera_from_pose
 from gsrmr_common.metrics import psnr
 from gsrmr_common.nerfstudio import DatasetFrame, holdout_split, read_dataset, write_dataset
 from gsrmr_offline import dataset_tool
+from gsrmr_sim.machine_probe import machine_line
 from gsrmr_sim.models import live_recipe
 from gsrmr_sim.robot_bag import RobotBag, RobotBagRecipe, write_robot_bag
 from gsrmr_sim.world.points import make_world
@@ -195,8 +195,8 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="tiny sizes: checks the script, measures nothing")
     args = ap.parse_args()
     recipe, config, holdout_every = settings(args)
-    print(f"# bench/robot_path.py{' --quick' if args.quick else ''} (before: {machine_line()} (bench/machine.py))",
-          flush=True)
+    print(f"# bench/robot_path.py{' --quick' if args.quick else ''} (before: {machine_line()} "
+          "(gsrmr_sim.machine_probe))", flush=True)
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="robot_path-"))
     for sub in ("drift_off", "drift_on", "simulator"):
         shutil.rmtree(out / sub, ignore_errors=True)

@@ -31,14 +31,12 @@ import sys
 import numpy as np
 
 from gsrmr_common.nerfstudio import read_dataset
+from gsrmr_sim.machine_probe import machine_line
 from gsrmr_sim.rounds import worlds_cache
 from gsrmr_sim.world.recorder import Round2Record, record_round2
 from gsrmr_sim.world.scene import Scene, load_scene
 from gsrmr_splat.model import GaussianModel
 from gsrmr_splat.render import render
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import machine_line
 
 
 def psnr_db(rgb: np.ndarray, truth: np.ndarray) -> float:
@@ -111,7 +109,7 @@ def main() -> int:
     models = {v: GaussianModel.load_ply(str(args.run_dir / "models" / f"model_v{v}.ply")) for v in versions}
     cache = worlds_cache(args.cache, args.scene)
     print(f"# bench/rounds_truth.py {args.run_dir} --scene {args.scene} --round {args.round} (hindsight; before: "
-          f"{machine_line()} (bench/machine.py))")
+          f"{machine_line()} (gsrmr_sim.machine_probe))")
     print(f"\n## Against the truth at the true camera: PSNR per {args.windows} windows of the lap, pooled\n")
     print("| world | version | " + " | ".join(f"w{i + 1}" for i in range(args.windows)) + " | pooled |")
     print("|---|---|" + "---|" * (args.windows + 1))

@@ -50,12 +50,12 @@ import sys
 import tempfile
 import time
 
-from machine import machine_line
 import numba
 import torch
 
 from gsrmr_common.camera import Intrinsics
 from gsrmr_common.nerfstudio import DatasetFrame, holdout_split, read_dataset
+from gsrmr_sim.machine_probe import machine_line
 from gsrmr_sim.shared_data import garden_model
 from gsrmr_splat import diffrender
 from gsrmr_splat import train as train_module
@@ -290,8 +290,8 @@ def main() -> int:
         args.profile_at, args.profile_steps = 30, 3
     max_threads = numba.config.NUMBA_NUM_THREADS
     threads = [t for t in args.threads if t <= max_threads]
-    print(f"# bench/train.py{' --quick' if args.quick else ''} (before: {machine_line()} (bench/machine.py)); numba "
-          f"threads {threads} of {max_threads}, torch 1 thread; commit {commit()}")
+    print(f"# bench/train.py{' --quick' if args.quick else ''} (before: {machine_line()} "
+          f"(gsrmr_sim.machine_probe)); numba threads {threads} of {max_threads}, torch 1 thread; commit {commit()}")
     print(f"# stages {[s / 60 for s in stages_s]} CPU-min, schedule {args.iterations} steps, windows of {args.window} "
           f"steps, {args.runs} run(s) per row and engine")
     rows = [Row(d, w, n) for d in args.datasets for w in widths for n in threads]

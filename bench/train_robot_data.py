@@ -61,12 +61,12 @@ import sys
 import tempfile
 import time
 
-from machine import machine_line
 import numba
 import numpy as np
 
 from gsrmr_common.camera import Camera, camera_from_pose
 from gsrmr_common.nerfstudio import DatasetFrame, holdout_split, read_dataset
+from gsrmr_sim.machine_probe import machine_line
 from gsrmr_sim.models import live_recipe
 from gsrmr_sim.robot_bag import OdometryDrift, compose_planar, odometry_poses
 from gsrmr_sim.world.recorder import record_round1, with_resolution
@@ -290,7 +290,7 @@ def main() -> int:
     rows = [Row(c, i, w, p, e) for w in widths for (c, i, p, e) in grid if c in args.conditions]
     k = scene.camera.intrinsics
     print(f"# bench/train_robot_data.py{' --quick' if args.quick else ''} (before: {machine_line()} "
-          f"(bench/machine.py)); numba {numba.get_num_threads()} threads, torch 1 thread")
+          f"(gsrmr_sim.machine_probe)); numba {numba.get_num_threads()} threads, torch 1 thread")
     print(f"# {SCENE} round 1: {frames_n} frames at {k.width}×{k.height}, every {holdout_every}th held out; "
           f"{len(rows)} rows × {args.runs} runs × {cpu_time_text(stages_s[-1])} = "
           f"{cpu_time_text(len(rows) * args.runs * stages_s[-1])} of training (+ recording and evaluation)")

@@ -1,4 +1,7 @@
-"""The machine a bench ran on: CPUs, load average and two speed probes, printed in every table's header.
+"""The machine a bench ran on: CPUs, load average and two speed probes, printed in a bench table's header.
+
+``from gsrmr_sim.machine_probe import machine_line`` in every bench that prints it (``bench/perf/``,
+``bench/acceptance/``); no ROS.
 
 Cloud machines of one nominal size differ in speed from day to day (on 2026-11-25 the 2-core machine ran the
 renderer 2.5–3.2× slower than on 2026-11-24), so a table says how fast its machine was:
