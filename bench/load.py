@@ -6,7 +6,7 @@ Two modes (``--core``, the default, and ``--dds``):
   W×H camera frame and a slow odometry circle each; no schedule, so every robot uploads its JPEG and pose
   key every slot, the heaviest uplink) and N :class:`~gsrmr_server.slot_core.ServerCore` instances (each with its
   own :class:`~gsrmr_server.uplink.UplinkAssembler` and model copy, built as the server node builds them:
-  ``bench/core_path.py``). Every slot start (+1 ms, the robot's phase) the robots decide; a pool of
+  ``gsrmr_sim/core_path.py``). Every slot start (+1 ms, the robot's phase) the robots decide; a pool of
   ``--threads`` workers composes each robot's slot (one robot's slots in order, never two at once — like a
   node's single callback group). Per slot: compose time (take → m̂ → its JPEG, ms) and latency (m̂ and its
   JPEG ready − slot start, ms); ``missed`` = slots not ready within τ (composed late, or still queued at the
@@ -49,10 +49,7 @@ import time
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME  # noqa: E402
+from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
 
 
 def _feeder_class():
@@ -197,10 +194,10 @@ def run_cores(args: argparse.Namespace, model_path: Path) -> dict:
     """One core-mode run: N robot cores and N server cores in this process, paced at 1/τ, no ROS."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from core_path import RobotSide, ServerSide, deliver, intrinsics, synthetic_frames
     import psutil
 
     from gsrmr_common.slot_clock import SlotClock
+    from gsrmr_sim.core_path import RobotSide, ServerSide, deliver, intrinsics, synthetic_frames
 
     camera = intrinsics(args.width, args.height)
     clock = SlotClock(args.slot_s)
@@ -295,11 +292,9 @@ def main() -> int:
     if args.warmup_s is None:
         args.warmup_s = 8.0 if args.dds else 2.0
     load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
-    sys.path.insert(0, str(REPO / "test"))
-    sys.path.insert(0, str(REPO / "bench"))
-    from stack_harness import make_point_model
+    from gsrmr_sim.core_path import point_model
 
-    model = make_point_model(Path(tempfile.mkdtemp(prefix="gsrmr-load-")), n=args.gaussians)
+    model = point_model(Path(tempfile.mkdtemp(prefix="gsrmr-load-")), n=args.gaussians)
     if args.dds:
         os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid()).randrange(1, 101)))
         os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")

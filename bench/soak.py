@@ -7,7 +7,7 @@ frame and the odometry pose (a slow circle in ``map``) and decides the slot: an 
 The uploads go through the uplink fault injector of :mod:`gsrmr_sim.fault_relay` (default rates: 10 % drops,
 3 % each other fault) into an :class:`~gsrmr_server.uplink.UplinkAssembler`; the ledger row reaches the
 server untouched (as on ``gsrmr/ledger``). Then, by default (pure path, no rclpy context, node or DDS;
-wiring in ``bench/core_path.py``): :meth:`ServerCore.process <gsrmr_server.slot_core.ServerCore.process>`
+wiring in :mod:`gsrmr_sim.core_path`): :meth:`ServerCore.process <gsrmr_server.slot_core.ServerCore.process>`
 composes the slot, its JPEG is encoded, :func:`gsrmr_server.scoring.score_slot` measures it against the true
 frame (the simulation scorer's work; off with ``--no-score``) and a :class:`~gsrmr_server.recording.RunRecorder`
 writes CSV + MCAP to a temp dir. With ``--node``: the same uploads go into a whole rclpy
@@ -40,20 +40,13 @@ import psutil
 import rclpy
 from rclpy.parameter import Parameter
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "test"))
-sys.path.insert(0, str(REPO / "bench"))
-
-from core_path import CAMERA_FRAME, RobotSide, ServerSide, deliver, intrinsics, synthetic_frames  # noqa: E402
-from stack_harness import make_point_model  # noqa: E402
-
-from gsrmr_common.link_model import SLOT_S  # noqa: E402
-from gsrmr_common.ros_wire import camera_info_from_intrinsics, image_to_msg, ledger_to_msg  # noqa: E402
-from gsrmr_common.slot_clock import SlotClock  # noqa: E402
-from gsrmr_server.server_node import ServerNode  # noqa: E402
-from gsrmr_sim.fault_relay import FaultInjector, FaultRates  # noqa: E402
-from gsrmr_sim.world.scorer_node import ScorerNode  # noqa: E402
+from gsrmr_common.link_model import SLOT_S
+from gsrmr_common.ros_wire import camera_info_from_intrinsics, image_to_msg, ledger_to_msg
+from gsrmr_common.slot_clock import SlotClock
+from gsrmr_server.server_node import ServerNode
+from gsrmr_sim.core_path import CAMERA_FRAME, RobotSide, ServerSide, deliver, intrinsics, point_model, synthetic_frames
+from gsrmr_sim.fault_relay import FaultInjector, FaultRates
+from gsrmr_sim.world.scorer_node import ScorerNode
 
 
 def tee(publisher, callback) -> None:
@@ -86,7 +79,7 @@ def main() -> int:
         os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
     tmp = Path(tempfile.mkdtemp(prefix="gsrmr-soak-"))
-    model = make_point_model(tmp, n=args.gaussians)
+    model = point_model(tmp, n=args.gaussians)
     camera = intrinsics(args.width, args.height)
     score = not args.no_score
     clock = SlotClock(SLOT_S)

@@ -1,7 +1,7 @@
-"""Bench helper (not a benchmark; ``make bench`` runs it as a no-op): the slot path without nodes or DDS.
+"""The slot path without nodes or DDS, for the soak and load benches (``bench/soak.py``, ``bench/load.py`` core
+mode).
 
-The objects the nodes wire, wired the same way for ``bench/soak.py`` (default path) and ``bench/load.py``
-(core mode):
+The objects the nodes wire, wired the same way:
 
 * :class:`RobotSide` — :class:`~gsrmr_robot.uplink_core.UplinkCore` + :class:`~gsrmr_robot.uplink_core.PoseHistory`,
   gathered as :meth:`RobotNode.run_slot <gsrmr_robot.robot_node.RobotNode.run_slot>` gathers them; the decision's
@@ -13,7 +13,8 @@ The objects the nodes wire, wired the same way for ``bench/soak.py`` (default pa
   ``ServerNode.__init__`` uses, over the node's parameters (:class:`~gsrmr_server.server_params.ServerParameters`:
   its defaults, which ``config/server.yaml`` repeats, unless overridden);
   :meth:`ServerSide.process` is ``ServerNode.process_slot`` without the publishing, plus — given the true
-  frame — the simulation scorer's work on the slot (:func:`gsrmr_server.scoring.score_slot`, in this process).
+  frame — the simulation scorer's work on the slot (:func:`gsrmr_server.scoring.score_slot`, in this process);
+* :func:`point_model` — the untrained model both benches compose with.
 
 No rclpy context, node or DDS participant is created. (``rclpy`` is still *imported*, as a module:
 ``gsrmr_server.recording`` → ``gsrmr_common.ros_wire`` → ``rclpy.qos``.)
@@ -25,30 +26,25 @@ from collections.abc import Callable
 from dataclasses import replace
 import math
 from pathlib import Path
-import sys
 import time
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
-
-from gsrmr_common.camera import Intrinsics  # noqa: E402
-from gsrmr_common.link_model import SLOT_S, LinkBudget  # noqa: E402
-from gsrmr_common.slot_clock import SlotClock  # noqa: E402
-from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME  # noqa: E402
-from gsrmr_common.wire import LedgerRow, PoseKey  # noqa: E402
-from gsrmr_robot.uplink_core import Pose, PoseHistory, SlotDecision, SlotInputs, UplinkCore  # noqa: E402
-from gsrmr_server.ledger_book import SlotPlan  # noqa: E402
-from gsrmr_server.recording import RunRecorder  # noqa: E402
-from gsrmr_server.scoring import score_slot  # noqa: E402
-from gsrmr_server.server_params import ServerParameters  # noqa: E402
-from gsrmr_server.slot_core import SlotOutcome, build_server_core, count_composition_faults  # noqa: E402
-from gsrmr_server.slot_row import SlotScore  # noqa: E402
-from gsrmr_server.uplink import UplinkAssembler  # noqa: E402
-from gsrmr_sim.fault_relay import Upload  # noqa: E402
-from gsrmr_splat.model import GaussianModel  # noqa: E402
+from gsrmr_common.camera import Intrinsics
+from gsrmr_common.link_model import SLOT_S, LinkBudget
+from gsrmr_common.slot_clock import SlotClock
+from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
+from gsrmr_common.wire import LedgerRow, PoseKey
+from gsrmr_robot.uplink_core import Pose, PoseHistory, SlotDecision, SlotInputs, UplinkCore
+from gsrmr_server.ledger_book import SlotPlan
+from gsrmr_server.recording import RunRecorder
+from gsrmr_server.scoring import score_slot
+from gsrmr_server.server_params import ServerParameters
+from gsrmr_server.slot_core import SlotOutcome, build_server_core, count_composition_faults
+from gsrmr_server.slot_row import SlotScore
+from gsrmr_server.uplink import UplinkAssembler
+from gsrmr_sim.fault_relay import Upload
+from gsrmr_splat.model import GaussianModel
 
 CAMERA_FRAME = CAMERA_OPTICAL_FRAME
 FOV_RAD = math.radians(70)  # the synthetic camera's horizontal field of view (what the benches relay)
@@ -57,6 +53,15 @@ FOV_RAD = math.radians(70)  # the synthetic camera's horizontal field of view (w
 def intrinsics(width: int, height: int) -> Intrinsics:
     """The synthetic camera's calibration (the robot's ``uplink/camera_info`` in the node benches)."""
     return Intrinsics.from_fov(width, height, FOV_RAD)
+
+
+def point_model(folder: Path, n: int = 2000, seed: int = 0) -> Path:
+    """An untrained model: ``n`` random coloured Gaussians over the sandbox (x, y in ±5 m, z in 0..2 m), saved as
+    ``folder/points.ply`` (the tests' ``stack_harness.make_point_model``)."""
+    rng = np.random.default_rng(seed)
+    model = GaussianModel.from_points(rng.uniform([-5, -5, 0], [5, 5, 2], (n, 3)), rng.uniform(0, 1, (n, 3)),
+                                      scales_m=0.08, opacities=0.6)
+    return model.save_ply(Path(folder) / "points.ply")
 
 
 def synthetic_frames(width: int, height: int, n: int, seed: int, noise: int = 30) -> list[np.ndarray]:
@@ -151,6 +156,3 @@ class ServerSide:
         if self.recorder is not None:
             self.recorder.close()
 
-
-if __name__ == "__main__":
-    print("bench/core_path.py: helper of bench/soak.py and bench/load.py (nothing to run)")
