@@ -37,7 +37,6 @@ import sys
 import tempfile
 import time
 
-from demo import run_once
 import numpy as np
 
 from gsrmr_common.camera import Camera, opencv_w2c_to_opengl_c2w
@@ -45,6 +44,7 @@ from gsrmr_common.metrics import psnr
 from gsrmr_common.nerfstudio import holdout_split, read_dataset
 from gsrmr_offline import survey_cli
 from gsrmr_sim.demo import ensure_survey
+from gsrmr_sim.demo_runs import run_once
 from gsrmr_sim.machine_probe import machine_line
 from gsrmr_sim.models import BuiltModel, ModelRecipe, build_model, live_model, live_recipe
 from gsrmr_sim.world.scene import load_scene
