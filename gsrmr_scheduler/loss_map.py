@@ -12,7 +12,7 @@ enters it clipped to [mean / ``outlier_factor``, mean × ``outlier_factor``] (``
 of :data:`gsrmr_scheduler.loss_predictor.MAX_LOG_DEVIATION`; the mean floored at 10⁻³ for the upper bound): a sample of
 the metric's maximum counts as 20× its cell, not as 60×, while a lasting change is followed at once. Clean rounds
 do not reach the bound: a loss sample lay at most 13.0× from its cell's mean in the 2146 image slots of 20 recorded
-rounds (``bench/plausibility_replay.py --seed-map``; a bound of 4× would have clipped about one sample in eight).
+rounds (``gsrmr-plausibility-replay --seed-map``; a bound of 4× would have clipped about one sample in eight).
 ``image_loss`` (optional) is the mean MR loss an *image* slot leaves — its JPEG — measured where the map
 was made (the mapping-round survey encodes each frame at the robot's quality). ``sample_offset`` (optional) is
 the mean by which the live server's loss samples read above the loss the map holds, measured there too: the

@@ -2,7 +2,7 @@
 
 What a deployment knows before round 2 is the **mapping round**: the seed :class:`~gsrmr_scheduler.loss_map.LossMap`
 holds the model's MR loss L at the route's poses in the world as it was mapped. Round 2 differs from it in
-two ways the seed cannot see, and the sandbox demo shows both (``bench/planner_replay.py``):
+two ways the seed cannot see, and the sandbox demo shows both (``gsrmr-planner-replay``):
 
 * a steady offset — the reported pose carries odometry error and the model renders a view it was not
   trained on — that makes the measured L about 1.2× the seed's everywhere;
@@ -21,7 +21,7 @@ and models it as a level μ plus a burst that decays back to it (an Ornstein–U
   ``scene_change``): then the world changed *at* that slot, not gradually, and the slots before it take the
   earlier measurement's ℓ, the slots from it on the later one's (a **step**). Interpolated across a light switched
   off, the slots still lit were charged as half dark, and across one switched on the dark slots as half lit:
-  over the 123 recorded runs of ``bench/key_estimates.py`` the step cuts the spread of the round's booked mean loss
+  over the 123 recorded runs of ``gsrmr-key-estimates`` the step cuts the spread of the round's booked mean loss
   by a quarter (sd 0.00084 → 0.00063)
   (``docs/scheduling.md``, "Change slots, missed uploads and a 1 % back-off: measured");
 * the **safety margin is learned**, conformal style: every measurement is compared with what the planner

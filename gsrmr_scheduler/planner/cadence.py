@@ -6,7 +6,7 @@ docs/scheduling.md, "Sample timing and the probe gap: measured"). A timer replan
 slot t's sample, and the robot decides slot t + 1 with that plan: the planner then reacts to what an image showed one
 slot later than it could.
 Replayed on 15 recorded runs, a sample that counts from the next slot instead of the one after it is worth 0.08 of
-regret (``bench/planner_replay.py … --vary measurement_delay=1,2``: 1.45 against 1.53).
+regret (``gsrmr-planner-replay … --vary measurement_delay=1,2``: 1.45 against 1.53).
 
 :class:`SampleAlignedCadence` therefore turns the timer into a deadline: when it fires, the replan waits for the next
 loss sample the scheduler takes and runs right after it; when no sample comes before the timer fires again (no image

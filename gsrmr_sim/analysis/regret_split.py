@@ -1,6 +1,6 @@
 """Where a run's regret comes from, after the run: image placement against the budget left unspent.
 
-Usage: ``.venv/bin/python bench/regret_split.py REPORT_DIR... [--loss-threshold 0.03] [--per-run]``.
+Usage: ``gsrmr-regret-split REPORT_DIR... [--loss-threshold 0.03] [--per-run]``.
 
 Each REPORT_DIR is a ``gsrmr-demo`` report (its ``slots.csv`` with the hindsight columns). Over the scored slots
 with every hindsight value, the run's regret (its energy over the hindsight optimum's at L_th, the demo's
@@ -28,12 +28,13 @@ import json
 import os
 from pathlib import Path
 import statistics
-import sys
 
 import numpy as np
 
 from gsrmr_server.recording import read_slots_csv
 from gsrmr_sim.hindsight import HINDSIGHT_COLUMNS, RegretSplit, regret_split
+
+PROG = "gsrmr-regret-split"
 
 
 def split_of(report: Path, loss_threshold: float) -> RegretSplit:
@@ -47,16 +48,18 @@ def split_of(report: Path, loss_threshold: float) -> RegretSplit:
     return regret_split(*cols, loss_threshold)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("reports", nargs="+", type=Path)
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog=PROG, description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("reports", nargs="+", type=Path, metavar="REPORT_DIR",
+                    help="gsrmr-demo report folders (reports/demo-*)")
     ap.add_argument("--loss-threshold", type=float, default=None,
                     help="L_th (default: each report's summary.json loss_threshold, else 0.03)")
     ap.add_argument("--per-run", action="store_true")
     ap.add_argument("--batch-bar", type=float, default=None,
                     help="also: the share of one-run-per-channel-seed batches whose median regret is <= this")
-    args = ap.parse_args()
-    print(f"# bench/regret_split.py: {len(args.reports)} reports ({os.cpu_count()} CPUs, load average "
+    args = ap.parse_args(argv)
+    print(f"# gsrmr-regret-split: {len(args.reports)} reports ({os.cpu_count()} CPUs, load average "
           f"{os.getloadavg()[0]:.1f}); HINDSIGHT: computed after the runs")
     print("| run | channel seed | regret | placement | unspent | mean loss | images | optimum's images at that loss |")
     print("|---|---|---|---|---|---|---|---|")
@@ -97,4 +100,4 @@ def batch_pass_line(by_seed: dict[object, list[float]], bar: float) -> str:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

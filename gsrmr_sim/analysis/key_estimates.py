@@ -1,6 +1,6 @@
 """How well the scheduler knew the loss its round spent, after the run: key-slot estimates and slot bookings.
 
-Usage: ``.venv/bin/python bench/key_estimates.py REPORT_DIR... [--per-run]``.
+Usage: ``gsrmr-key-estimates REPORT_DIR... [--per-run]``.
 
 A key slot has no measurement of its own: the scheduler's burst model
 (:class:`gsrmr_scheduler.loss_predictor.LossPredictor`) estimates the loss it left from the loss samples of the
@@ -30,11 +30,12 @@ import os
 from pathlib import Path
 import statistics
 
-from planner_replay import make_planner, scene_changes, scheduler_params
-
 from gsrmr_scheduler.loss_predictor import LossPredictor
 from gsrmr_scheduler.planner.budget import LossBudget
 from gsrmr_server.recording import read_slots_csv
+from gsrmr_sim.analysis.planner_replay import make_planner, scene_changes, scheduler_params
+
+PROG = "gsrmr-key-estimates"
 
 
 def change_slots(report: Path, rows: list[dict]) -> list[int]:
@@ -80,14 +81,16 @@ def booking_errors(report: Path) -> dict[str, float]:
     return out
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("reports", nargs="+", type=Path)
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog=PROG, description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("reports", nargs="+", type=Path, metavar="REPORT_DIR",
+                    help="gsrmr-demo report folders (reports/demo-*)")
     ap.add_argument("--per-run", action="store_true")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     runs = [(report, booking_errors(report)) for report in args.reports]
     names = list(runs[0][1])
-    print(f"# bench/key_estimates.py: {len(runs)} reports ({os.cpu_count()} CPUs, load average "
+    print(f"# gsrmr-key-estimates: {len(runs)} reports ({os.cpu_count()} CPUs, load average "
           f"{os.getloadavg()[0]:.1f}); HINDSIGHT: the booked loss against the scorer's, after the runs")
     if args.per_run:
         print("| run | " + " | ".join(names) + " |")

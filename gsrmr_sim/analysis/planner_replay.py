@@ -1,6 +1,6 @@
 """Planner study on recorded runs: replay demo reports through planner settings (:mod:`gsrmr_sim.replay`).
 
-Usage: ``.venv/bin/python bench/planner_replay.py REPORT_DIR... [--vary horizon=50,100,200]
+Usage: ``gsrmr-planner-replay REPORT_DIR... [--vary horizon=50,100,200]
 [--set key=value ...]``. Each REPORT_DIR is a ``gsrmr-demo`` report (its ``slots.csv`` and
 ``params/gsrmr_scheduler.yaml``). For every setting, every run is replayed with the scheduler's
 parameters of that run (``config/scheduler.yaml`` + the run's overrides) changed by ``--set`` and the
@@ -31,7 +31,6 @@ import os
 from pathlib import Path
 import re
 import statistics
-import sys
 
 import numpy as np
 import yaml
@@ -43,17 +42,19 @@ from gsrmr_scheduler.planner import OnlinePlanner, PlannerConfig, RoutePredictor
 from gsrmr_scheduler.scheduler_params import SchedulerParameters
 from gsrmr_server.recording import read_slots_csv
 from gsrmr_sim.replay import TruthLossPredictor, recorded_slots, replay
+from gsrmr_sim.sim_stack import config_dir
 
-REPO = Path(__file__).resolve().parents[1]
+PROG = "gsrmr-planner-replay"
 REPLAY_KEYS = {"replan_every", "measurement_delay"}
 PLANNER_KEYS = {f.name for f in fields(PlannerConfig)} - {f.name for f, _ in SchedulerParameters.specs()}
 
 
 def scheduler_params(report: Path) -> SchedulerParameters:
-    """config/scheduler.yaml overlaid with the run's own scheduler parameters (names that are no parameter of
-    the scheduler any more, e.g. an old run's ``loss_model``, are ignored)."""
+    """config/scheduler.yaml (the package's, :func:`gsrmr_sim.sim_stack.config_dir`) overlaid with the run's own
+    scheduler parameters (names that are no parameter of the scheduler any more, e.g. an old run's ``loss_model``, are
+    ignored)."""
     values: dict = {}
-    for path in (REPO / "config" / "scheduler.yaml", report / "params" / "gsrmr_scheduler.yaml"):
+    for path in (config_dir() / "scheduler.yaml", report / "params" / "gsrmr_scheduler.yaml"):
         if path.exists():
             values.update(yaml.safe_load(path.read_text())["/**"]["ros__parameters"])
     return SchedulerParameters().with_values(values)
@@ -79,11 +80,11 @@ SCENE_CHANGE_LINE = re.compile(r"scene change in slot (\d+)")
 
 def scene_changes(report: Path) -> tuple[list[int], int]:
     """(the slots in which the run's robot found a scene change, as its log names them; the robot's
-    ``scene_change_wait_slots``: config/robot.yaml overlaid with the run's robot parameters)."""
+    ``scene_change_wait_slots``: the package's config/robot.yaml overlaid with the run's robot parameters)."""
     log = report / "logs" / "gsrmr_robot.log"
     slots = [int(m.group(1)) for m in SCENE_CHANGE_LINE.finditer(log.read_text())] if log.exists() else []
     wait = 5
-    for path in (REPO / "config" / "robot.yaml", report / "params" / "gsrmr_robot.yaml"):
+    for path in (config_dir() / "robot.yaml", report / "params" / "gsrmr_robot.yaml"):
         if path.exists():
             wait = int(yaml.safe_load(path.read_text())["/**"]["ros__parameters"].get("scene_change_wait_slots", wait))
     return slots, wait
@@ -97,9 +98,11 @@ def parse_value(text: str):
         return text
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("reports", nargs="+", type=Path)
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog=PROG, description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("reports", nargs="+", type=Path, metavar="REPORT_DIR",
+                    help="gsrmr-demo report folders (reports/demo-*)")
     ap.add_argument("--vary", default="", help="key=v1,v2,... (one row per value)")
     ap.add_argument("--set", action="append", default=[], help="key=value for every row")
     ap.add_argument("--per-run", action="store_true", help="also print every run's figures")
@@ -113,7 +116,7 @@ def main() -> int:
                     "by default they are replayed at the recorded gains)")
     ap.add_argument("--rest-forecast", action="store_true",
                     help="hindsight: also tabulate the planned L of the round's rest over its truth, by slots left")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     fixed = {k: parse_value(v) for k, v in (s.split("=", 1) for s in args.set)}
     key, _, values = args.vary.partition("=")
     settings = [{**fixed, key: parse_value(v)} for v in values.split(",")] if key else [fixed]
@@ -122,7 +125,7 @@ def main() -> int:
         params = scheduler_params(report)
         changes = ([], 5) if args.no_scene_changes else scene_changes(report)
         runs.append((report.name, params, recorded_slots(read_slots_csv(report / "slots.csv")), changes))
-    print(f"# bench/planner_replay.py: {len(runs)} recorded runs ({os.cpu_count()} CPUs, load average "
+    print(f"# gsrmr-planner-replay: {len(runs)} recorded runs ({os.cpu_count()} CPUs, load average "
           f"{os.getloadavg()[0]:.1f}); fixed {fixed or '{}'}"
           + (f"; HINDSIGHT BOUND: the planner knows every slot's L ({args.truth_loss})" if args.truth_loss else "")
           + ("; HINDSIGHT: the forecast learns every key slot's L" if args.observe_keys else "")
@@ -194,4 +197,4 @@ def print_rest_forecast(ratios: dict[int, list[float]]) -> None:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

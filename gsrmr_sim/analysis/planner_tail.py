@@ -1,10 +1,10 @@
 """The online planner's regret tail, replayed over many channel seeds (pure: no ROS; issue 28).
 
-Usage: ``.venv/bin/python bench/planner_tail.py REPORT_DIR... [--seeds 1-20] [--late 0,0.3] [--per-run]
+Usage: ``gsrmr-planner-tail REPORT_DIR... [--seeds 1-20] [--late 0,0.3] [--per-run]
 [--set key=value ...]``.
 
 Each REPORT_DIR is a ``gsrmr-demo`` report (``slots.csv`` with its hindsight columns and
-``params/gsrmr_scheduler.yaml``; see ``bench/planner_replay.py``). Channel seed k takes the world of report
+``params/gsrmr_scheduler.yaml``; see ``gsrmr-planner-replay``). Channel seed k takes the world of report
 (k − 1) mod N — the robot's reported poses, the truth and measured L_t, each slot's JPEG size — and draws the
 channel afresh as the simulator does with ``--channel-seed k`` (:meth:`LinkBudget.gain` of the round slot at the
 reported position), so twenty seeds need only a few recorded rounds. Energies are recomputed at the new gains from
@@ -34,16 +34,17 @@ import math
 import os
 from pathlib import Path
 import statistics
-import sys
 
 import numpy as np
-from planner_replay import make_planner, parse_value, scheduler_params
 
 from gsrmr_common import link_model as link
 from gsrmr_common.link_model import LinkBudget
 from gsrmr_server.recording import read_slots_csv
+from gsrmr_sim.analysis.planner_replay import make_planner, parse_value, scheduler_params
 from gsrmr_sim.hindsight import hindsight_optimum
 from gsrmr_sim.replay import RecordedSlot, recorded_slots
+
+PROG = "gsrmr-planner-tail"
 
 DEEP_FADE = 0.1  # an image in a fade below this fraction of the mean gain counts as "deep"
 
@@ -126,21 +127,23 @@ def replay_timed(slots: list[RecordedSlot], planner, *, loss_threshold: float, l
             "misses": misses}
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("reports", nargs="+", type=Path)
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog=PROG, description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("reports", nargs="+", type=Path, metavar="REPORT_DIR",
+                    help="gsrmr-demo report folders (reports/demo-*)")
     ap.add_argument("--seeds", type=seeds_arg, default=seeds_arg("1-20"))
     ap.add_argument("--late", default="0,0.3", help="P1,P2,...: probability that a timer replan is published "
                                                      "before the slot boundary (one row each)")
-    ap.add_argument("--set", action="append", default=[], help="key=value: a planner setting (bench/planner_replay.py)")
+    ap.add_argument("--set", action="append", default=[], help="key=value: a planner setting (gsrmr-planner-replay)")
     ap.add_argument("--per-run", action="store_true")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     overrides = {k: parse_value(v) for k, v in (s.split("=", 1) for s in args.set)}
     worlds = []
     for report in args.reports:
         rows = read_slots_csv(report / "slots.csv")
         worlds.append((report, scheduler_params(report), rows, recorded_slots(rows)))
-    print(f"# bench/planner_tail.py: {len(worlds)} recorded worlds, channel seeds {args.seeds[0]}–{args.seeds[-1]} "
+    print(f"# gsrmr-planner-tail: {len(worlds)} recorded worlds, channel seeds {args.seeds[0]}–{args.seeds[-1]} "
           f"({os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}); set {overrides or '{}'}")
     print("| late | regret median (worst) | mean loss median (worst) | ≤ L_th | images median | deep images "
           "(runs with any) | deep share worst | schedule misses |")
@@ -168,4 +171,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

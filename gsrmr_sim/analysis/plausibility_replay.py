@@ -1,6 +1,6 @@
 """The plausibility rules replayed over recorded clean rounds: would they have refused anything? (the false alarms)
 
-Usage: ``.venv/bin/python bench/plausibility_replay.py REPORT_DIR... [--link config/link.yaml]`` — each a
+Usage: ``gsrmr-plausibility-replay REPORT_DIR... [--link config/link.yaml]`` — each a
 ``gsrmr-demo`` report (``reports/demo-*``). For every scored round's ``slots.csv`` it offers, in slot order:
 
 * the pose the server composed each slot at (the robot's key of the slot, or the server's fallback) to
@@ -21,18 +21,17 @@ import argparse
 import csv
 import math
 from pathlib import Path
-import sys
 
 import yaml
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from gsrmr_common.channel_band import GainBand
+from gsrmr_common.link_model import LinkBudget
+from gsrmr_common.plausibility import MR_LOSS_MAX, PoseTrack
+from gsrmr_scheduler.loss_map import LossMap
+from gsrmr_scheduler.loss_predictor import MAX_LOG_DEVIATION, LossPredictor
+from gsrmr_sim.sim_stack import config_dir
 
-from gsrmr_common.channel_band import GainBand  # noqa: E402
-from gsrmr_common.link_model import LinkBudget  # noqa: E402
-from gsrmr_common.plausibility import MR_LOSS_MAX, PoseTrack  # noqa: E402
-from gsrmr_scheduler.loss_map import LossMap  # noqa: E402
-from gsrmr_scheduler.loss_predictor import MAX_LOG_DEVIATION, LossPredictor  # noqa: E402
+PROG = "gsrmr-plausibility-replay"
 
 
 def link_budget(path: Path) -> tuple[LinkBudget, float]:
@@ -105,16 +104,19 @@ def replay(report: Path, link: LinkBudget, slot_s: float, seed: LossMap | None =
     return out
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("reports", nargs="+", type=Path)
-    ap.add_argument("--link", type=Path, default=REPO / "config" / "link.yaml")
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog=PROG, description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("reports", nargs="+", type=Path, metavar="REPORT_DIR",
+                    help="gsrmr-demo report folders (reports/demo-*)")
+    ap.add_argument("--link", type=Path, default=config_dir() / "link.yaml",
+                    help="the link model's parameter file (default: the package's config/link.yaml)")
     ap.add_argument("--seed-map", type=Path, default=None, help="the scheduler's seed loss map (JSON)")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     seed = LossMap.load(args.seed_map) if args.seed_map else None
     link, slot_s = link_budget(args.link)
     band = GainBand(link.rician_k, link.pathloss_exponent)
-    print(f"# bench/plausibility_replay.py: {len(args.reports)} report(s); link K={link.rician_k}, "
+    print(f"# gsrmr-plausibility-replay: {len(args.reports)} report(s); link K={link.rician_k}, "
           f"α={link.pathloss_exponent}; gain band [{10 * math.log10(band.low):.1f}, {10 * math.log10(band.high):.1f}] "
           f"dB per sample (before the position widening), clean false-alarm rate ≤ {band.false_alarm_per_sample():.2g} "
           "per sample")
@@ -141,4 +143,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())
