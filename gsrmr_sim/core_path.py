@@ -1,5 +1,5 @@
-"""The slot path without nodes or DDS, for the soak and load benches (``bench/soak.py``, ``bench/load.py`` core
-mode).
+"""The slot path without nodes or DDS, for the soak and load benches (``bench/perf/soak.py``, ``bench/perf/load.py``
+core mode).
 
 The objects the nodes wire, wired the same way:
 

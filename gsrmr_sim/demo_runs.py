@@ -1,5 +1,5 @@
 """One ``gsrmr-demo`` run as a subprocess and the figures read from its report folder: the step the acceptance
-benches repeat (``bench/demo.py``, ``bench/align_demo.py``).
+benches repeat (``bench/acceptance/demo.py``, ``bench/acceptance/align_demo.py``).
 
 :func:`run_once` runs ``gsrmr-demo`` (next to this interpreter) with the given arguments and returns its summary (the
 last stdout line) with the wall time and :func:`run_figures` of its report: slot latency percentiles, the server's

@@ -14,9 +14,9 @@ never available live):
 The table gives each factor's median and worst over the runs (``--per-run``: every run), with the run's mean
 loss, its images and the optimum's images at the run's loss.
 
-``--batch-bar BAR`` (e.g. 1.52, issue 25's bar on ``bench/demo.py --runs 5 --seeds 1``) adds how often a batch of
-one run per channel seed would have its median regret at or under BAR: over every combination of one report per
-channel seed (the reports grouped by their ``summary.json`` ``channel_seed``) — what the runs say of a single
+``--batch-bar BAR`` (e.g. 1.52, issue 25's bar on ``bench/acceptance/demo.py --runs 5 --seeds 1``) adds how often a
+batch of one run per channel seed would have its median regret at or under BAR: over every combination of one report
+per channel seed (the reports grouped by their ``summary.json`` ``channel_seed``) — what the runs say of a single
 batch's chance, since a median of five moves with the run each seed happens to get.
 """
 

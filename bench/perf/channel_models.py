@@ -7,7 +7,7 @@ distance to ``config/link.yaml``'s server (10, 0) m, minimum 1 m. Same statistic
 other draws. For seeds 1…N this prints the exact optimum's energy, RoboMR's and their ratio at each L_th on the
 sandbox's experiment data (L_t of the live pipeline, the cached live model), and the median over seeds.
 
-    .venv/bin/python bench/channel_models.py [--seeds 10] [--scene sandbox]
+    .venv/bin/python bench/perf/channel_models.py [--seeds 10] [--scene sandbox]
 """
 
 from __future__ import annotations
@@ -19,14 +19,13 @@ import sys
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from gsrmr_common.channel import ChannelModel
+from gsrmr_scheduler.problem import Problem
+from gsrmr_scheduler.solve import solve
+from gsrmr_sim.experiments.data import DataSettings, build_scene_data, channel_gains
+from gsrmr_sim.sim_stack import config_dir, link_budget
 
-from gsrmr_common.channel import ChannelModel  # noqa: E402
-from gsrmr_scheduler.problem import Problem  # noqa: E402
-from gsrmr_scheduler.solve import solve  # noqa: E402
-from gsrmr_sim.experiments.data import DataSettings, build_scene_data, channel_gains  # noqa: E402
-from gsrmr_sim.sim_stack import config_dir, link_budget  # noqa: E402
+REPO = Path(__file__).resolve().parents[2]
 
 
 def main() -> int:

@@ -9,7 +9,7 @@ S = 192 bit, B = 1 MHz, σ² = −60 dBm, Rician K = 1 at ~10 m, L_t ~ U(0, 0.09
 3. every method's energy relative to exact at L_th ∈ {0.02, …, 0.04}, mean over seeds (maxrate/fairness get
    APO's energy as budget, as in the paper, and their resulting mean loss is shown).
 
-Usage: ``.venv/bin/python bench/scheduler.py [--quick]`` (quick: fewer repeats/seeds, no APO at 1e5).
+Usage: ``.venv/bin/python bench/perf/scheduler.py [--quick]`` (quick: fewer repeats/seeds, no APO at 1e5).
 """
 
 from __future__ import annotations
@@ -134,7 +134,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
     assert set(ORDER) == set(METHODS)
-    print(f"# bench/scheduler.py  python {sys.version.split()[0]}, numpy {np.__version__}")
+    print(f"# bench/perf/scheduler.py  python {sys.version.split()[0]}, numpy {np.__version__}")
     table_sizes(args.quick)
     table_apo_n()
     table_thresholds(3 if args.quick else 10)

@@ -1,7 +1,7 @@
 """LIMO driver benchmarks: parser throughput, residual corrupt-frame rate, command latency, and the
 issue-5 acceptance run (60 s with 1 % bit flips over a real pty against the mock).
 
-    .venv/bin/python bench/limo.py [--run-s 60] [--repeats 5] [--skip-run]
+    .venv/bin/python bench/perf/limo.py [--run-s 60] [--repeats 5] [--skip-run]
 
 Tables printed:
 

@@ -19,7 +19,7 @@ model within 0.5 dB of the simulator-dataset model. Also printed: the bag datase
 same recipe with ``drift``: the odometry's seeded yaw-per-metre and scale errors; how far the poses in ``/tf`` are
 from the truth, for the record — one similarity cannot undo it, docs/splatting.md "Limits").
 
-    .venv/bin/python bench/robot_path.py [--frames N] [--iterations N] [--out DIR] [--quick]
+    .venv/bin/python bench/acceptance/robot_path.py [--frames N] [--iterations N] [--out DIR] [--quick]
 
 ``--quick``: 24 images at 96×72, 100 steps at 48 px, a few hundred Gaussians — checks the script, measures nothing.
 """
@@ -195,7 +195,7 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="tiny sizes: checks the script, measures nothing")
     args = ap.parse_args()
     recipe, config, holdout_every = settings(args)
-    print(f"# bench/robot_path.py{' --quick' if args.quick else ''} (before: {machine_line()} "
+    print(f"# bench/acceptance/robot_path.py{' --quick' if args.quick else ''} (before: {machine_line()} "
           "(gsrmr_sim.machine_probe))", flush=True)
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="robot_path-"))
     for sub in ("drift_off", "drift_on", "simulator"):

@@ -27,10 +27,10 @@ Two modes (``--core``, the default, and ``--dds``):
 Prints one table row per run, then the median and the worst (per column) over ``--repeats`` runs; the
 header gives the configuration and the machine's load average when the benchmark started.
 
-    .venv/bin/python bench/load.py                            # core: 10 robots, 10 Hz, 60 s, 160×120
-    .venv/bin/python bench/load.py --robots 4 --duration-s 20
-    .venv/bin/python bench/load.py --dds                      # DDS: 10 RobotNodes → 10 ServerNodes
-    .venv/bin/python bench/load.py --dds --robots 4 --duration-s 20
+    .venv/bin/python bench/perf/load.py                            # core: 10 robots, 10 Hz, 60 s, 160×120
+    .venv/bin/python bench/perf/load.py --robots 4 --duration-s 20
+    .venv/bin/python bench/perf/load.py --dds                      # DDS: 10 RobotNodes → 10 ServerNodes
+    .venv/bin/python bench/perf/load.py --dds --robots 4 --duration-s 20
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ fix"). No live component sees any of this: it is computed after the run, from it
 A version that burned a transient in gains inside the spans and loses outside; one fitted to the pose keys gains at
 the keys everywhere while it loses at the true camera.
 
-    .venv/bin/python bench/rounds_truth.py RUN_DIR --scene sandbox_transient --versions 0,3 [--round 4]
+    .venv/bin/python bench/acceptance/rounds_truth.py RUN_DIR --scene sandbox_transient --versions 0,3 [--round 4]
                                            [--windows 12] [--margin-s 0.5]
 
 Renders at the scene's camera resolution (320×240 for the sandbox), background the scene's; units: dB.
@@ -108,8 +108,8 @@ def main() -> int:
     versions = [int(v) for v in args.versions.split(",")]
     models = {v: GaussianModel.load_ply(str(args.run_dir / "models" / f"model_v{v}.ply")) for v in versions}
     cache = worlds_cache(args.cache, args.scene)
-    print(f"# bench/rounds_truth.py {args.run_dir} --scene {args.scene} --round {args.round} (hindsight; before: "
-          f"{machine_line()} (gsrmr_sim.machine_probe))")
+    print(f"# bench/acceptance/rounds_truth.py {args.run_dir} --scene {args.scene} --round {args.round} (hindsight; "
+          f"before: {machine_line()} (gsrmr_sim.machine_probe))")
     print(f"\n## Against the truth at the true camera: PSNR per {args.windows} windows of the lap, pooled\n")
     print("| world | version | " + " | ".join(f"w{i + 1}" for i in range(args.windows)) + " | pooled |")
     print("|---|---|" + "---|" * (args.windows + 1))

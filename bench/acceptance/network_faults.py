@@ -1,6 +1,6 @@
 """Network faults on the two-host link: ``gsrmr-demo --hosts 2`` under a rate limit, a link outage and a rate cut.
 
-Usage: ``.venv/bin/python bench/network_faults.py [--runs 1] [--cases NAME ...] [-- DEMO_ARGS...]`` (root).
+Usage: ``.venv/bin/python bench/acceptance/network_faults.py [--runs 1] [--cases NAME ...] [-- DEMO_ARGS...]`` (root).
 Each case is one full round 2 (288 slots, ~45 s with the model cached) with the robot's processes and the
 server's in two network namespaces (``gsrmr_sim.netns.TwoHosts``), DDS over UDPv4 across a veth pair limited
 by ``tbf``. Cases (``--link-events`` slots count composed round slots):
@@ -87,8 +87,9 @@ def main() -> int:
     ap.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES))
     ap.add_argument("demo_args", nargs="*", help="passed to gsrmr-demo (after --)")
     args = ap.parse_args()
-    print(f"# bench/network_faults.py: {args.runs} run(s) per case, gsrmr-demo --hosts 2 {' '.join(args.demo_args)} "
-          f"({os.cpu_count()} CPUs, load average before {os.getloadavg()[0]:.1f}, {time.strftime('%Y-%m-%d %H:%M')})")
+    print(f"# bench/acceptance/network_faults.py: {args.runs} run(s) per case, gsrmr-demo --hosts 2 "
+          f"{' '.join(args.demo_args)} ({os.cpu_count()} CPUs, load average before {os.getloadavg()[0]:.1f}, "
+          f"{time.strftime('%Y-%m-%d %H:%M')})")
     print("| case | stat | " + " | ".join(COLUMNS) + " |")
     print("|" + "---|" * (len(COLUMNS) + 2))
     lower_is_better = {"missing_key", "missing_image", "late", "held_back", "mean_loss", "images_back_after_s",

@@ -19,9 +19,9 @@ a :class:`~gsrmr_sim.world.scorer_node.ScorerNode` in this process gets what it 
 Resident set size (psutil, MiB) is sampled every ``--sample-every`` slots; growth is measured from the
 sample after ``--warmup`` slots to the end (the acceptance bound is 5 %; exit status 1 above it).
 
-    .venv/bin/python bench/soak.py                  # 10,000 slots, slot cores (no ROS)
-    .venv/bin/python bench/soak.py --slots 2000
-    .venv/bin/python bench/soak.py --node           # 10,000 slots through one ServerNode
+    .venv/bin/python bench/perf/soak.py                  # 10,000 slots, slot cores (no ROS)
+    .venv/bin/python bench/perf/soak.py --slots 2000
+    .venv/bin/python bench/perf/soak.py --node           # 10,000 slots through one ServerNode
 """
 
 from __future__ import annotations

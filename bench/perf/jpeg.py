@@ -4,7 +4,7 @@ Renders frames along the route of a world scene (default ``sandbox``, 320×240 a
 each with :func:`gsrmr_common.jpeg.encode_jpeg` at several qualities and prints median bytes, bits
 (= payload of an image slot), PSNR, SSIM and encode/decode times. Then times the header-only checks.
 
-    .venv/bin/python bench/bench_jpeg.py [--scene sandbox] [--frames 6] [--repeats 5]
+    .venv/bin/python bench/perf/jpeg.py [--scene sandbox] [--frames 6] [--repeats 5]
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ demo`` builds it) and the sandbox's MR content at the scene's 320×240, in two w
 Prints a table: per way, the median and worst over ``--runs`` runs of each run's median compose time (``--slots``
 slots a run after ``--warm`` warm-up slots), and the stage timings. Usage::
 
-    .venv/bin/python bench/compose_slot.py [--model PLY] [--runs 5] [--slots 60]
+    .venv/bin/python bench/perf/compose_slot.py [--model PLY] [--runs 5] [--slots 60]
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from gsrmr_sim.machine_probe import machine_line
 from gsrmr_sim.shared_data import garden_model
 from gsrmr_splat.model import GaussianModel
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 class _InSequence:
@@ -85,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
             "in sequence": MRComposer(model, _InSequence(view), k, mount, (0.5, 0.55, 0.6), render_threads=1)}
     rng = np.random.default_rng(0)
     jpeg = encode_jpeg(rng.integers(0, 255, (240, 320, 3), np.uint8), 80)
-    print(f"# bench/compose_slot.py: {name} ({model.num_gaussians} Gaussians), 320×240, render on 1 "
+    print(f"# bench/perf/compose_slot.py: {name} ({model.num_gaussians} Gaussians), 320×240, render on 1 "
           f"thread, image slots with the sandbox's MR content; {args.runs} runs × {args.slots} slots "
           f"(before: {machine_line()})")
     results: dict[str, list[tuple[float, dict[str, float]]]] = {w: [] for w in ways}

@@ -31,7 +31,7 @@ of fused against window k of torch), median and worst of those ratios.
 density control then frozen), ``--profile-steps`` steps of each engine from it, the median ms per step of each
 phase (fused: the engine's own timers; torch: timers wrapped around its functions) at each thread count.
 
-Usage: .venv/bin/python bench/train.py [--datasets garden sandbox] [--widths 160 270] [--threads 1 2]
+Usage: .venv/bin/python bench/perf/train.py [--datasets garden sandbox] [--widths 160 270] [--threads 1 2]
     [--stages-min 1 3] [--runs 1] [--profile] [--json OUT]
 
 ``--quick``: tiny frames and budgets; checks the script, measures nothing.
@@ -290,7 +290,7 @@ def main() -> int:
         args.profile_at, args.profile_steps = 30, 3
     max_threads = numba.config.NUMBA_NUM_THREADS
     threads = [t for t in args.threads if t <= max_threads]
-    print(f"# bench/train.py{' --quick' if args.quick else ''} (before: {machine_line()} "
+    print(f"# bench/perf/train.py{' --quick' if args.quick else ''} (before: {machine_line()} "
           f"(gsrmr_sim.machine_probe)); numba threads {threads} of {max_threads}, torch 1 thread; commit {commit()}")
     print(f"# stages {[s / 60 for s in stages_s]} CPU-min, schedule {args.iterations} steps, windows of {args.window} "
           f"steps, {args.runs} run(s) per row and engine")
@@ -360,11 +360,11 @@ def commit() -> str:
     """The repository's HEAD (short), '+dirty' when the work tree differs."""
     import subprocess
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     try:
         head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
                               check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--", "gsrmr_splat", "bench/train.py"],
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "gsrmr_splat", "bench/perf/train.py"],
                                cwd=root, capture_output=True, text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"

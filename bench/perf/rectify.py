@@ -13,7 +13,7 @@ Columns, each ``median / worst`` over ``--repeats`` runs in ms: ``remap`` (:clas
 does them) and ``JPEG q`` (:func:`gsrmr_common.jpeg.encode_jpeg` of the uplink frame, for comparison); ``maps``
 is the one-off cost of a new calibration (the :class:`Rectifier` of the uplink width, median).
 
-    .venv/bin/python bench/rectify.py [--width 640 --height 480] [--uplink-width 320] [--repeats 200]
+    .venv/bin/python bench/perf/rectify.py [--width 640 --height 480] [--uplink-width 320] [--repeats 200]
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """A fleet on one machine: ``gsrmr-demo --robots N`` for several N, as a table, and how many robots a core serves.
 
-Usage: ``.venv/bin/python bench/fleet.py [--robots 1 2 3] [--runs 1] [--hosts 1|2] [--uplink-mbit R] [--slots S]
-[-- DEMO_ARGS...]`` (e.g. ``-- --cache .cache/gsrmr``). Each run is one ``gsrmr-demo --robots N`` subprocess
+Usage: ``.venv/bin/python bench/acceptance/fleet.py [--robots 1 2 3] [--runs 1] [--hosts 1|2] [--uplink-mbit R]
+[--slots S] [-- DEMO_ARGS...]`` (e.g. ``-- --cache .cache/gsrmr``). Each run is one ``gsrmr-demo --robots N`` subprocess
 (every robot with its own server, scheduler and simulated world, namespaces /robot1 … /robotN); per N the
 table gives, as the median over runs (worst run in brackets): slots on time of the worst robot, MR-image
 latency p50/p95/p99 over every robot's scored slots (``slots.csv`` ``latency_ms``: MR image published − slot
@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 ON_TIME_OK = 0.99  # a fleet size "keeps up" when its worst robot has at least this share of slots on time
 
 
@@ -152,7 +152,7 @@ def main() -> int:
         demo_args += ["--slots", str(args.slots)]
     out = Path(args.out or REPO / "reports" / f"fleet-{time.strftime('%Y%m%d-%H%M%S')}")
     cpus = os.cpu_count() or 1
-    print(f"# bench/fleet.py: gsrmr-demo --robots {' '.join(map(str, args.robots))} × {args.runs} run(s), "
+    print(f"# bench/acceptance/fleet.py: gsrmr-demo --robots {' '.join(map(str, args.robots))} × {args.runs} run(s), "
           f"{' '.join(demo_args)} ({cpus} CPUs, load average before {os.getloadavg()[0]:.2f})", flush=True)
     results: dict[int, list[dict]] = {}
     failed: dict[int, list[dict]] = {}

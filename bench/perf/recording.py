@@ -1,6 +1,6 @@
 """Cost of RunRecorder.write_slot per slot (CSV row + JPEG m̂_t + TwistStamped + JSON log) and of close().
 
-    .venv/bin/python bench/bench_recording.py [--slots 300] [--width 320 --height 240] [--repeats 3]
+    .venv/bin/python bench/perf/recording.py [--slots 300] [--width 320 --height 240] [--repeats 3]
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ renders per camera, over the 3 cameras. Also reports the numba first-call time w
 
 Also the stage split of one frame (projection, sort, gather, binning, compositing), 1 and 2 threads.
 
-Usage: .venv/bin/python bench/render.py [--repeats 7] [--threads N]
+Usage: .venv/bin/python bench/perf/render.py [--repeats 7] [--threads N]
 """
 
 from __future__ import annotations

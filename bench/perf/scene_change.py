@@ -1,6 +1,6 @@
 """Cost of the robot's scene-change test per slot (:class:`gsrmr_robot.scene_change.SceneChangeDetector`).
 
-Usage: ``.venv/bin/python bench/scene_change.py [--repeats 5] [--frames 300] [--width 320 --height 240]``.
+Usage: ``.venv/bin/python bench/perf/scene_change.py [--repeats 5] [--frames 300] [--width 320 --height 240]``.
 Each repeat feeds ``--frames`` uint8 RGB frames (a textured view panning sideways, as when the robot turns, with
 sensor noise) through a fresh detector, one call per slot, on one thread. Prints a table: the per-frame time,
 median and worst of the repeats, the thumbnail width and the machine's load.
@@ -41,7 +41,7 @@ def main() -> int:
         for stamp, frame in enumerate(clip):
             det.update(frame, stamp)
         per_frame_ms.append(1e3 * (time.perf_counter() - t0) / len(clip))
-    print(f"# bench/scene_change.py: {args.repeats} repeats × {args.frames} frames of {args.width}×{args.height}, "
+    print(f"# bench/perf/scene_change.py: {args.repeats} repeats × {args.frames} frames of {args.width}×{args.height}, "
           f"thumbnail {det.thumbnail_width_px} px, shifts ±{det._max_shift_x}/±{det._max_shift_y} px "
           f"({os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}); changes found in the last repeat: "
           f"{det.changes}")

@@ -7,7 +7,7 @@ fraction of slots above 0.01 / 0.03.
 
 Prints a table: median / p90 milliseconds per frame over the poses of one route lap (each pose
 rendered once per repeat), the resulting camera rate, and the configuration. Numba compilation is
-excluded (one warm-up frame). Run: ``.venv/bin/python bench/world.py [--width 320 --height 240]``.
+excluded (one warm-up frame). Run: ``.venv/bin/python bench/perf/world.py [--width 320 --height 240]``.
 Pins the process to one CPU (``os.sched_setaffinity``) and limits numba/BLAS to one thread.
 """
 
@@ -60,7 +60,7 @@ def main() -> None:
     args = p.parse_args()
     with contextlib.suppress(AttributeError, OSError):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
-    print(f"# bench/world.py  {args.width}x{args.height}, {args.poses} poses over one lap x {args.repeats} "
+    print(f"# bench/perf/world.py  {args.width}x{args.height}, {args.poses} poses over one lap x {args.repeats} "
           f"repeats, 1 core ({platform.processor() or platform.machine()}), "
           f"cpus allowed: {len(os.sched_getaffinity(0))}")
     print(f"{'scene':8s} {'stage':34s} {'median ms':>10s} {'p90 ms':>8s} {'rate Hz':>8s}")

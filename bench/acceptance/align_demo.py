@@ -17,7 +17,7 @@ by a random similarity (scale 0.2–5), aligned back into ``map``, then the live
 5. ``gsrmr-demo --model ALIGNED.ply --loss-map MAP`` ``--runs`` times (channel seeds ``--seeds`` + k); per run its
    mean MR loss against L_th and the demo's other figures.
 
-    .venv/bin/python bench/align_demo.py [--seed 0] [--runs 1] [--seeds 1] [--loss-map survey|seed]
+    .venv/bin/python bench/acceptance/align_demo.py [--seed 0] [--runs 1] [--seeds 1] [--loss-map survey|seed]
                                          [--loss-threshold 0.03] [--out DIR] [--quick] [-- DEMO_ARGS...]
 
 ``--quick``: a tiny model (24 frames, 100 steps at 80 px, cached), alignment and survey only, no demo — checks the
@@ -54,7 +54,7 @@ from gsrmr_splat.model import GaussianModel
 from gsrmr_splat.render import render
 from gsrmr_splat.train_config import TrainConfig
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 SCENE = "sandbox"
 SCALE_RANGE = (0.2, 5.0)
 TRANSLATION_PER_SCALE = 5.0  # each axis of t uniform in ±5·s (foreign units)
@@ -136,7 +136,7 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="tiny model, alignment and survey only, no demo")
     ap.add_argument("demo_args", nargs="*", help="passed to gsrmr-demo (after --)")
     args = ap.parse_args()
-    print(f"# bench/align_demo.py{' --quick' if args.quick else ''} (before: {machine_line()} "
+    print(f"# bench/acceptance/align_demo.py{' --quick' if args.quick else ''} (before: {machine_line()} "
           "(gsrmr_sim.machine_probe))", flush=True)
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="align_demo-"))
     out.mkdir(parents=True, exist_ok=True)

@@ -1,6 +1,6 @@
 """The hostile graph over full demo rounds: a rogue process lies during round 2, each case over ``--runs`` rounds.
 
-Usage: ``.venv/bin/python bench/hostile_graph.py [--runs 3] [--cases NAME ...] [--quick] [-- DEMO_ARGS...]``.
+Usage: ``.venv/bin/python bench/acceptance/hostile_graph.py [--runs 3] [--cases NAME ...] [--quick] [-- DEMO_ARGS...]``.
 Each run is one ``gsrmr-demo --channel-seed 3`` (288 slots, ~45 s with the model cached). Once the round is under
 way (the demo's second progress line, ~5 s in) the rogue — ``test/hostile.py CASE``, a process of its own in the
 demo's ROS domain, at nice 19 (on a real network it is another machine: its own CPU is not the system's) — lies
@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib.util
 import json
 import math
 import os
@@ -34,15 +35,28 @@ import sys
 import tempfile
 import threading
 import time
+from types import ModuleType
 from typing import Any
 
 from gsrmr_sim.machine_probe import machine_line
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "test"))
+REPO = Path(__file__).resolve().parents[2]
+ROGUE_SCRIPT = REPO / "test" / "hostile.py"  # the hostile-graph suite's rogue: run as the rogue process, read here
 
-from hostile import CASES, DEPLOYMENT_NODES, ROGUE_NAME, TARGETS, DiagnosticsWatch, named_marker  # noqa: E402
 
+def _rogue_module() -> ModuleType:
+    """``test/hostile.py`` as a module (its cases, targets, /diagnostics watch and marker), loaded from its file: the
+    rogue is the test suite's, not the package's, and nothing else of ``test/`` is made importable."""
+    spec = importlib.util.spec_from_file_location("hostile", ROGUE_SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["hostile"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+_rogue = _rogue_module()
+CASES, DEPLOYMENT_NODES, ROGUE_NAME, TARGETS = _rogue.CASES, _rogue.DEPLOYMENT_NODES, _rogue.ROGUE_NAME, _rogue.TARGETS
+DiagnosticsWatch, named_marker = _rogue.DiagnosticsWatch, _rogue.named_marker
 ALL_CASES = ("none", *CASES)
 ROGUE_NICE = 19
 ROUND_SLOTS, SLOT_S = 288, 0.1  # the sandbox scene's round 2
@@ -165,7 +179,7 @@ def run_case(case: str, demo_args: list[str], out_root: Path, rogue_args: tuple[
                            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
                     with open(out_root / f"{out.name}-rogue.log", "w") as rogue_log:
                         rogue = subprocess.Popen(["nice", "-n", str(ROGUE_NICE), sys.executable,
-                                                  str(REPO / "test" / "hostile.py"), case, "--duration-s",
+                                                  str(ROGUE_SCRIPT), case, "--duration-s",
                                                   f"{lie_s:.1f}", "--out", str(rogue_out), *rogue_args], env=env,
                                                  stdout=rogue_log, stderr=subprocess.STDOUT)
             if "round 2: " in line and progress == 2 and monitor is not None and "graph_lookup_us" not in extra:
@@ -247,7 +261,7 @@ def main() -> int:
     if args.quick:
         args.runs, args.cases, args.demo_args = 1, ["schedule"], ["--slots", "100", *args.demo_args]
     out_root = Path(tempfile.mkdtemp(prefix="gsrmr-hostile-"))
-    print(f"# bench/hostile_graph.py: {args.runs} run(s) per case of gsrmr-demo --channel-seed 3 "
+    print(f"# bench/acceptance/hostile_graph.py: {args.runs} run(s) per case of gsrmr-demo --channel-seed 3 "
           f"{' '.join(args.demo_args)} (before the runs: {machine_line()} (gsrmr_sim.machine_probe); rogue at nice "
           f"{ROGUE_NICE}; reports in {out_root}; {time.strftime('%Y-%m-%d %H:%M')})", flush=True)
     print("| case | run | images | mean loss | regret (true channel) | energy ratio (true) | on time | refused "

@@ -1,6 +1,7 @@
 """Repeated ``gsrmr-demo`` runs: the node suite's acceptance figures as a table with medians.
 
-Usage: ``.venv/bin/python bench/demo.py [--runs 6] [--seeds BASE] [--method M] [--load N] [-- DEMO_ARGS...]``.
+Usage: ``.venv/bin/python bench/acceptance/demo.py [--runs 6] [--seeds BASE] [--method M] [--load N]
+[-- DEMO_ARGS...]``.
 Each run is a full round 2 over DDS (~40 s with the model cached; the first run trains it). Prints, per
 run and as the median: slots on time (MR image ≤ τ after the slot start), images sent, uplink energy ratio
 upload-all / ours, the upload-all energy itself (equal across runs with one ``--channel-seed``), mean MR
@@ -52,8 +53,8 @@ def main() -> int:
     args = ap.parse_args()
     if args.method:
         args.demo_args += ["--method", args.method]
-    print(f"# bench/demo.py: {args.runs} × gsrmr-demo {' '.join(args.demo_args)} (before the runs: {machine_line()} "
-          f"(gsrmr_sim.machine_probe); {args.load} busy process(es) during the runs)", flush=True)
+    print(f"# bench/acceptance/demo.py: {args.runs} × gsrmr-demo {' '.join(args.demo_args)} (before the runs: "
+          f"{machine_line()} (gsrmr_sim.machine_probe); {args.load} busy process(es) during the runs)", flush=True)
     busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.load)]
     try:
         return _runs(args)

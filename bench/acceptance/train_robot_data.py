@@ -40,7 +40,7 @@ stage's iterations are printed beside its PSNR.
 Each row: condition, init, width, pose-opt, exposure-opt; iterations and CPU s at the last stage, it/s, held-out PSNR
 at each stage — the median over the runs with the worst in brackets.
 
-    .venv/bin/python bench/train_robot_data.py [--runs 3] [--widths 160 320] [--stages-min 1 3 10]
+    .venv/bin/python bench/acceptance/train_robot_data.py [--runs 3] [--widths 160 320] [--stages-min 1 3 10]
         [--conditions clean noise drift exposure] [--iterations 4000] [--test-pose-steps 20] [--fit-schedule]
         [--json OUT]
 
@@ -289,7 +289,7 @@ def main() -> int:
         args.runs = 1
     rows = [Row(c, i, w, p, e) for w in widths for (c, i, p, e) in grid if c in args.conditions]
     k = scene.camera.intrinsics
-    print(f"# bench/train_robot_data.py{' --quick' if args.quick else ''} (before: {machine_line()} "
+    print(f"# bench/acceptance/train_robot_data.py{' --quick' if args.quick else ''} (before: {machine_line()} "
           f"(gsrmr_sim.machine_probe)); numba {numba.get_num_threads()} threads, torch 1 thread")
     print(f"# {SCENE} round 1: {frames_n} frames at {k.width}×{k.height}, every {holdout_every}th held out; "
           f"{len(rows)} rows × {args.runs} runs × {cpu_time_text(stages_s[-1])} = "

@@ -1,6 +1,6 @@
 """Time from ``gsrmr-scheduler`` process start to its first published schedule (warm and cold kernel cache).
 
-Usage: ``.venv/bin/python bench/scheduler_start.py [--runs 5] [--cold 2] [--method exact]``. Each run starts
+Usage: ``.venv/bin/python bench/perf/scheduler_start.py [--runs 5] [--cold 2] [--method exact]``. Each run starts
 the scheduler as the demo does (``config/link.yaml`` + ``config/scheduler.yaml``, the sandbox route, the
 demo's seed loss map when cached) in its own ROS domain, and a subscriber in this process (started first,
 transient-local QoS like the robot's) notes when the first ``gsrmr/schedule`` arrives. "Warm" uses the
@@ -20,7 +20,7 @@ import tempfile
 import threading
 import time
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def first_schedule_s(method: str, env_extra: dict[str, str], timeout_s: float = 60.0) -> float:
@@ -72,7 +72,7 @@ def main() -> int:
     ap.add_argument("--cold", type=int, default=2)
     ap.add_argument("--method", default="exact")
     args = ap.parse_args()
-    print(f"# bench/scheduler_start.py: method {args.method} ({os.cpu_count()} CPUs, load average "
+    print(f"# bench/perf/scheduler_start.py: method {args.method} ({os.cpu_count()} CPUs, load average "
           f"{os.getloadavg()[0]:.1f})")
     print("| kind | run | first schedule after start [s] |")
     print("|---|---|---|")
@@ -93,5 +93,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(REPO))
     sys.exit(main())

@@ -5,7 +5,7 @@ Scenes:
 * ``sandbox`` — the demo's model: the sandbox's round-1 dataset (144 frames at 320×240) trained as
   ``make demo`` trains it (``gsrmr_sim.models``, SH 0, 160 px wide, 75 s, every 8th frame held out),
   taken from the demo's cache when it is there;
-* ``garden`` — the dataset ``bench/train.py`` builds from the garden test model (48 views at 160×120,
+* ``garden`` — the dataset ``bench/perf/train.py`` builds from the garden test model (48 views at 160×120,
   every 6th held out), trained for ``--garden-cpu-s`` of CPU time with SH degree 1.
 
 Every accepted or rejected compaction round is a row: its Gaussians and SH degree, held-out PSNR (at
@@ -15,7 +15,7 @@ the dataset's training resolution), the render time at 320×240 and 648×420 wit
 The knee marked is the smallest model within the tolerance (the last accepted round). A plot goes to
 ``--plot`` (PNG), the rows to ``--json``.
 
-Usage: .venv/bin/python bench/compact.py [--scenes sandbox garden] [--max-psnr-drop-db 0.3]
+Usage: .venv/bin/python bench/perf/compact.py [--scenes sandbox garden] [--max-psnr-drop-db 0.3]
 """
 
 from __future__ import annotations
@@ -25,22 +25,19 @@ import json
 import math
 import os
 from pathlib import Path
-import sys
 import time
 
 import numba
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from gsrmr_common.camera import Camera, Intrinsics
+from gsrmr_common.nerfstudio import holdout_split
+from gsrmr_splat.compact import CompactConfig, Compactor
+from gsrmr_splat.model import GaussianModel
+from gsrmr_splat.render import render
+from gsrmr_splat.train import TrainConfig, Trainer
 
-from gsrmr_common.camera import Camera, Intrinsics  # noqa: E402
-from gsrmr_common.nerfstudio import holdout_split  # noqa: E402
-from gsrmr_splat.compact import CompactConfig, Compactor  # noqa: E402
-from gsrmr_splat.model import GaussianModel  # noqa: E402
-from gsrmr_splat.render import render  # noqa: E402
-from gsrmr_splat.train import TrainConfig, Trainer  # noqa: E402
-
+REPO = Path(__file__).resolve().parents[2]
 SIZES = ((320, 240), (648, 420))
 
 
@@ -82,7 +79,7 @@ def sandbox_inputs(args: argparse.Namespace) -> tuple[GaussianModel, list, list,
 
 
 def garden_inputs(args: argparse.Namespace) -> tuple[GaussianModel, list, list, TrainConfig, float]:
-    """bench/train.py's garden dataset, trained here with SH degree 1 for ``--garden-cpu-s``."""
+    """bench/perf/train.py's garden dataset, trained here with SH degree 1 for ``--garden-cpu-s``."""
     from gsrmr_sim.shared_data import garden_model
     from gsrmr_splat.datasets import orbit_cameras, render_views
 
