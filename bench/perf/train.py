@@ -32,7 +32,12 @@ density control then frozen), ``--profile-steps`` steps of each engine from it, 
 phase (fused: the engine's own timers; torch: timers wrapped around its functions) at each thread count.
 
 Usage: .venv/bin/python bench/perf/train.py [--datasets garden sandbox] [--widths 160 270] [--threads 1 2]
-    [--stages-min 1 3] [--runs 1] [--profile] [--json OUT]
+    [--stages-min 0.5 1] [--runs 1] [--profile] [--json OUT]
+
+The default run (what ``make bench`` runs; 112 s on the 2 shared cores at load 3–4) is one row: the garden at 160 px on
+2 numba threads, both engines, stages 0.5 and 1 CPU-minute. The whole grid, ``--datasets garden sandbox --widths 160 270
+--threads 1 2 --stages-min 1 3`` (the defaults before 2026-11-29), is 10 rows of 2 engines × 3 CPU-minutes, about an
+hour (not run here; docs/splatting.md's ≈ 25 min is that grid at stages 0.5 and 1, with the profile).
 
 ``--quick``: tiny frames and budgets; checks the script, measures nothing.
 """
@@ -264,13 +269,13 @@ def profile(train, held, cfg_for, at: int, steps: int, threads: list[int]) -> No
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument("--datasets", nargs="+", choices=["garden", "sandbox"], default=["garden", "sandbox"])
-    ap.add_argument("--widths", type=int, nargs="+", default=[160, 270])
-    ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--datasets", nargs="+", choices=["garden", "sandbox"], default=["garden"])
+    ap.add_argument("--widths", type=int, nargs="+", default=[160])
+    ap.add_argument("--threads", type=int, nargs="+", default=[2])
     ap.add_argument("--engines", nargs="+", choices=ENGINES, default=list(ENGINES))
     ap.add_argument("--pose-opt-threads", type=int, nargs="*", default=[2],
                     help="thread counts of the sandbox rows with pose refinement on (none: no such rows)")
-    ap.add_argument("--stages-min", type=float, nargs="+", default=[1.0, 3.0],
+    ap.add_argument("--stages-min", type=float, nargs="+", default=[0.5, 1.0],
                     help="CPU-minutes of training at which the held-out PSNR is measured (the last ends a run)")
     ap.add_argument("--iterations", type=int, default=4000, help="steps of the schedule (a run may stop earlier)")
     ap.add_argument("--window", type=int, default=100, help="steps per timing window")
