@@ -17,8 +17,8 @@ The knee marked is the smallest model within the tolerance (the last accepted ro
 
 Usage: .venv/bin/python bench/perf/compact.py [--scenes sandbox garden] [--max-psnr-drop-db 0.3]
 
-The default run (what ``make bench`` runs) is the sandbox alone: 161 s on the 2 shared cores at load 3–4 with the
-demo's model cached (without it the model is trained first, as ``make demo`` does). Both scenes, ``--scenes sandbox
+The default run (what ``make bench`` runs) is the sandbox alone: 71 s on the 2 cores idle, 161 s at load 3–4, with
+the demo's model cached (without it the model is trained first, as ``make demo`` does). Both scenes, ``--scenes sandbox
 garden`` (the default before 2026-11-29; docs/splatting.md's tables), add the garden's 300 CPU-seconds of training and
 its compaction: 618 s in all (load 0.4–7 from other jobs).
 """

@@ -9,8 +9,8 @@ S = 192 bit, B = 1 MHz, σ² = −60 dBm, Rician K = 1 at ~10 m, L_t ~ U(0, 0.09
 3. every method's energy relative to exact at L_th ∈ {0.02, …, 0.04}, mean over seeds (maxrate/fairness get
    APO's energy as budget, as in the paper, and their resulting mean loss is shown).
 
-Usage: ``.venv/bin/python bench/perf/scheduler.py [--full]``. The default run (what ``make bench`` runs; 151 s on the
-2 shared cores at load 4–5) leaves APO out at T = 1e5, solves T = 1e5 once per method (exchange stops at its 60 s
+Usage: ``.venv/bin/python bench/perf/scheduler.py [--full]``. The default run (what ``make bench`` runs; 141–151 s on
+the 2 shared cores, load 1–5) leaves APO out at T = 1e5, solves T = 1e5 once per method (exchange stops at its 60 s
 limit there) and averages table 3 over 3 seeds. ``--full`` (332 s at load 2–3, of which 300 s are the 60 s limits of
 APO at 1e4 and 1e5 and of exchange's 3 repeats at 1e5): APO at every T, 3 repeats at 1e5, 10 seeds — the tables of
 docs/scheduling.md, "Measured". ``--quick`` is the default run (the flag is kept for old command lines).

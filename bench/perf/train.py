@@ -34,10 +34,11 @@ phase (fused: the engine's own timers; torch: timers wrapped around its function
 Usage: .venv/bin/python bench/perf/train.py [--datasets garden sandbox] [--widths 160 270] [--threads 1 2]
     [--stages-min 0.5 1] [--runs 1] [--profile] [--json OUT]
 
-The default run (what ``make bench`` runs; 112 s on the 2 shared cores at load 3–4) is one row: the garden at 160 px on
-2 numba threads, both engines, stages 0.5 and 1 CPU-minute. The whole grid, ``--datasets garden sandbox --widths 160 270
---threads 1 2 --stages-min 1 3`` (the defaults before 2026-11-29), is 10 rows of 2 engines × 3 CPU-minutes, about an
-hour (not run here; docs/splatting.md's ≈ 25 min is that grid at stages 0.5 and 1, with the profile).
+The default run (what ``make bench`` runs; 112–127 s on the 2 shared cores, load 3–4) is one row: the garden at
+160 px on 2 numba threads, both engines, stages 0.5 and 1 CPU-minute. The whole grid, ``--datasets garden sandbox
+--widths 160 270 --threads 1 2 --stages-min 1 3`` (the defaults before 2026-11-29), is 10 rows of 2 engines × 3
+CPU-minutes, about an hour (not run here; docs/splatting.md's ≈ 25 min is that grid at stages 0.5 and 1, with the
+profile).
 
 ``--quick``: tiny frames and budgets; checks the script, measures nothing.
 """
