@@ -14,6 +14,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 # The shared test data (the garden scene): tests and benches find it through GSRMR_DATA_DIR.
 GSRMR_DATA_DIR ?= $(abspath $(wildcard ../shared/data))
 export GSRMR_DATA_DIR
+# e.g. PYTEST_ARGS=test/scheduler: one folder of test/ (a package's unit tests, ros, launch, system, project)
 PYTEST_ARGS ?=
 
 .PHONY: venv test test-long lint pytest demo bench docs clean

@@ -47,6 +47,7 @@ CONSOLE_SCRIPTS = [
     "gsrmr-scheduler = gsrmr_scheduler.scheduler_node:main",
     "gsrmr-survey = gsrmr_offline.survey_cli:main",
     "gsrmr-update = gsrmr_offline.update_cli:main",
+    "gsrmr-localize = gsrmr_offline.localize_cli:main",
     "gsrmr-experiments = gsrmr_sim.experiments.cli:main",
     "gsrmr-demo = gsrmr_sim.demo:main",
     "gsrmr-uplink-relay = gsrmr_sim.fault_relay_node:main",

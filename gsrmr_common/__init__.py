@@ -1,6 +1,6 @@
-"""Code shared by the robot and the server: camera conventions, metrics, wire formats, ROS helpers.
+"""The library every gsrmr program uses: wire contract, link model, camera model, TF, metrics, JPEG, ROS helpers.
 
-Pure modules (no rclpy): :mod:`camera`, :mod:`metrics`. ROS helpers live in :mod:`ros_node`.
+What it holds and which of its modules import no ROS: docs/architecture.md, "The packages" and "The import rules".
 """
 
 from gsrmr_common.interrupts import guard_console_start_up

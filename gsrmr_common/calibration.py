@@ -1,40 +1,9 @@
 """A real camera's calibration and its rectification to the pinhole camera the GS renderer draws.
 
-The one place that decides which pinhole camera a distorted camera's frames become — the dataset tool
-(``gsrmr-dataset``, full size) and the robot's uplink (at the uplink width) both call
-:func:`rectified_intrinsics` and :class:`Rectifier`, so the model is trained on, and rendered at, the
-same camera the robot sends.
-
-Calibration (:class:`CameraCalibration`) holds what ``sensor_msgs/CameraInfo`` holds, in ROS's
-conventions: ``k`` (3×3), ``r`` (3×3 rectification rotation, identity for a monocular camera), ``p``
-(3×4 projection of the rectified image), pixel centres at **integer** coordinates (OpenCV, ROS), and
-``d`` in the ``distortion_model``'s order:
-
-* ``plumb_bob`` — (k1, k2, t1, t2, k3), OpenCV's radial-tangential model;
-* ``rational_polynomial`` — (k1, k2, t1, t2, k3, k4, k5, k6);
-* ``equidistant`` — (k1, k2, k3, k4), OpenCV's fisheye model (``cv2.fisheye``).
-
-It reads from a CameraInfo's fields (:meth:`CameraCalibration.from_camera_info`) or from the YAML file
-``camera_calibration`` writes and ``camera_info_manager`` reads (:meth:`CameraCalibration.from_yaml`).
-
-The rectified camera (:func:`rectified_intrinsics`) — the rule, in order:
-
-1. ``p`` when the calibration carries one (non-zero fx and fy in P, zero skew): the rectified image has
-   P's intrinsics, at the calibration's size — as ``image_proc``'s rectify does. ``camera_calibration``
-   writes P for alpha 0 (every rectified pixel valid).
-2. No distortion and no P: ``k`` itself (nothing to rectify).
-3. Distortion and no P: the same rule ``camera_calibration`` uses to write P — alpha 0 in
-   ``cv2.getOptimalNewCameraMatrix`` (plumb_bob, rational_polynomial), balance 0 in
-   ``cv2.fisheye.estimateNewCameraMatrixForUndistortRectify`` (equidistant): the largest pinhole view
-   with no invalid pixel, same size.
-
-At another width (the uplink's) the rectified camera is scaled in the pixel-centre-at-0.5 convention of
-:class:`gsrmr_common.camera.Intrinsics` (the height keeps the aspect, rounded): a ROS K (centres at
-integers) is shifted by +0.5 px before it is scaled, so ``cv2.resize`` (which maps pixel centres the same
-way) and the intrinsics agree to the sub-pixel. The returned :class:`~gsrmr_common.camera.Intrinsics` are
-always in that 0.5 convention; :meth:`~gsrmr_common.camera.Intrinsics.ros_k` gives them back to ROS.
-
-Pure numpy and OpenCV; no ROS import (the CameraInfo adapter takes any object with its fields).
+:class:`CameraCalibration` (``sensor_msgs/CameraInfo``'s fields, ROS conventions), :func:`rectified_intrinsics` (the
+one rule for the rectified camera, shared by ``gsrmr-dataset`` and the robot's uplink) and :class:`Rectifier` (the
+frames). The conventions, the distortion models, the rule and its scaling to another width: docs/architecture.md,
+"A camera's calibration and its rectified camera". Pure numpy and OpenCV, no ROS import.
 """
 
 from __future__ import annotations

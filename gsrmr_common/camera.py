@@ -1,27 +1,15 @@
-"""Camera model and axis conventions shared by the world simulator and the Gaussian-splatting engine.
+"""Camera model and axis conventions: every camera that turns a robot pose into an image is built here.
 
-This module is the one place where frames and pixel conventions are defined. Everything that turns a
-robot pose into an image (the "real" camera of the simulated world, the GS renderer Φ(s_t), the
-virtual view v_t) builds its camera here.
+The "real" camera of the simulated world, the GS renderer Φ(s_t) and the virtual view v_t all use it:
 
-Frames
-------
-* World (``map``/``odom``, REP-103): x forward, y left, z up; metres.
-* Robot pose ``(a, b, θ)``: position of ``base_link`` in the world x/y plane (metres) and yaw θ
-  (radians, counter-clockwise about +z, 0 = facing world +x). ``base_link`` sits on the floor (z = 0).
-* Camera mount (:class:`CameraMount`): the optical centre at ``(forward_m, left_m, height_m)`` in
-  ``base_link``; the optical axis points along the robot heading, turned by roll/pitch/yaw (ROS RPY;
-  ``pitch_rad`` positive = looking down).
-* Camera (optical frame, OpenCV / 3DGS / gsplat): x right, y down, z forward. ``world_to_camera`` is
-  the 4×4 [R|t] mapping homogeneous world points into that frame; depth is camera-space z.
-
-Pixels
-------
-Pixel (u, v) covers [u, u+1) × [v, v+1) and its centre is (u + 0.5, v + 0.5), the 3DGS / gsplat /
-COLMAP convention. A point at camera coordinates (x, y, z) lands at ``(fx·x/z + cx, fy·y/z + cy)`` in
-those continuous coordinates. ROS ``sensor_msgs/CameraInfo`` and OpenCV put pixel centres at integer
-coordinates instead, so their principal point is 0.5 px smaller: use :meth:`Intrinsics.from_ros_k`
-and :meth:`Intrinsics.ros_k` to convert.
+* world (``map``/``odom``, REP-103): x forward, y left, z up, metres; a robot pose ``(a, b, θ)`` is ``base_link``
+  on the floor (z = 0), θ in radians counter-clockwise about +z, 0 facing world +x;
+* camera mount on the robot: :class:`CameraMount`;
+* optical frame (OpenCV / 3DGS / gsplat): x right, y down, z forward; ``world_to_camera`` is the 4×4 [R|t] taking
+  world points into it, depth is camera-space z;
+* pixel (u, v) covers [u, u+1) × [v, v+1), centre (u + 0.5, v + 0.5) (3DGS / gsplat / COLMAP): a camera point
+  (x, y, z) lands at ``(fx·x/z + cx, fy·y/z + cy)``. ROS ``CameraInfo`` and OpenCV put centres at integers, so
+  their principal point is 0.5 px smaller: :meth:`Intrinsics.from_ros_k`, :meth:`Intrinsics.ros_k`.
 """
 
 from __future__ import annotations

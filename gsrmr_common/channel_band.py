@@ -1,20 +1,12 @@
 """How far a measured channel gain may lie from the path-loss prediction (pure math, no numpy): the Rician band.
 
-The link model (:mod:`gsrmr_common.channel`) draws g = ρ0·d^−α·X with X the small-scale power of a Rician
-channel of K-factor K, E[X] = 1: ``2(K+1)·X`` is a non-central χ² with 2 degrees of freedom and
-non-centrality ``2K``. Its CDF (:func:`rician_power_cdf`, a Poisson mixture of regularised gamma functions,
-computed from whichever side keeps its precision) gives the band a clean measurement stays in:
-
-* **per sample**: ``g / ḡ(d)`` within [:func:`rician_power_quantile` (p), quantile(1 − p)] with ``p`` =
-  ``per_sample_alarm`` (10⁻⁷ by default, each tail), ḡ(d) = ρ0·d^−α at the robot's position. The robot knows
-  its position only from odometry: the band is widened by ``((d + δ)/d)^α`` on either side for a position
-  error δ (``position_tolerance_m``);
-* **a lasting bias**: the median of the last ``window`` ratios within [quantile(q), quantile(1 − q)] (q =
-  ``window_quantile``, 0.05): a clean window's median leaves it only when ≥ ⌈w/2⌉ of w samples fall beyond one
-  quantile — :func:`median_alarm_probability`. A writer whose gains are all ÷1000 passes the per-sample band
-  (deep fades happen) but not this one, within ⌈w/2⌉ samples.
-
-:class:`GainBand` applies both; :meth:`GainBand.false_alarm_per_sample` states the rate.
+The link model (:mod:`gsrmr_common.channel`) draws g = ρ0·d^−α·X, X the unit-mean small-scale power of a Rician
+channel of K-factor K: ``2(K+1)·X`` is a non-central χ² with 2 degrees of freedom and non-centrality ``2K``, whose
+CDF (:func:`rician_power_cdf`, a Poisson mixture of regularised gamma functions, computed from whichever side keeps
+its precision) bounds a clean ratio ``g / ḡ(d)`` per sample; the median of the last ``window`` ratios leaves its
+quantile band only when ⌈w/2⌉ of w samples fall beyond one quantile (:func:`median_alarm_probability`).
+:class:`GainBand` applies both, widened for the robot's odometry position error; the bands and their false-alarm
+rates: docs/security.md, "Plausibility, even from the right writer".
 """
 
 from __future__ import annotations

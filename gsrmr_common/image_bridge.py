@@ -1,47 +1,9 @@
 """``sensor_msgs/Image`` ↔ numpy with ``cv_bridge`` semantics, using ``cv_bridge`` when a ROS install has it.
 
-Imports message classes only (no rclpy node) and numpy; OpenCV is not needed.
-
-Backend. At import we try ``from cv_bridge import CvBridge`` and keep it only if it imports, constructs
-*and* converts a few tiny probe images exactly as ``cv_bridge`` should (any ``Exception`` on the way
-counts as "absent"). :data:`BACKEND` says which one is in use: ``"cv_bridge"`` or ``"gsrmr"``.
-The fallback exists because ``cv_bridge`` (like ``tf2``) is not on PyPI for ROS 2: it comes only with a
-ROS install, and PyPI's ``cv-bridge`` 1.13 is the ROS 1 package, which breaks on numpy 2. The fallback
-is this module's own code and complete on its own; with either backend, validation, encodings and
-passthrough unpacking are done here, so both give the same results and the same errors. ``cv_bridge``
-is handed only compact, native-endian messages, because its Python ``imgmsg_to_cv2`` reads rows as
-``int(step / itemsize / channels)`` pixels (wrong when the padding is not a whole number of pixels)
-and never checks ``len(data)``.
-
-Encodings (``sensor_msgs/image_encodings``) supported, as numpy arrays (row 0 = top, column 0 = left):
-
-* ``rgb8`` / ``bgr8``: ``uint8`` H×W×3, channels R, G, B / B, G, R;
-* ``rgba8`` / ``bgra8``: ``uint8`` H×W×4, channels R, G, B, alpha / B, G, R, alpha;
-* ``mono8``: ``uint8`` H×W grey; ``mono16``: ``uint16`` H×W grey (full scale 65535);
-* ``16UC1``: ``uint16`` H×W plain numbers (e.g. depth in mm);
-* ``32FC1``: ``float32`` H×W plain numbers (e.g. depth in m; NaN/inf kept bit-exactly).
-
-On the wire a row is ``step`` bytes, of which the first width·channels·itemsize are pixels (the rest
-is padding); multi-byte elements are big-endian when ``is_bigendian`` is non-zero, and ``data`` holds
-exactly step·height bytes (``cv_bridge``'s ``matFromImage`` refuses any other size).
-
-Conversions (``desired_encoding``) follow ``cv_bridge``'s ``getConversionCode`` / ``toCvCopyImpl``
-(vision_opencv, ``cv_bridge/src/cv_bridge.cpp``):
-
-* same encoding or ``"passthrough"``: a copy in the message's own layout;
-* between the colour/mono encodings (rgb8, bgr8, rgba8, bgra8, mono8, mono16): OpenCV ``cvtColor`` at
-  the source depth — mono → colour replicates the grey, an added alpha is the depth's maximum, colour →
-  mono is ITU-R BT.601 ``Y = 0.299 R + 0.587 G + 0.114 B`` in OpenCV's 15-bit fixed point
-  ``(9798 R + 19235 G + 3735 B + 2¹⁴) >> 15`` (``modules/imgproc/src/color.hpp``: gray_shift, RY15, GY15,
-  BY15), alpha ignored — followed by a depth change that *scales* 8 ↔ 16 bit (``convertTo`` with
-  alpha 65535/255, i.e. ``v · 257``, resp. 255/65535 rounded to nearest, i.e. ``(v + 128) // 257``);
-* colour/mono → ``16UC1``/``32FC1`` only with the same channel count (mono8/mono16): ``convertTo`` to
-  the target depth, scaled only for 8 → 16 bit;
-* ``16UC1`` ↔ ``32FC1``: plain ``convertTo`` (float → uint16 rounds half to even and saturates to
-  [0, 65535], NaN → 0; OpenCV's ``saturate_cast`` on x86 also turns |v| ≥ 2³¹, +inf included, into 0 —
-  not copied here);
-* refused (``ValueError`` naming both encodings): a non-colour source (16UC1, 32FC1) to any colour or
-  mono encoding, a colour encoding with 3/4 channels to a 1-channel non-colour one.
+:func:`imgmsg_to_numpy` and :func:`numpy_to_imgmsg`; :data:`BACKEND` names the backend in use (``"cv_bridge"`` or
+``"gsrmr"``, same results either way). The backend probe, the supported encodings, the row layout on the wire and the
+conversions: docs/architecture.md, "sensor_msgs/Image ↔ numpy". Imports message classes only (no rclpy node) and
+numpy; OpenCV is not needed.
 """
 
 from __future__ import annotations

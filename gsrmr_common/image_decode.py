@@ -1,27 +1,10 @@
 """Stored ``sensor_msgs/Image`` and ``sensor_msgs/CompressedImage`` → numpy, for messages read from a bag.
 
-The messages are rosbags' plain dataclasses (``msg.data`` a uint8 array), not rclpy messages: this module
-imports no ROS. Arrays: row 0 = top, column 0 = left.
-
-Colour (:func:`decode_colour` → H×W×3 ``uint8`` RGB):
-
-* ``Image``: ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8`` (alpha dropped), ``mono8`` and ``8UC1`` (grey, replicated),
-  ``8UC3`` (OpenCV's BGR), ``yuv422``/``uyvy`` (UYVY) and ``yuv422_yuy2``/``yuyv`` (YUYV) through OpenCV's
-  BT.601 conversion; row padding (``step``) and ``is_bigendian`` honoured;
-* ``CompressedImage``: JPEG and PNG by content (``format`` ``"jpeg"``, ``"png"``, ``"rgb8; jpeg compressed
-  bgr8"``, empty …). OpenCV decodes to BGR; the decoded channels are in the order the format's compressed
-  encoding names (``… compressed bgr8``, the image_transport encoder's, or none given → BGR; ``… compressed
-  rgb8`` → already RGB). 16-bit PNG colour is scaled to 8 bit as cv_bridge does, ``(v + 128) // 257``.
-
-Depth (:func:`decode_depth_m` → H×W ``float32`` metres, 0 where there is no depth):
-
-* ``Image``: ``16UC1`` and ``mono16`` in millimetres, ``32FC1`` in metres (NaN, ±inf and values ≤ 0 → 0);
-* ``CompressedImage``: ``compressedDepth`` (``compressed_depth_image_transport``: a 12-byte header, then a
-  PNG) of ``16UC1`` (millimetres) and of ``32FC1`` (inverse depth quantised: d = A / (v − B) with A, B from the
-  header); a 16-bit PNG (``"16UC1; png compressed 16UC1"``) in millimetres. ``compressedDepth rvl`` is refused.
-
-What is a depth stream (:func:`is_depth_message`): an ``Image`` in ``16UC1``, ``mono16`` or ``32FC1``, or a
-``CompressedImage`` whose format names ``compressedDepth`` or a 16-bit/float source encoding.
+The messages are rosbags' plain dataclasses (``msg.data`` a uint8 array), not rclpy messages: no ROS import.
+:func:`decode_colour` gives H×W×3 ``uint8`` RGB, :func:`decode_depth_m` H×W ``float32`` metres (0: no depth); the
+encodings each supports, and their units: docs/dataset_tool.md, "What it reads" (Encodings). A depth stream
+(:func:`is_depth_message`) is an ``Image`` in ``16UC1``, ``mono16`` or ``32FC1``, or a ``CompressedImage`` whose
+format names ``compressedDepth`` or a 16-bit or float source encoding.
 """
 
 from __future__ import annotations

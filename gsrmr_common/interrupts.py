@@ -1,44 +1,9 @@
 """How a gsrmr process ends on Ctrl-C: exit code 0 whenever the stop was asked for, in any phase.
 
-A shell's Ctrl-C sends SIGINT to the whole process group: ``ros2 launch`` and every node get it at
-once, and ``launch`` then sends each node a SIGINT of its own (SIGTERM 5 s later, SIGKILL after 10 s).
-A Python process that lets the resulting ``KeyboardInterrupt`` escape ends by signal (exit code −2)
-and ``launch`` reports "process has died". That happens in four places, each handled here:
-
-* **loading** (the console script importing its node module: numpy, rclpy, numba kernels, torch —
-  up to seconds): :func:`guard_console_start_up`, called by every package that holds a console script's
-  module (its ``__init__``, which Python runs before any of the package's modules), installs
-  :data:`POLICY` in a gsrmr console script and an exception hook: an interrupt that ends the program
-  while it still loads its entry module ends it with code 0.
-* **start-up** (``main`` building the node: loading a model, compiling kernels): the interrupt must stop
-  the process at once. :class:`InterruptPolicy` raises ``KeyboardInterrupt`` in this phase;
-  :func:`console_main`, the decorator on every node module's ``main``, catches it and returns 0.
-* **running**: the spin must end through rclpy, never through an exception raised at an arbitrary
-  bytecode: a ``KeyboardInterrupt`` that lands between an executor's ``ExitStack.enter_context(handle)``
-  and the registration of its exit leaves the handle "in use", and ``destroy_node`` then spins forever
-  in ``destroy_when_not_in_use`` (seen: a base driver at 98 % CPU after Ctrl-C); shutting rclpy down
-  from the handler mid-executor crashed a node (−11). The policy only sets
-  :attr:`InterruptPolicy.stop_requested`; ``run_node`` spins in 0.1 s steps and stops when it is set
-  (or when rclpy's own handler has shut the context down, whichever comes first).
-* **clean-up** (destroying the node, closing a recording, releasing the serial port): the second
-  SIGINT — the one ``launch`` forwards — must not interrupt it. The policy ignores it; only a third
-  signal (a user who insists) raises.
-
-* **interpreter exit**: :func:`console_main` ignores both signals once ``main`` has returned, and so
-  does the exception hook once it has decided the exit code.
-
-SIGTERM is treated as SIGINT. Pure Python, no rclpy, no gsrmr import: every package imports it first.
-
-* **DDS teardown**: destroying the last node deletes the Fast DDS participant, and Fast DDS 3.2 (the PyPI
-  wheel) can livelock there: ``DomainParticipant::set_listener(nullptr)`` busy-waits, holding the GIL, for a
-  discovery callback that starves on the mutex it keeps re-taking (seen in ~1 of 300 stops of a stack on a
-  loaded 2-core machine, when every process stops at once). No Python code runs any more, so
-  :func:`arm_exit_deadline` arms a libc timer whose own thread calls ``_exit(0)``: ``run_node`` arms it once
-  the node's own clean-up is done, before the DDS teardown.
-
-A process that does not end: ``kill -USR1 <pid>`` makes every gsrmr console script print the Python stack
-of each of its threads to stderr (:mod:`faulthandler`, installed by :func:`guard_console_start_up`); the
-process supervisor does it before it SIGKILLs a process that outlived its stop timeout.
+:class:`InterruptPolicy` (the phase-dependent SIGINT/SIGTERM handler), :func:`guard_console_start_up` (loading),
+:func:`console_main` (a node's ``main``) and :func:`arm_exit_deadline` (the DDS teardown). Why each phase needs what
+it gets: docs/architecture.md, "Ending on Ctrl-C". Pure Python, no rclpy, no gsrmr import: every package imports it
+first.
 """
 
 from __future__ import annotations

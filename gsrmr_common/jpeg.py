@@ -1,24 +1,12 @@
 """JPEG encoding, header inspection and guarded decoding (pure: numpy + OpenCV, no rclpy).
 
-Image uploads (``x_t = 1``, see :mod:`gsrmr_common.wire`) carry one baseline or progressive JPEG. The
-server must never let a hostile or damaged upload crash it or make it allocate a huge buffer, so
-:func:`decode_jpeg` works in three steps:
-
-1. size check on the compressed bytes (``max_bytes``);
-2. :func:`jpeg_dimensions` reads the frame header (SOF) *without decoding*, and the claimed
-   width × height × components is checked against ``max_pixels``, ``expected_shape`` and 3 channels
-   before OpenCV sees a byte;
-3. a structural walk over every marker segment and entropy-coded segment up to EOI (catches truncation
-   and most header corruption, which libjpeg would otherwise only report as a warning and pad with
-   grey), then ``cv2.imdecode`` (EXIF orientation ignored, so the pixel grid is what the SOF says).
-
-Every refusal is an :class:`ImageRejected` (a ``ValueError``) with a human-readable reason. JPEG has
-no checksum: a bit flip inside the entropy-coded data can still decode to a wrong-looking image of the
-right size; that is the best any decoder can do and the MR loss measures the damage.
-
-Pixel layout: images are H×W×3 ``uint8`` RGB (row 0 = top, column 0 = left), the ``rgb8`` encoding
-of ``sensor_msgs/Image``; on the wire the JPEG holds BGR-ordered components as OpenCV writes them,
-hence :data:`gsrmr_common.wire.JPEG_FORMAT` ``"rgb8; jpeg compressed bgr8"``.
+An upload must never crash the server or make it allocate a huge buffer, so :func:`decode_jpeg` checks the compressed
+size, then the frame header's claimed size (:func:`jpeg_header`, before OpenCV sees a byte), then the structure of
+every segment up to EOI (:func:`check_jpeg_structure`: truncation and most header corruption, which libjpeg only
+warns about and pads with grey), and only then decodes (EXIF orientation ignored: the pixel grid is what the SOF
+says). Every refusal is an :class:`ImageRejected`. What no decoder can catch (JPEG has no checksum):
+docs/reliability.md, "The fault relay". Images are H×W×3 ``uint8`` RGB; the JPEG holds BGR-ordered components as
+OpenCV writes them, hence :data:`gsrmr_common.wire.JPEG_FORMAT`.
 """
 
 from __future__ import annotations

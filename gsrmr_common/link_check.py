@@ -1,17 +1,8 @@
 """DDS link check between the robot and the workstation: round-trip latency, loss and a service call.
 
-Run ``gsrmr-link-echo`` on one machine (the server) and ``gsrmr-link-probe`` on the other (the robot).
-The probe publishes numbered pings, the echo returns each one, and the probe reports round-trip time
-percentiles, lost pings and the echo's own counters (fetched through a ``std_srvs/Trigger`` service).
-This is the first thing to run when ROS 2 discovery between a LIMO and a workstation misbehaves.
-
-Topics and services (all relative, so a namespace applies):
-
-* ``link/ping``  ``std_msgs/Header``  probe → echo; ``stamp`` = send time (probe clock),
-  ``frame_id`` = sequence number as decimal text. Reliable, depth 50.
-* ``link/pong``  ``std_msgs/Header``  echo → probe; the ping returned unchanged.
-* ``link/stats`` ``std_srvs/Trigger`` answered by the echo; ``message`` is JSON
-  ``{"node", "pings_received", "pongs_sent"}``.
+Run ``gsrmr-link-echo`` on the server and ``gsrmr-link-probe`` on the robot: the first thing to run when ROS 2
+discovery between a LIMO and a workstation misbehaves. Topics, service and parameters: :data:`ECHO_INTERFACE`,
+:data:`PROBE_INTERFACE` (what ``--help`` prints); a ping's ``frame_id`` is its sequence number as decimal text.
 """
 
 from __future__ import annotations

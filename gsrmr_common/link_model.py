@@ -1,21 +1,9 @@
 """The uplink link model (pure numpy, no rclpy): rate, required power and energy, and the link budget.
 
-One module for the robot (its energy ledger), the scheduler (its plan) and the experiments. The
-parameters live in :class:`LinkBudget` (SI units; ``config/link.yaml``'s names, units and ranges are
-:class:`gsrmr_common.link_params.LinkParameters`); the fading draws in :mod:`gsrmr_common.channel`.
-
-Closed forms, in the log domain:
-
-Shannon rate of slot t: ``R_t(p) = B·log2(1 + g_t·p/σ²)`` bits/s (``g_t = |h_t|²`` dimensionless power gain,
-``σ²`` = ``noise_w`` watts, ``B`` = ``bandwidth_hz``). Carrying ``D`` bits in one slot of ``τ`` seconds needs
-``τ·R_t(p) ≥ D``, tight at the minimum power
-
-    p = (σ²/g)·(2^{D/(τB)} − 1) = (σ²/g)·expm1(a),   a = D·ln2/(τ·B)   (natural-log SNR exponent).
-
-``2^{D/(τB)}`` overflows float64 when ``a > ~709`` (e.g. τ·B tiny), so everything is first computed as
-``ln p = ln σ² − ln g + ln expm1(a)`` with ``ln expm1(a) = a + log1p(−e^{−a})`` for large ``a``; the linear
-value is only formed where it is finite. :func:`required_power_w` returns ``inf`` (never NaN) when the power
-is not representable or the gain is 0: such a slot cannot carry ``D`` bits.
+One module for the robot (its energy ledger), the scheduler (its plan) and the experiments. :class:`LinkBudget`
+holds the parameters in SI units (``config/link.yaml``'s names: :class:`gsrmr_common.link_params.LinkParameters`);
+the fading draws are :mod:`gsrmr_common.channel`'s. The closed forms and why they are computed in the log domain:
+docs/scheduling.md, "P_GS is a 0-1 knapsack once x is binary" and "Log domain and overflow".
 """
 
 from __future__ import annotations

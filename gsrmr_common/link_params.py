@@ -1,10 +1,7 @@
-"""The uplink's parameters as ``config/link.yaml`` names them, and the :class:`LinkBudget` they describe.
+"""The uplink's parameters as ``config/link.yaml`` names them, and the :class:`LinkBudget` they describe (pure, no ROS).
 
-:class:`LinkParameters` is the one table of those names, their defaults (the link model's, in the units
-the names carry), descriptions, ranges and read-only flags. Every reader goes through it: the nodes
-declare it (:func:`gsrmr_common.ros_node.declare_link_budget`), the simulator reads the YAML file with it
-(:func:`gsrmr_sim.sim_stack.link_budget`), and :meth:`LinkParameters.budget` turns it into the link model's
-:class:`~gsrmr_common.link_model.LinkBudget` (SI units: the noise in W instead of dBm). Pure, no ROS.
+:class:`LinkParameters` is the one table of those names, defaults, descriptions and ranges; every reader goes through
+it (docs/architecture.md, "One pipeline each": the channel).
 """
 
 from __future__ import annotations

@@ -1,11 +1,9 @@
 """Image metrics used everywhere a loss is computed: PSNR, SSIM and the paper's MR loss.
 
-Images are float arrays in [0, 1], H×W×C (or H×W). SSIM follows the 3DGS implementation
-(``utils/loss_utils.py``): an 11×11 Gaussian window with σ = 1.5, C1 = 0.01², C2 = 0.03², per
-channel, zero padding ("same" size), averaged over every pixel and channel.
-
-The MR loss is L = (1 − λ)·mean|m − m̂| + λ·(1 − SSIM(m, m̂)), λ = 0.2. (The paper prints its DSSIM
-term as 1/(1 − SSIM), a typo; 1 − SSIM is the 3DGS convention.)
+Images are float arrays in [0, 1], H×W×C (or H×W). SSIM follows the 3DGS implementation (``utils/loss_utils.py``):
+a Gaussian window (:data:`SSIM_WINDOW`, :data:`SSIM_SIGMA`), per channel, zero padding ("same" size), averaged over
+every pixel and channel. The MR loss is L = (1 − λ)·mean|m − m̂| + λ·(1 − SSIM(m, m̂)), λ = 0.2; the paper prints its
+DSSIM term as 1/(1 − SSIM), a typo: 1 − SSIM is the 3DGS convention.
 """
 
 from __future__ import annotations

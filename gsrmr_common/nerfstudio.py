@@ -1,24 +1,11 @@
 """nerfstudio ``transforms.json`` datasets: the one reader and writer of the format in gsrmr.
 
-The world recorder writes round-1 frames with :func:`write_dataset`, the bag tool (``gsrmr-dataset``) streams
-them with :class:`DatasetWriter`; the GS trainer reads them with :func:`read_dataset`. Layout (nerfstudio
-"data/nerfstudio" convention)::
-
-    DIR/transforms.json
-    DIR/images/frame_00000.png      RGB, 8 bit
-    DIR/depths/frame_00000.png      optional, uint16 millimetres (0 = no depth)
-
-``transforms.json`` holds shared intrinsics ``fl_x fl_y cx cy w h`` (pixels; pixel centres at +0.5,
-the COLMAP/nerfstudio convention), ``camera_model: "OPENCV"`` with zero distortion, and per frame
-``file_path``, optional ``depth_file_path`` and ``transform_matrix``: camera→world in OpenGL/Blender
-axes (x right, y up, z back). Frames may also carry their own ``fl_x``… keys (nerfstudio allows
-per-frame intrinsics) and gsrmr adds the robot pose as ``gsrmr_pose`` = [a_m, b_m, theta_rad] when known.
-
-A dataset may name a sparse point cloud with the top-level key ``ply_file_path`` (nerfstudio's convention, as
-``ns-process-data``'s COLMAP export writes ``sparse_pc.ply``): a ``.ply`` whose ``vertex`` element holds ``x y z``
-(in the frame of the ``transform_matrix`` poses: metres in ``map`` for a gsrmr dataset) and ``red green blue``
-(uint8), the path relative to the dataset folder. :func:`dataset_point_cloud` reads it (the trainer's ``--init
-points``), :meth:`DatasetWriter.set_point_cloud` writes it.
+The world recorder writes round-1 frames with :func:`write_dataset`, ``gsrmr-dataset`` streams them with
+:class:`DatasetWriter`, the GS trainer reads them with :func:`read_dataset`. The folder layout and the fields:
+docs/dataset_tool.md, "Output". Units and axes: intrinsics in pixels with pixel centres at +0.5 (COLMAP/nerfstudio);
+``transform_matrix`` camera→world in OpenGL/Blender axes (x right, y up, z back), metres in ``map`` for a gsrmr
+dataset; frames may carry their own intrinsics; ``gsrmr_pose`` = [a_m, b_m, theta_rad]; a sparse point cloud is named
+by ``ply_file_path`` (:func:`dataset_point_cloud`, :meth:`DatasetWriter.set_point_cloud`).
 """
 
 from __future__ import annotations
@@ -33,6 +20,7 @@ import numpy as np
 from plyfile import PlyData, PlyElement, PlyParseError
 
 from gsrmr_common.camera import Camera, Intrinsics, opencv_w2c_to_opengl_c2w, opengl_c2w_to_opencv_w2c
+from gsrmr_common.pose2d import Pose2D
 
 DEPTH_SCALE_M = 1e-3  # depth PNG unit: millimetres
 POINT_CLOUD_KEY = "ply_file_path"  # nerfstudio: the sparse point cloud, relative to the dataset folder
@@ -46,7 +34,7 @@ class DatasetFrame:
     camera: Camera
     image: np.ndarray
     depth_m: np.ndarray | None = None
-    pose: tuple[float, float, float] | None = None  # robot (a_m, b_m, theta_rad) if known
+    pose: Pose2D | None = None  # robot (a_m, b_m, theta_rad) if known
     file_path: str = ""
 
 

@@ -1,8 +1,8 @@
 """What a node's ``--help`` prints without starting it: what the node is, its topics, services and parameters.
 
-Each node module holds a :class:`NodeInterface`; :func:`gsrmr_common.ros_node.run_node` prints it for ``-h`` or
-``--help`` (before ``--ros-args``) and exits 0. The parameters come from the same dataclasses the node declares
-(:mod:`gsrmr_common.node_params`), so ``--help`` and ``ros2 param describe`` say the same. Pure, no ROS.
+Each node module holds a :class:`NodeInterface`, which :func:`gsrmr_common.ros_node.run_node` prints for ``-h`` or
+``--help``; its parameters come from the dataclasses the node declares, so ``--help`` and ``ros2 param describe``
+say the same. Pure, no ROS.
 """
 
 from __future__ import annotations

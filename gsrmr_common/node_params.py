@@ -1,14 +1,8 @@
 """Node parameters as one frozen dataclass per node: declaration and validation rules (pure, no ROS).
 
-A node's parameters are a frozen dataclass deriving from :class:`NodeParameters` (e.g.
-:class:`gsrmr_server.server_params.ServerParameters`): a field per ROS parameter, named as the parameter
-(units in the names), whose default is the declared default and whose :func:`ros_parameter` metadata is
-the descriptor (description, range, read-only, constraints). Fields without that metadata (a nested
-:class:`~gsrmr_common.link_model.LinkBudget` …) are declared by their own helpers.
-
-The node declares the fields (:func:`gsrmr_common.ros_node.declare_parameters`), checks a proposed change
-with :meth:`NodeParameters.change_problem` in its on-set callback and, in its post-set callback, replaces
-its instance with :meth:`NodeParameters.with_values` and updates what depends on it.
+A node's dataclass derives from :class:`NodeParameters`: a field per ROS parameter, named as the parameter (units in
+the names), its default the declared default, its :func:`ros_parameter` metadata the descriptor. How a node
+declares, checks and applies them: docs/architecture.md, "One pipeline each" (node parameters).
 """
 
 from __future__ import annotations

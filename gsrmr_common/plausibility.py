@@ -1,20 +1,9 @@
 """Plausibility of well-formed messages, even from a legitimate writer (pure, no ROS): refused, counted, never raised.
 
-The rules each node applies before a message changes what it does (``docs/security.md``, "Application checks"):
-
-* a **loss sample** (:class:`LossSampleCheck`) holds an MR loss within the metric's range [0, :data:`MR_LOSS_MAX`]
-  (``L = (1 − λ)·mean|m − m̂| + λ·(1 − SSIM)`` of images in [0, 1]: L1 ≤ 1 and SSIM ≥ −1, so L ≤ 1 + λ = 1.2),
-  comes at most once per slot, for a slot the robot's ledger says carried an image, at the pose the robot
-  reported for that slot (when the reader has that key);
-* a **schedule** (:func:`schedule_problem`) covers at most ``max_slots`` slots, starts within ``max_ahead_slots``
-  of now and still covers now or later, and asks for no power above the radio's maximum;
-* **pose keys** (:class:`PoseTrack`) move no faster than the robot's top speed (plus a slack for odometry noise);
-  a jump is accepted as a **relocalisation** once ``relocalise_keys`` consecutive keys agree with each other at
-  the new place and none with the old track;
-* a **ledger row** (:func:`ledger_problem`) names a slot near now, x and held_back in {0, 1}, a finite non-negative
-  throughput estimate or none.
-
-:class:`Implausible` counts the refusals by reason (what ``/diagnostics`` shows).
+The rules for loss samples (:class:`LossSampleCheck`), schedules (:func:`schedule_problem`), pose keys
+(:class:`PoseTrack`, with its relocalisation) and ledger rows (:func:`ledger_problem`), their bounds and reasons:
+docs/security.md, "Plausibility, even from the right writer". :class:`Implausible` counts the refusals by reason
+(what ``/diagnostics`` shows).
 """
 
 from __future__ import annotations
@@ -26,6 +15,7 @@ import math
 import numpy as np
 
 from gsrmr_common.metrics import MR_LOSS_LAMBDA
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.wire import POSE_KEY_BITS, LedgerRow, LossSample, ScheduleMsg
 
 #: The largest MR loss images in [0, 1] can have: (1 − λ)·1 + λ·(1 − (−1)).
@@ -80,9 +70,9 @@ def ledger_problem(row: LedgerRow, now_slot: int, max_skew_slots: int = 50) -> s
 
 
 def ledger_image_sent(row: LedgerRow) -> int:
-    """1 when the row's slot carried an image: its x says so and it sent more than the pose key's bits. A robot
-    before 2026-11-28 wrote x = 1 for an image asked for with no fresh frame to send (the key alone left); read as an
-    image, such rows told the scheduler of images the server never composed (its uplink cap, its probe clock)."""
+    """1 when the row's slot carried an image: its x says so and it sent more than the pose key's bits. A row with
+    x = 1 and only the key's bits (an image asked for with no fresh frame to send) counts as a key slot, so the
+    scheduler's uplink cap and probe clock never count an image the server did not compose."""
     return int(row.x == 1 and row.bits_sent > POSE_KEY_BITS)
 
 
@@ -136,7 +126,7 @@ class LossSampleCheck:
         self._seen: OrderedDict[int, LossSample] = OrderedDict()  # slot → the sample it took
 
     def problem(self, sample: LossSample, image_sent: bool | None,
-                key_pose: tuple[float, float, float] | None) -> str | None:
+                key_pose: Pose2D | None) -> str | None:
         """Why ``sample`` is implausible: ``loss_range``, ``loss_repeat`` (a second, different sample for a slot),
         ``loss_key_slot`` (the ledger says the slot sent no image), ``loss_unledgered`` (no ledger row for it),
         ``loss_pose`` (not at the slot's reported key); :data:`REDELIVERED` for the very sample the slot already took

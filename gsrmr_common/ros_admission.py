@@ -1,23 +1,10 @@
 """The ROS half of the known-writer checks (:mod:`gsrmr_common.writer_admission`): gated subscriptions of one node.
 
-:class:`GatedInputs` subscribes a node's input topics *raw* (``create_subscription(..., raw=True)`` with a callback
-taking ``(msg, info)``: rclpy then hands the serialized bytes and the ``MessageInfo`` whose ``publisher_gid`` names
-the writer endpoint), asks the node's :class:`~gsrmr_common.writer_admission.WriterGate` about the GID and
-deserializes and delivers only what is admitted — a refused message costs a dictionary look-up, not a
-deserialization. The gate learns the endpoints from the graph (``Node.get_publishers_info_by_topic``: node name,
-namespace, endpoint GID): every :data:`REFRESH_S` (1 s) for every gated topic, and at once for the topic of a
-message whose GID it does not know yet (at most every 20 ms per topic). A held message is re-checked every 50 ms
-while any is held, for ``hold_s`` (2 s) at most; at most ``hold_max`` (64) are held; a writer's later message never
-overtakes its held ones (it is held behind them, or delivered after them). A flooded topic
-(:class:`~gsrmr_common.writer_admission.FloodBreaker`: 200 refusals within 1 s) loses its subscription for 1 s — the
-flood then reaches no reader here — and comes back; each pause is counted by topic and writer (``floods``) and
-warned about on ``/diagnostics``. The look-up costs about 17 µs
-per topic on a small graph (measured here, rmw_fastrtps_cpp): ≈ 0.1 ms/s for a node with six gated topics.
-
-:class:`ParameterAudit` is the other half of a node's guard: its live parameters change only when the node was
-started with ``live_parameter_changes`` true; every accepted change is logged at WARN and counted. rclpy passes the
-on-set callback the parameters only — its parameter service drops the request's header (the caller's GID) before
-the callback — so the caller cannot be named.
+:class:`GatedInputs` subscribes a node's input topics raw, asks the node's
+:class:`~gsrmr_common.writer_admission.WriterGate` about each writer GID and deserializes only what is admitted; it
+refreshes the gate from the graph and pauses a flooded topic's subscription. :class:`ParameterAudit` lets live
+parameters change only with ``live_parameter_changes``, logged and counted. How, how often and at what cost:
+docs/security.md, "Known writers" and "Services, parameters, readers".
 """
 
 from __future__ import annotations

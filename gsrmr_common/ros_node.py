@@ -1,4 +1,4 @@
-"""Small rclpy helpers every gsrmr node uses: a main() wrapper and parameter declaration.
+"""Small rclpy helpers every gsrmr node uses: :func:`run_node` (the main() wrapper), parameter declaration, diagnostics.
 
 Imports rclpy; keep pure logic elsewhere.
 """

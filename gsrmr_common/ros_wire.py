@@ -1,28 +1,11 @@
-"""Conversions between the plain wire records of :mod:`gsrmr_common.wire` and ROS 2 messages.
+"""Conversions between the plain wire records of :mod:`gsrmr_common.wire` and ROS 2 messages, and their QoS.
 
-Imports message classes only (no rclpy node, no executor), so it is usable from tests, the recorder
-and tools without a running graph. The rules (slot clock, frames, layouts) live in ``wire``; this
-module only maps fields:
-
-* pose key ↔ ``geometry_msgs/Vector3Stamped``: ``vector = (a_m, b_m, theta_rad)`` in ``map``,
-  ``header.stamp`` = start of the key's slot.
-* schedule ↔ ``std_msgs/Float64MultiArray``: ``layout.dim = [meta(4), x(n), power_w(n)]``, plus
-  ``gain_threshold(n)`` when it carries the in-slot rule (+inf sent as −1).
-* ledger row, loss sample, channel sample and MR slot info ↔ ``std_msgs/Float64MultiArray``: ``layout.dim =
-  [ledger(14)]`` / ``[loss_sample(5)]`` / ``[channel_sample(3)]`` / ``[mr_slot_info(6)]`` (an empty layout is
-  accepted too).
-* raw image ↔ ``sensor_msgs/Image``: our in-process images are H×W×3 ``uint8`` RGB; the pixel work
-  is :mod:`gsrmr_common.image_bridge` (``cv_bridge`` where a ROS install has it, else the project's
-  own conversion with the same semantics). ``image_from_msg`` accepts ``rgb8``, ``bgr8``, ``rgba8``,
-  ``bgra8``, ``mono8`` and ``mono16`` (scaled to 8 bit as ``cv_bridge`` does) with any row ``step``
-  padding and either ``is_bigendian``, and refuses inconsistent sizes.
-* JPEG ↔ ``sensor_msgs/CompressedImage`` with ``format = wire.JPEG_FORMAT``.
-* :class:`~gsrmr_common.camera.Intrinsics` ↔ ``sensor_msgs/CameraInfo`` (ROS K convention: pixel
-  centres at integer coordinates, ``plumb_bob`` with zero distortion, R = I, P = [K | 0]).
-* ``builtin_interfaces/Time`` ↔ integer nanoseconds.
-
-Every ``*_from_msg`` raises ``ValueError`` (or :class:`gsrmr_common.jpeg.ImageRejected`, a subclass)
-on an inconsistent message; nothing here logs or swallows errors.
+Imports message classes only (no rclpy node, no executor), so tests, the recorder and tools use it without a running
+graph. The rules and layouts live in ``wire``; this module maps fields (``*_to_msg`` / ``*_from_msg``), images
+(:mod:`gsrmr_common.image_bridge`, :mod:`gsrmr_common.jpeg`), :class:`~gsrmr_common.camera.Intrinsics` ↔
+``CameraInfo`` and stamps ↔ integer nanoseconds. Every ``*_from_msg`` raises ``ValueError`` (or
+:class:`gsrmr_common.jpeg.ImageRejected`, a subclass) on an inconsistent message; nothing here logs or swallows
+errors.
 """
 
 from __future__ import annotations
@@ -39,14 +22,14 @@ from gsrmr_common.camera import Intrinsics
 from gsrmr_common.image_bridge import imgmsg_to_numpy, numpy_to_imgmsg
 from gsrmr_common.image_decode import IMAGE_TYPE, ImageDecodeError, decode_colour
 from gsrmr_common.jpeg import ImageRejected, decode_jpeg
+from gsrmr_common.pose2d import quaternion_from_yaw
 from gsrmr_common.slot_clock import SlotClock
-from gsrmr_common.tf_tree import yaw_quaternion
 
 NS_PER_S = 1_000_000_000
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
 SCHEDULE_LABELS = ("meta", "x", "power_w")  # + "gain_threshold" when the schedule has an in-slot rule
-# the encodings image_bridge converts to rgb8; image_from_msg has always matched their names
-# case-insensitively (image_bridge, like ROS, is case-sensitive)
+# the encodings image_bridge converts to rgb8; image_from_msg matches their names case-insensitively
+# (image_bridge, like ROS, is case-sensitive)
 _RGB_SOURCE_ENCODINGS = frozenset({"rgb8", "bgr8", "rgba8", "bgra8", "mono8", "mono16"})
 # YUV 4:2:2 as USB cameras send it (usb_cam, v4l2_camera): UYVY (``yuv422``, ``uyvy``), YUYV (``yuv422_yuy2``,
 # ``yuyv``); decoded by :mod:`gsrmr_common.image_decode`, as the dataset tool decodes a recorded frame
@@ -105,7 +88,7 @@ def pose_key_pose_msg(key: wire.PoseKey, stamp_ns: int) -> PoseStamped:
     msg.header.frame_id = wire.MAP_FRAME
     msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = float(key.a_m), float(key.b_m), 0.0
     q = msg.pose.orientation
-    q.x, q.y, q.z, q.w = yaw_quaternion(float(key.theta_rad))
+    q.x, q.y, q.z, q.w = quaternion_from_yaw(float(key.theta_rad))
     return msg
 
 
@@ -204,6 +187,18 @@ def channel_sample_from_msg(msg: Float64MultiArray) -> wire.ChannelSample:
     """``Float64MultiArray`` → channel sample; ValueError if it does not parse."""
     _check_flat_layout(msg, "channel_sample")
     return wire.ChannelSample.from_data(np.asarray(msg.data, dtype=np.float64))
+
+
+def map_correction_to_msg(correction: wire.MapCorrection) -> Float64MultiArray:
+    """Map correction → ``Float64MultiArray`` (``layout.dim = [map_correction(8)]``,
+    :data:`gsrmr_common.wire.MAP_CORRECTION_FIELDS` order)."""
+    return _flat_record_msg("map_correction", correction.to_data())
+
+
+def map_correction_from_msg(msg: Float64MultiArray) -> wire.MapCorrection:
+    """``Float64MultiArray`` → map correction; ValueError if it does not parse."""
+    _check_flat_layout(msg, "map_correction")
+    return wire.MapCorrection.from_data(np.asarray(msg.data, dtype=np.float64))
 
 
 def mr_slot_info_to_msg(info: wire.MRSlotInfo) -> Float64MultiArray:

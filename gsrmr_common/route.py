@@ -1,11 +1,10 @@
-"""The robot's route: a closed waypoint loop and a pure-pursuit controller producing (v, ω).
+"""The robot's route: a closed waypoint loop and a pure-pursuit controller producing (v, ω). Pure functions, no ROS.
 
-A library both wings use: the scheduler predicts future poses along the route (its waypoints and
-speed are scheduler parameters), the simulator's route follower drives it. Pure functions, no ROS.
-Map frame (x forward, y left), metres, radians (counter-clockwise yaw), m/s and rad/s. Progress along
-the loop is an *unwrapped* arc length ``s_m`` (it keeps growing past the loop length), so laps are
-``floor(s_m / length_m)``; the controller only searches for the closest path point in a window ahead
-of the previous progress, so it never jumps across the loop.
+Both wings use it: the scheduler predicts future poses along the route, the simulator's route follower drives it
+(the controller: docs/world.md, "Route and rounds"). Map frame (x forward, y left), metres, radians (yaw
+counter-clockwise), m/s and rad/s. Progress is an *unwrapped* arc length ``s_m`` (it keeps growing past the loop
+length: laps are ``floor(s_m / length_m)``), and the closest path point is searched only in a window ahead of the
+previous progress, so the controller never jumps across the loop.
 """
 
 from __future__ import annotations
@@ -14,6 +13,8 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
+
+from gsrmr_common.pose2d import Pose2D, wrap_angle
 
 
 class LoopPath:
@@ -70,7 +71,7 @@ class PurePursuit:
     lookahead_m: float = 0.3
     max_omega_rps: float = 1.5
 
-    def command(self, path: LoopPath, pose: tuple[float, float, float], s_hint_m: float
+    def command(self, path: LoopPath, pose: Pose2D, s_hint_m: float
                 ) -> tuple[float, float, float]:
         """(v_mps, omega_rps, s_m) for robot pose (x_m, y_m, theta_rad) and previous progress ``s_hint_m``.
 
@@ -86,7 +87,7 @@ class PurePursuit:
         if ld < 1e-9:
             return self.speed_mps, 0.0, s
         alpha = math.atan2(dy, dx) - th
-        alpha = math.atan2(math.sin(alpha), math.cos(alpha))
+        alpha = wrap_angle(alpha)
         v = self.speed_mps * max(0.0, math.cos(alpha))
         kappa = 2.0 * math.sin(alpha) / ld
         omega = float(np.clip((v if v > 1e-3 else self.speed_mps) * kappa, -self.max_omega_rps,

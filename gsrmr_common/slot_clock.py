@@ -1,21 +1,12 @@
 """The slot clock (pure: no ROS): which slot a time is in, which slot a stamp names, and when a slot is due.
 
-Slot ``k`` covers ROS time ``[k·τ, (k+1)·τ)`` (``τ = slot_s``; times are integer nanoseconds since the
-clock's epoch, the ``builtin_interfaces/Time`` of the node's clock). Two questions look alike and are not:
-
-* **the slot we are in** at time ``t`` — :meth:`SlotClock.slot_at`, by floor: ``⌊t/τ⌋``;
-* **the slot a stamp names** — :meth:`SlotClock.slot_named`, by nearest: every upload is stamped with its
-  slot's *start*, so a stamp a few µs early (a float round trip, another host's clock) still names its slot.
-
-Robot, server, scheduler and the simulated radio share one :class:`SlotClock` per ``slot_s`` and only have
-to agree on τ. Two small cursors hold the timing policies built on it:
-
-* :class:`SlotTicker` — each slot once, in order, as a timer polls the clock (the robot's slot loop):
-  a late poll reports how many slots it skipped;
-* :class:`ComposeCursor` — the server's: slot k is composed once its uploads are complete or at its
-  deadline ``start + delay``, whichever comes first, never before it starts; after a stall it catches up
-  on every missed slot (late), and only when it is more than ``max_backlog_slots`` behind does it skip
-  ahead to the due slot.
+Slot ``k`` covers ROS time ``[k·τ, (k+1)·τ)`` (``τ = slot_s``; integer nanoseconds of the node's clock). Two
+questions look alike and are not: **the slot we are in** at ``t`` is ``⌊t/τ⌋`` (:meth:`SlotClock.slot_at`);
+**the slot a stamp names** is the nearest slot start (:meth:`SlotClock.slot_named`), because every upload is stamped
+with its slot's start and a stamp a few µs early (a float round trip, another host's clock) still names its slot.
+Robot, server, scheduler and the simulated radio only have to agree on τ. The timing policies built on it:
+:class:`SlotTicker` (the robot's slot loop) and :class:`ComposeCursor` (the server's: a slot is composed once its
+uploads are complete or at ``start + delay``, never before it starts; catch-up: :meth:`~ComposeCursor.next_slot`).
 """
 
 from __future__ import annotations

@@ -1,27 +1,12 @@
 """A pure TF buffer: a tree of frames whose edges are static transforms or time series, looked up at any stamp.
 
-What ``tf2``'s buffer does for a recorded bag, without ROS: every edge ``parent → child`` holds either one
-static transform (``/tf_static``) or samples ``(stamp_ns, Transform)`` (``/tf``). A lookup at a stamp walks
-from both frames up to their common ancestor, evaluates every edge on the way at that stamp — static edges as
-they are; moving edges interpolated between the two samples that bracket the stamp, translation linearly and
-rotation by slerp (shortest arc) — and composes them.
-
-Conventions (as :mod:`gsrmr_common.tf_tree`): a :class:`~gsrmr_common.tf_tree.Transform` of an edge is the
-pose of the child frame in the parent frame, ``p_parent = R p_child + t`` (metres; quaternion x, y, z, w).
-:meth:`TfBuffer.lookup` returns ``target_from_source``, the 4×4 matrix taking points of ``source`` into
-``target`` — ``lookup("map", "camera_optical_frame", t)`` is the camera→world matrix at ``t``. Frame names
-lose their leading ``/`` (as tf2 strips it). Stamps are integer nanoseconds.
-
-Rules:
-
-* a stamp equal to a sample's stamp takes that sample (gap 0); otherwise the samples just before and just
-  after bracket it, and the bracket's length is the edge's gap at that stamp;
-* a stamp before the first or after the last sample of a moving edge on the chain is ``out_of_range``;
-* with ``max_gap_s``, a bracket longer than it on any moving edge is a ``gap`` (no extrapolation, no
-  interpolation across a dropout);
-* a frame has one parent: the first edge seen for a child decides it, samples naming another parent are
-  ignored and counted (:attr:`TfBuffer.parent_conflicts`); a static transform of an edge wins over samples
-  of the same edge (they are ignored too); a repeated sample stamp keeps the last sample added.
+What ``tf2``'s buffer does for a recorded bag, without ROS. An edge is a :class:`~gsrmr_common.tf_tree.Transform`
+(its convention); stamps are integer nanoseconds; :meth:`TfBuffer.lookup` returns ``target_from_source``, e.g.
+``lookup("map", "camera_optical_frame", t)`` is the camera→world matrix at ``t``. Interpolation (linear, slerp),
+``out_of_range`` and ``gap``: docs/dataset_tool.md, "Where the camera was". Besides: a frame has one parent (the
+first edge seen for a child decides; samples naming another parent are ignored and counted,
+:attr:`TfBuffer.parent_conflicts`), a static transform of an edge wins over its samples, and a repeated sample
+stamp keeps the last sample added.
 """
 
 from __future__ import annotations
@@ -34,6 +19,11 @@ import numpy as np
 from gsrmr_common.tf_tree import Transform, rotation_matrix
 
 NS_PER_S = 1_000_000_000
+#: Two samples of an edge this close (translation [m], rotation [rad]) move nothing between them: an edge whose
+#: samples all agree is constant (a fixed transform sent on /tf, as a ROS 1 static_transform_publisher or an idle
+#: localizer does) and looked up as a static one; a bracket whose two samples agree counts no gap.
+STILL_M = 1e-3
+STILL_RAD = math.radians(0.1)
 NO_TF_PATH = "no_tf_path"
 OUT_OF_RANGE = "out_of_range"
 GAP = "gap"
@@ -97,16 +87,31 @@ class _Edge:
     _translations: list[tuple[float, float, float]] = field(default_factory=list)
     _rotations: list[tuple[float, float, float, float]] = field(default_factory=list)
     _sorted: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    _constant: tuple[np.ndarray | None] | None = None  # (the constant value or None,), once computed
 
     def add(self, stamp_ns: int, transform: Transform) -> None:
         self._stamps.append(int(stamp_ns))
         self._translations.append(tuple(float(v) for v in transform.translation))
         self._rotations.append(tuple(float(v) for v in transform.rotation))
         self._sorted = None
+        self._constant = None
 
     @property
     def is_static(self) -> bool:
-        return self.static is not None
+        """A static transform, or samples (two or more) that all agree: the edge moves nothing."""
+        return self.static is not None or self.constant() is not None
+
+    def constant(self) -> np.ndarray | None:
+        """The 4×4 value of an edge whose samples (two or more) all agree with the first, else ``None``."""
+        if self.static is not None or len(self._stamps) < 2:
+            return None
+        if self._constant is None:
+            stamps, trans, rots = self.series()
+            moved_m = np.linalg.norm(trans - trans[0], axis=1)
+            turned_rad = 2.0 * np.arccos(np.minimum(1.0, np.abs(rots @ rots[0])))
+            still = len(stamps) >= 2 and bool(np.all(moved_m <= STILL_M) and np.all(turned_rad <= STILL_RAD))
+            self._constant = (_matrix(trans[0], rots[0]) if still else None,)
+        return self._constant[0]
 
     def series(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(stamps int64 [N], translations [N×3], unit quaternions [N×4]) sorted by stamp, last sample per stamp."""
@@ -123,7 +128,8 @@ class _Edge:
         return self._sorted
 
     def time_range_ns(self) -> tuple[int, int] | None:
-        """[first, last] sample stamp of a moving edge; ``None`` for a static one or an edge without samples."""
+        """[first, last] sample stamp of a moving edge; ``None`` for a static or constant one or an edge without
+        samples."""
         if self.is_static or not self._stamps:
             return None
         stamps = self.series()[0]
@@ -262,6 +268,9 @@ class TfBuffer:
         edge = self._edges[child]
         if edge.static is not None:
             return edge.static, 0.0
+        constant = edge.constant()
+        if constant is not None:
+            return constant, 0.0
         stamps, trans, rots = edge.series()
         if len(stamps) == 0 or stamp_ns < stamps[0] or stamp_ns > stamps[-1]:
             span = "no samples" if len(stamps) == 0 else \
@@ -274,7 +283,8 @@ class TfBuffer:
         t0, t1 = int(stamps[i]), int(stamps[i + 1])
         fraction = (stamp_ns - t0) / (t1 - t0)
         translation = trans[i] + fraction * (trans[i + 1] - trans[i])
-        return _matrix(translation, slerp(rots[i], rots[i + 1], fraction)), (t1 - t0) / NS_PER_S
+        still = _agree(trans[i], rots[i], trans[i + 1], rots[i + 1])  # the bracket moves nothing: no gap
+        return _matrix(translation, slerp(rots[i], rots[i + 1], fraction)), 0.0 if still else (t1 - t0) / NS_PER_S
 
     def lookup(self, target: str, source: str, stamp_ns: int, max_gap_s: float | None = None) -> ChainLookup:
         """``target_from_source`` at ``stamp_ns`` (module docstring). Raises :class:`TfLookupError` with reason
@@ -299,6 +309,13 @@ class TfBuffer:
             raise TfLookupError(GAP, f"at {stamp_ns / NS_PER_S:.6f} s the samples of {worst} are {widest:.3f} s "
                                      f"apart (more than {max_gap_s:g} s)", widest)
         return ChainLookup(invert(halves[1]) @ halves[0], widest, tuple(moving))
+
+
+def _agree(t0: np.ndarray, q0: np.ndarray, t1: np.ndarray, q1: np.ndarray) -> bool:
+    """Whether two samples (translation [m], unit quaternion x, y, z, w) are within :data:`STILL_M` and
+    :data:`STILL_RAD` of each other."""
+    dot = min(1.0, abs(float(np.dot(q0, q1))))
+    return float(np.linalg.norm(np.asarray(t1) - np.asarray(t0))) <= STILL_M and 2.0 * math.acos(dot) <= STILL_RAD
 
 
 def rotation_angle_rad(rotation: np.ndarray) -> float:

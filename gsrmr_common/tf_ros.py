@@ -1,8 +1,7 @@
 """The ROS half of the TF tree (:mod:`gsrmr_common.tf_tree`): its messages and the optional TF packages.
 
-``tf2_ros`` (the broadcasters) and ``tf2_msgs`` (``TFMessage``) are not on PyPI for ROS 2: they come only
-with a ROS install. Their one guarded import is here, where the robot node (``/tf_static``) and the base
-driver (``/tf``) get them; without them a node publishes no TF and says why.
+``tf2_ros`` and ``tf2_msgs`` are not on PyPI for ROS 2; their one guarded import is here (docs/architecture.md,
+"Deliberate lazy imports"): without them a node publishes no TF and says why.
 """
 
 from __future__ import annotations

@@ -1,22 +1,15 @@
 """The robot's TF tree (REP-105) as plain transforms: pure numpy, no ROS import.
 
-Tree (parent → child), each edge the pose of the child frame expressed in the parent frame::
+Tree (parent → child), each edge the pose of the child frame in the parent frame::
 
     map ──(robot parameter map_from_odom, static)──▶ odom
     odom ──(base driver's odometry, ~50 Hz)──▶ base_link
     base_link ──(camera mount, static)──▶ camera_optical_frame
     (on a robot whose description names the camera body: base_link ──▶ camera_link ──(fixed)──▶ optical)
 
-Frames (REP-103): ``map``, ``odom`` and ``base_link`` are x forward, y left, z up, in metres;
-``base_link`` sits on the floor (z = 0) at the robot's centre. ``camera_optical_frame`` has the
-OpenCV / ROS optical axes (REP-103 "_optical" suffix): x right, y down, z forward along the optical
-axis, origin at the optical centre (see :mod:`gsrmr_common.camera`, whose :class:`CameraMount`
-places it at ``(forward_m, left_m, height_m)`` in ``base_link``, pitched down by ``pitch_rad``).
-
-Every function returns a :class:`Transform`: ``translation`` (x, y, z) in metres and ``rotation`` a
-unit quaternion in ROS order (x, y, z, w), exactly the fields of ``geometry_msgs/Transform``. A
-transform maps points of the child frame into the parent frame: ``p_parent = R p_child + t``
-(:func:`transform_matrix` gives the 4×4 form). Quaternions are normalised with w ≥ 0.
+A :class:`Transform` maps child-frame points into the parent frame, ``p_parent = R p_child + t`` (metres; unit
+quaternion in ROS order x, y, z, w, normalised with w ≥ 0): the fields of ``geometry_msgs/Transform``. Frame axes
+and the mount: :mod:`gsrmr_common.camera`.
 """
 
 from __future__ import annotations
@@ -27,6 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from gsrmr_common.camera import CameraMount
+from gsrmr_common.pose2d import Pose2D, quaternion_from_yaw
 from gsrmr_common.wire import MAP_FRAME as _WIRE_MAP_FRAME
 
 MAP_FRAME = _WIRE_MAP_FRAME  # "map": the fixed world frame of pose keys and the GS model
@@ -75,12 +69,6 @@ def quaternion_multiply(q1: tuple[float, ...], q2: tuple[float, ...]) -> tuple[f
                                 w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2]))
 
 
-def yaw_quaternion(yaw_rad: float) -> tuple[float, float, float, float]:
-    """Rotation by ``yaw_rad`` (counter-clockwise about +z) as (x, y, z, w)."""
-    _finite(yaw_rad=yaw_rad)
-    return _canonical(np.array([0.0, 0.0, math.sin(0.5 * yaw_rad), math.cos(0.5 * yaw_rad)]))
-
-
 def rotation_matrix(q: tuple[float, ...]) -> np.ndarray:
     """3×3 rotation matrix of a quaternion (x, y, z, w) (normalised first)."""
     x, y, z, w = _canonical(np.asarray(q, dtype=np.float64))
@@ -121,7 +109,7 @@ def transform_matrix(transform: Transform) -> np.ndarray:
 def planar_transform(x_m: float, y_m: float, yaw_rad: float) -> Transform:
     """A frame at (x, y) [m] in the parent's z = 0 plane, yawed by ``yaw_rad`` (CCW about +z)."""
     _finite(x_m=x_m, y_m=y_m, yaw_rad=yaw_rad)
-    return Transform((float(x_m), float(y_m), 0.0), yaw_quaternion(yaw_rad))
+    return Transform((float(x_m), float(y_m), 0.0), quaternion_from_yaw(yaw_rad))
 
 
 def map_from_odom_transform(a_m: float, b_m: float, theta_rad: float) -> Transform:
@@ -164,8 +152,7 @@ def base_from_camera_optical_transform(mount: CameraMount) -> Transform:
     return Transform(body.translation, quaternion_multiply(body.rotation, _OPTICAL_IN_BODY))
 
 
-def map_from_camera_optical_matrix(map_from_odom: tuple[float, float, float], odom_pose: tuple[float, float, float],
-                                   mount: CameraMount) -> np.ndarray:
+def map_from_camera_optical_matrix(map_from_odom: Pose2D, odom_pose: Pose2D, mount: CameraMount) -> np.ndarray:
     """4×4 ``map → camera_optical_frame`` through the tree (map → odom → base_link → camera_optical_frame).
 
     ``map_from_odom`` = (a_m, b_m, theta_rad) as in :func:`map_from_odom_transform`; ``odom_pose`` =
@@ -181,4 +168,4 @@ __all__ = ["BASE_FRAME", "CAMERA_FRAME", "CAMERA_LINK_FROM_OPTICAL", "CAMERA_OPT
            "ODOM_FRAME", "Transform", "base_from_camera_link_transform", "base_from_camera_optical_transform",
            "map_from_camera_optical_matrix", "map_from_odom_transform", "odom_from_base_transform",
            "planar_transform", "quaternion_from_matrix", "quaternion_multiply", "rotation_matrix",
-           "transform_matrix", "yaw_quaternion"]
+           "transform_matrix"]

@@ -1,63 +1,30 @@
 """Wire formats shared by the robot, the server and the scheduler (pure: no rclpy import).
 
-The ROS nodes convert these plain records to and from standard messages (see ``gsrmr_common.ros_wire``);
-this module owns the rules, so robot and server cannot disagree.
+This module owns the rules of every record the robot and the workstation share, so they cannot disagree;
+:mod:`gsrmr_common.ros_wire` maps them to messages. Topics and layouts: README.md, "Wire layouts". Every upload is
+stamped with its slot's start, so the stamp names the slot (:class:`gsrmr_common.slot_clock.SlotClock`).
 
-Slot clock
-----------
-Slot ``k`` covers ROS time ``[k·τ, (k+1)·τ)`` (``τ = slot_s``, time in nanoseconds since the clock's
-epoch): :class:`gsrmr_common.slot_clock.SlotClock` owns the arithmetic. Every upload is stamped with its
-slot's start time, so the stamp *is* the slot index: ``k = SlotClock(τ).slot_named(stamp_ns)``. Robot and
-server only have to agree on τ (a parameter of both).
+* pose key (:class:`PoseKey`): ``(a_m, b_m, theta_rad)`` in ``map``, three float64 = 192 bits; sent in image slots
+  too, so the server can measure the GS loss L_t at that pose;
+* image: a JPEG, ``format`` :data:`JPEG_FORMAT`, ``frame_id`` the camera optical frame;
+* schedule (:class:`ScheduleMsg`): ``[first_slot, slot_s, seq, slots]``, then ``x``, ``power_w`` and, with the
+  in-slot rule, ``gain_threshold`` (+inf sent as −1); ``layout.dim`` labels the blocks ``meta``, ``x``, ``power_w``,
+  ``gain_threshold``; ``first_slot`` is exact in float64 up to 2^53;
+* ledger row (:class:`LedgerRow`, units in the names): ``[slot, x, scheduled_power_w, bits_sent, gain, power_w,
+  energy_j, upload_all_bits, upload_all_energy_j, frame_stamp_s, round_slot, held_back, uplink_rate_bps,
+  scene_change]``;
+* loss sample (:class:`LossSample`): ``[slot, a_m, b_m, theta_rad, loss]``;
+* channel sample (:class:`ChannelSample`): ``[slot, round_slot, gain]``;
+* map correction (:class:`MapCorrection`): ``[seq, stamp_s, a_m, b_m, theta_rad, var_a_m2, var_b_m2,
+  var_theta_rad2]``;
+* MR slot info (:class:`MRSlotInfo`): ``[slot, source, a_m, b_m, theta_rad, content_time_s]``. ``source`` indexes
+  :data:`REAL_SOURCES`; the pose is the one the MR image was composed at (the slot's key, or the fallback estimate;
+  NaN ×3 for source ``none``); ``content_time_s`` is the MR content time, seconds since the first composed slot.
+  With the model, the MR content, the mount and the intrinsics a monitor can rebuild the slot's v and d
+  (:class:`gsrmr_server.scoring.SlotScorer`).
 
-Pose key (x_t = 0): ``(a_m, b_m, theta_rad)`` as three float64 = 192 bits of payload, in the ``map``
-frame (REP-103: x forward, y left, z up; θ counter-clockwise from +x). Carried as
-``geometry_msgs/Vector3Stamped`` with ``vector = (a, b, θ)``, ``header.frame_id = "map"`` and
-``header.stamp`` = slot start.
-
-Image (x_t = 1): ``sensor_msgs/CompressedImage`` with ``format = "rgb8; jpeg compressed bgr8"`` (the
-image_transport convention), ``header.stamp`` = slot start, ``header.frame_id`` = the camera optical
-frame. The robot also sends the pose key in image slots (192 extra bits) so the server can measure the
-GS loss L_t at that pose.
-
-Schedule: ``std_msgs/Float64MultiArray``; ``data`` = ``[first_slot, slot_s, seq, slots]`` followed by
-``x[slots]`` (0 = pose key, 1 = image), ``power_w[slots]`` (transmit power, watts) and, when the scheduler
-sends the in-slot rule, ``gain_threshold[slots]`` (send an image iff the radio's measured gain g_t ≥ the
-threshold; dimensionless |h|², +inf sent as −1). ``layout.dim`` labels the consecutive blocks ``meta``,
-``x``, ``power_w`` (and ``gain_threshold``) with their sizes (``stride`` = size). ``first_slot`` is an
-absolute slot index (exact in float64 up to 2^53).
-
-Ledger row (one per slot, robot → server and scheduler, ``gsrmr/ledger``): ``std_msgs/Float64MultiArray``
-whose ``data`` are the fields of :class:`LedgerRow` in :data:`LEDGER_FIELDS` order: ``[slot, x,
-scheduled_power_w, bits_sent, gain, power_w, energy_j, upload_all_bits, upload_all_energy_j, frame_stamp_s,
-round_slot, held_back, uplink_rate_bps, scene_change]`` (W, J, s, bit/s; ``x`` 1 when an image left in the
-slot, 0 for the key alone — an image asked for with no fresh frame to send is a 0; ``round_slot`` the radio's
-index of the slot in the round, −1 unknown; ``held_back`` 1 when an image was asked for and only the key was
-sent, the last image still unacknowledged; ``uplink_rate_bps`` the robot's throughput estimate from image
-acknowledgements, NaN without one; ``scene_change`` 1 when the robot's scene-change test fired on the slot's
-frame, :mod:`gsrmr_robot.scene_change`: the scheduler then knows in which slot the world changed between two
-images).
-
-Channel sample (the radio → robot, ``radio/channel_gain``, before the slot starts): ``std_msgs/Float64MultiArray``
-with ``data = [slot, round_slot, gain]`` (:class:`ChannelSample`).
-
-Loss sample (server → scheduler, ``gsrmr/loss_sample``): ``std_msgs/Float64MultiArray`` with
-``data = [slot, a_m, b_m, theta_rad, loss]`` (:class:`LossSample`): the GS loss L_t measured in an image
-slot at the pose the robot reported.
-
-MR slot info (server → any monitor, ``mr/slot_info``, published right after each ``mr/image``):
-``std_msgs/Float64MultiArray`` with ``data = [slot, source, a_m, b_m, theta_rad, content_time_s]``
-(:class:`MRSlotInfo`, ``layout.dim = [mr_slot_info(6)]``): ``source`` is the index of the slot's
-:class:`RealSource` in :data:`REAL_SOURCES` (0 image, 1 render, 2 fallback, 3 none); ``a_m, b_m, theta_rad``
-the pose in ``map`` the MR image was composed at — the slot's pose key, or the fallback estimate when the key
-was missing; NaN ×3 when the server had no pose at all (source ``none``) —; ``content_time_s`` the MR content
-time (seconds since the first composed slot) the virtual agents were drawn at. Deployment telemetry: with the
-model, the MR content, the camera mount and the intrinsics a monitor follows the server's decisions and can
-rebuild the slot's virtual view v and mask d (:class:`gsrmr_server.scoring.SlotScorer`).
-
-Names that cross a boundary as strings (CSV cells, diagnostics JSON, the demo summary) are enums here:
-:class:`Delivery` (what reached the server), :class:`RealSource` (where the server's real-view estimate
-came from) and :class:`UplinkFault` (the server's fault counters).
+Names that cross a boundary as strings (CSV cells, diagnostics JSON, the demo summary) are enums:
+:class:`Delivery`, :class:`RealSource`, :class:`UplinkFault`.
 """
 
 from __future__ import annotations
@@ -260,6 +227,41 @@ class MRSlotInfo:
         if not (np.all(np.isfinite(pose)) or (source == RealSource.NONE and np.all(np.isnan(pose)))):
             raise ValueError("MR slot info: the pose must be finite (NaN ×3 only for source none)")
         return cls(int(arr[0]), source, float(pose[0]), float(pose[1]), float(pose[2]), float(arr[5]))
+
+
+MAP_CORRECTION_FIELDS = ("seq", "stamp_s", "a_m", "b_m", "theta_rad", "var_a_m2", "var_b_m2", "var_theta_rad2")
+#: Topic (relative: in the robot's namespace) of the server's :class:`MapCorrection`, latched.
+MAP_CORRECTION_TOPIC = "gsrmr/map_correction"
+
+
+@dataclass(frozen=True)
+class MapCorrection:
+    """The server's correction of the robot's ``map → odom``: the robot's ``map_from_odom`` parameter M₀ becomes
+    ``X ∘ M₀`` with X = (a_m, b_m, theta_rad) in ``map``; absolute (not relative to the previous one), numbered by
+    ``seq`` (≥ 1, growing), its variances [m², m², rad²], ``stamp_s`` the time of the newest fix it holds."""
+
+    seq: int
+    stamp_s: float
+    a_m: float
+    b_m: float
+    theta_rad: float
+    var_a_m2: float
+    var_b_m2: float
+    var_theta_rad2: float
+
+    def to_data(self) -> list[float]:
+        """Flat float64 list for ``Float64MultiArray.data`` (:data:`MAP_CORRECTION_FIELDS` order)."""
+        return [float(v) for v in astuple(self)]
+
+    @classmethod
+    def from_data(cls, data: list[float] | np.ndarray) -> MapCorrection:
+        """Parse ``Float64MultiArray.data``; ValueError unless 8 finite values, a whole ``seq`` ≥ 1, variances ≥ 0."""
+        arr = np.asarray(data, dtype=np.float64)
+        if arr.shape != (len(MAP_CORRECTION_FIELDS),) or not np.all(np.isfinite(arr)) or arr[0] < 1 \
+                or arr[0] != int(arr[0]) or np.any(arr[5:] < 0):
+            raise ValueError(f"map correction: expected {len(MAP_CORRECTION_FIELDS)} finite values "
+                             f"{MAP_CORRECTION_FIELDS}, seq a whole number ≥ 1, variances ≥ 0")
+        return cls(int(arr[0]), *(float(v) for v in arr[1:]))
 
 
 CHANNEL_SAMPLE_FIELDS = ("slot", "round_slot", "gain")

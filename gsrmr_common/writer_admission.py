@@ -1,29 +1,10 @@
 """Known writers (pure, no ROS): which publisher endpoints a node takes an input topic's messages from.
 
-Each input topic of a node has its legitimate writers named by node — ``gsrmr_scheduler`` (relative: in the
-reading node's namespace, so a fleet's ``/robot2`` reads its own scheduler), ``/robot/gsrmr_robot``
-(absolute), or ``*`` (any writer: the topic is open, as in plain ROS). The graph reports every publisher
-endpoint of a topic with its node name and its GID (``Node.get_publishers_info_by_topic``); each received
-message carries its writer's GID (``MessageInfo["publisher_gid"]``). :class:`WriterGate` joins the two:
-
-* a message whose GID belongs to a listed node is **admitted**; a restarted writer comes back with a new
-  GID under the same name and is admitted as soon as the graph shows it;
-* a GID of an unlisted node is **refused**, counted per writer name and topic (what ``/diagnostics`` names);
-* a GID the graph does not know yet (discovery of the node's name can trail its first message) is **held**
-  in a small bounded queue (:attr:`WriterGate.hold_max` messages) until the graph is refreshed — then
-  admitted or refused by the name it turns out to have — or, after ``hold_s``, refused as ``unknown``;
-* two live endpoints under one listed name are an **alarm** (the name is self-asserted without SROS2: an
-  impostor under the right name can only be detected, not refused), counted per name and named;
-* every admitted writer endpoint has a **rate limit** (a token bucket per topic: a sustained rate and a
-  burst); what exceeds it is refused and counted ``rate``.
-
-:class:`SeqTracker` keeps a sequence number monotonic per writer endpoint (the schedule's ``seq``).
-:class:`FloodBreaker` tells when a topic is flooded — :data:`FLOOD_REFUSALS` refused messages within
-:data:`FLOOD_WINDOW_S` —: the node then stops reading it for :data:`FLOOD_PAUSE_S` (a refused message still costs the
-node's executor its dispatch, tens of microseconds: a 10 kHz flood would take a core; with the reader gone the
-writer has no one to send to).
-
-Times are seconds of any monotonic clock; GIDs are the bytes of ``rmw_gid_t`` (16 with Fast DDS).
+:class:`WriterGate` joins the graph's publisher endpoints (node name and GID per topic) with each message's writer GID:
+admitted, refused, held while discovery trails, alarmed on two endpoints under one listed name, rate-limited per
+endpoint. :class:`SeqTracker` keeps the schedule's ``seq`` monotonic per writer endpoint; :class:`FloodBreaker` tells
+when a topic is flooded. The rules, the writer lists and their defaults: docs/security.md, "Known writers". Times are
+seconds of any monotonic clock; GIDs are the bytes of ``rmw_gid_t`` (16 with Fast DDS).
 """
 
 from __future__ import annotations
@@ -44,7 +25,9 @@ REFUSAL_REASONS = ("unlisted", "unknown", "rate", "held_over")
 #: 10–20 messages/s; a listed writer is refused only beyond its rate limit, 40/s for the per-slot topics) …
 FLOOD_REFUSALS = 200
 FLOOD_WINDOW_S = 1.0
-#: … and then the node stops reading it for this long [s] (what legitimate writers send meanwhile is lost too).
+#: … and then the node stops reading it for this long [s] (what legitimate writers send meanwhile is lost too): a
+#: refused message still costs the node's executor its dispatch, tens of µs, so a 10 kHz flood would take a core;
+#: with the reader gone the writer has no one to send to.
 FLOOD_PAUSE_S = 1.0
 
 

@@ -1,23 +1,7 @@
-"""A robot's recorded round (a bag) → a nerfstudio dataset in the world frame: the pipeline of ``gsrmr-dataset``.
-
-Steps (docs/dataset_tool.md has the user's view):
-
-1. **Topics** (:mod:`gsrmr_offline.bag_topics`): the colour image topic, its calibration (sibling
-   ``camera_info``, ``--camera-info-topic`` or a calibration YAML) and an aligned depth topic.
-2. **Poses** (:mod:`gsrmr_offline.bag_poses`): a TF tree from ``/tf`` + ``/tf_static``, or a pose topic's edge
-   plus the camera mount (bag static TF, else a mount file). The camera of a frame is the chain world frame →
-   the image's ``header.frame_id`` (an optical frame: x right, y down, z forward) at the image's
-   ``header.stamp``, interpolated (:mod:`gsrmr_common.tf_buffer`).
-3. **Sync**: a frame is kept only if, on every moving edge of that chain, two samples at most ``max_gap_s``
-   apart bracket its stamp; static edges always apply.
-4. **Keyframes** (:mod:`gsrmr_offline.keyframes`): blur (relative sharpness), spacing, even thinning.
-5. **Output**: every kept frame rectified to the pinhole camera of :func:`gsrmr_common.calibration.
-   rectified_intrinsics` (full size), its depth through the same maps, written with
-   :class:`gsrmr_common.nerfstudio.DatasetWriter` (camera→world in the world frame, metres, z up; the planar
-   pose of the base frame as ``gsrmr_pose`` where the tree has it), and ``frames.csv``: one row per image read.
-
-Deterministic: the same bag and options give byte-identical files. Bad input raises :class:`DatasetInputError`
-with one line saying what is wrong and how to fix it.
+"""A robot's recorded round (a bag) → a nerfstudio dataset in the world frame: the pipeline of ``gsrmr-dataset``
+(:func:`build_dataset`) — topics (:mod:`~gsrmr_offline.bag_topics`), camera poses (:mod:`~gsrmr_offline.bag_poses`),
+the sync rule, keyframes (:mod:`~gsrmr_offline.keyframes`) and the output, by the rules of docs/dataset_tool.md.
+Deterministic: the same bag and options give byte-identical files; bad input raises :class:`DatasetInputError`.
 """
 
 from __future__ import annotations
@@ -47,6 +31,7 @@ from gsrmr_common.image_decode import (
     stamp_ns,
 )
 from gsrmr_common.nerfstudio import DatasetFrame, DatasetWriter
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.tf_buffer import (
     NS_PER_S,
     OUT_OF_RANGE,
@@ -134,7 +119,7 @@ class FrameRecord:
     angular_speed_radps: float | None = None
     sharpness: float | None = None
     camera_to_world: np.ndarray | None = field(default=None, repr=False)
-    robot_pose: tuple[float, float, float] | None = None  # base frame (a_m, b_m, theta_rad) in the world frame
+    robot_pose: Pose2D | None = None  # base frame (a_m, b_m, theta_rad) in the world frame
     depth_index: int | None = None
     depth_offset_s: float | None = None
     file_path: str = ""
@@ -412,7 +397,7 @@ def _camera_velocity(buffer: TfBuffer, world: str, frame: str, stamp: int) -> tu
     return None, None
 
 
-def _planar_pose(matrix: np.ndarray) -> tuple[float, float, float]:
+def _planar_pose(matrix: np.ndarray) -> Pose2D:
     return float(matrix[0, 3]), float(matrix[1, 3]), math.atan2(float(matrix[1, 0]), float(matrix[0, 0]))
 
 
@@ -614,7 +599,7 @@ def write_frames(bag: BagReader, frames: list[FrameRecord], colour_topic: str, d
 # ---------------------------------------------------------------------------------------------- the pipeline
 
 def build_dataset(options: BagDatasetOptions) -> DatasetReport:
-    """Turn ``options.bag`` into a nerfstudio dataset in ``options.out`` (module docstring). Raises
+    """Turn ``options.bag`` into a nerfstudio dataset in ``options.out`` (docs/dataset_tool.md). Raises
     :class:`DatasetInputError` (one line) on bad input."""
     try:
         bag = BagReader(options.bag)

@@ -1,16 +1,6 @@
-"""Where the camera was: a :class:`~gsrmr_common.tf_buffer.TfBuffer` filled from a bag's messages.
-
-Two sources, both ending in one TF tree that the dataset tool looks the camera up in:
-
-* ``/tf`` and ``/tf_static`` (``tf2_msgs/TFMessage``, or ROS 1's ``tf/tfMessage``): every transform is an edge
-  sample (moving) or a static edge, stamped with its ``header.stamp`` (never the recorder's time);
-* a pose topic (:func:`pose_edge`): ``nav_msgs/Odometry``, ``geometry_msgs/PoseStamped`` or
-  ``geometry_msgs/PoseWithCovarianceStamped`` — each message is a sample of the edge ``header.frame_id →
-  child``, the child being ``Odometry.child_frame_id`` or, when that is empty or the type has none, the robot's
-  base frame. The camera mount (child → camera) comes from the bag's static TF, else from a mount file
-  (:func:`read_camera_mount`, the ``camera_mount.*`` parameters of ``config/camera_mount.yaml``).
-
-Messages are rosbags' dataclasses (duck-typed here: no ROS import). Units: metres, quaternions (x, y, z, w).
+"""Where the camera was: a :class:`~gsrmr_common.tf_buffer.TfBuffer` filled from a bag's ``/tf`` and ``/tf_static``, or
+from a pose topic's edge and the camera mount (docs/dataset_tool.md, "Where the camera was"). Messages are rosbags'
+dataclasses (duck-typed: no ROS import); units: metres, quaternions (x, y, z, w), stamps from ``header.stamp``.
 """
 
 from __future__ import annotations

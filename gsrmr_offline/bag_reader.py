@@ -1,17 +1,6 @@
-"""Typed messages of chosen topics from a recorded bag: rosbag2 (MCAP or sqlite3), a bare ``.mcap``/``.db3``
-file, or a ROS 1 ``.bag`` — read with ``rosbags`` (pure Python, no ROS install).
-
-Messages come back deserialised by ``rosbags`` as plain dataclasses (``msg.header.stamp.sec`` …); ROS 1
-messages keep their ROS 1 field names (``CameraInfo.K``, ``Header.seq``). Types are taken from the bag's own
-definitions (MCAP schemas, ROS 1 connection headers), else from rosbags' latest ROS 2 store (sqlite3 bags of
-Humble and older carry none).
-
-A damaged MCAP — a recording killed before it wrote its summary and footer (``metadata.yaml`` is then often
-missing too), or a file cut short by a copy — is refused by rosbags; this reader then scans the file
-record by record with the ``mcap`` package's stream reader, deserialises the CDR with a rosbags typestore
-built from the file's schemas, and stops at the first record it cannot read. :attr:`BagReader.notes` says
-how much was readable (bytes, messages, up to which log time). The same happens when a readable bag fails
-in the middle of reading: the messages before the failure are used and a note says where it stopped.
+"""Typed messages of chosen topics from a recorded bag — rosbag2 (MCAP or sqlite3), a bare ``.mcap``/``.db3`` file or a
+ROS 1 ``.bag`` — read with ``rosbags`` (pure Python, no ROS install): :class:`BagReader`. Message types, ROS 1 field
+names and damaged bags: docs/dataset_tool.md, "Reading the bag".
 """
 
 from __future__ import annotations

@@ -1,21 +1,5 @@
-"""Which topics of a bag are the camera's colour images, its calibration and its aligned depth.
-
-The rules (also in docs/dataset_tool.md):
-
-* **image topics**: every ``sensor_msgs/Image`` or ``sensor_msgs/CompressedImage`` topic;
-* **depth topic**: a name with a path component containing ``depth`` or ``disparity`` (``/camera/depth/
-  image_raw``, ``/camera/aligned_depth_to_color/image_raw/compressedDepth``), or whose first message is depth
-  (``16UC1``, ``mono16``, ``32FC1``, ``compressedDepth``: :func:`gsrmr_common.image_decode.is_depth_message`);
-* **colour topic**: an image topic that is not depth and not infrared (a path component ``ir``, ``infra``,
-  ``infra1``, ``infra2``, ``infrared``); the bag's only one is used when no topic is given — or, when the colour
-  topics are one camera's transports (``…/image_raw`` and ``…/image_raw/compressed``), the uncompressed one;
-* **calibration topic**: the image topic's sibling ``camera_info`` — the image topic without its transport
-  suffix (``compressed``, ``compressedDepth``, ``theora``, ``zstd``, ``ffmpeg``, ``h264``), its last component
-  replaced by ``camera_info`` (``/camera/color/image_raw/compressed`` → ``/camera/color/camera_info``);
-* **aligned depth** (auto-detected): a depth topic whose first message is in the colour images' frame
-  (``header.frame_id``, i.e. registered to the colour camera, as ``aligned_depth_to_color`` and
-  ``depth_registered`` are) — of several, an uncompressed ``Image`` before a compressed one, then by name.
-  Its size must match the colour camera's (checked by the dataset tool).
+"""Which topics of a bag are the camera's colour images, its calibration and its aligned depth, by the rules of
+docs/dataset_tool.md, "What it reads" (*Which topic is what*).
 """
 
 from __future__ import annotations
@@ -53,7 +37,8 @@ def strip_transport(topic: str) -> str:
 
 
 def sibling_camera_info(image_topic: str) -> str:
-    """The ``camera_info`` topic next to an image topic (module docstring for the rule)."""
+    """The ``camera_info`` topic next to an image topic: the topic without its transport suffix, its last
+    component replaced by ``camera_info`` (``/camera/color/image_raw/compressed`` → ``/camera/color/camera_info``)."""
     base = strip_transport(image_topic)
     head, _, _last = base.rstrip("/").rpartition("/")
     return f"{head}/camera_info"

@@ -1,22 +1,7 @@
-"""What an update may learn from a received frame: a change seen in two rounds, never one seen once (issue 27).
-
-A received image differs from the current model's render at its pose key where the world changed. Some changes stay
-(a crate moved, a shelf added, a lamp replaced); others pass (a person crossing, a light flickering). One frame
-cannot tell them apart; two rounds can: a change that stays is there again when the robot comes back in a later
-round, a person who crossed is not (a transient that happens at the same place in every round is, to the update, a
-change that stays).
-
-:func:`confirm_changes` marks, in each received training frame, the **changed cells** — ``cell_px`` × ``cell_px``
-blocks whose mean absolute difference to the current model's render exceeds ``threshold`` (colour in [0, 1]) — and
-keeps a changed cell only if a frame of **another round** confirms it: a frame whose camera is within
-``near_m`` / ``near_deg`` of this one's, where the cell's centre, carried there by the current model's depth
-(the model as it was: a new object's depth is not in it, hence the tolerance of ``dilate_cells`` cells), lands on
-a changed cell too. The cells not confirmed are replaced by the current model's render: the fine-tune sees the old
-model there and learns nothing from them (no new loss term, no trainer change); every other pixel — the agreeing
-part of the frame and the confirmed changes — is the received image.
-
-Units: colours in [0, 1]; distances in metres, angles in degrees; cameras in OpenCV axes (``DatasetFrame.camera``).
-Pure NumPy plus the renderer; no ROS.
+"""What an update may learn from a received frame: a change seen in two rounds, never one seen once (pure NumPy plus the
+renderer; no ROS). :func:`confirm_changes` keeps a changed cell only where a frame of another round confirms it and
+replaces the others by the current model's render; the rule and why: docs/model_update.md, "3. Update". Units: colours
+in [0, 1], distances in metres, angles in degrees, cameras in OpenCV axes (``DatasetFrame.camera``).
 """
 
 from __future__ import annotations
@@ -34,7 +19,7 @@ from gsrmr_splat.render import render
 
 @dataclass(frozen=True)
 class ConfirmConfig:
-    """How changes are found and confirmed (module docstring)."""
+    """How changes are found and confirmed (docs/model_update.md, "3. Update")."""
 
     cell_px: int = 8  # the cell size (pixels of the received frame)
     threshold: float = 0.08  # a cell is changed when its mean |received − render| exceeds this (colour in [0, 1])
@@ -102,8 +87,8 @@ def _near(frames: Sequence[DatasetFrame], near_m: float, near_deg: float) -> np.
 def confirm_changes(model: GaussianModel, frames: Sequence[DatasetFrame], rounds: Sequence[int],
                     background: Sequence[float], config: ConfirmConfig | None = None) -> Confirmation:
     """``frames`` (received, training) with every changed cell no frame of another round confirms replaced by
-    ``model``'s render (module docstring). ``rounds[i]``: the round frame ``i`` was received in. ``background``: the
-    colour the model is rendered over (the composer's)."""
+    ``model``'s render (docs/model_update.md, "3. Update"). ``rounds[i]``: the round frame ``i`` was received in.
+    ``background``: the colour the model is rendered over (the composer's)."""
     cfg = config or ConfirmConfig()
     frames = list(frames)
     if len(rounds) != len(frames):

@@ -5,9 +5,6 @@ images, its calibration and its poses (``/tf`` + ``/tf_static``, or a pose topic
 the frames whose poses bracket their stamps, rejects blur, spaces the keyframes and writes the rectified images
 (and aligned depth) with their camera→world poses as ``DIR/transforms.json``, plus ``DIR/frames.csv`` saying
 what became of every image. docs/dataset_tool.md has the rules, the columns and what to record on a robot.
-
-Exit codes: 0 with at least one frame written (warnings, e.g. a truncated bag, on stderr), 2 with one line
-naming what is wrong and the fix.
 """
 
 from __future__ import annotations

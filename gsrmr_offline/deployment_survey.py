@@ -1,29 +1,9 @@
 """The scheduler's seed loss map from what the robot saw (pure, no ROS): the library behind ``gsrmr-survey``.
 
-Input: the trained model (3DGS .ply) and a nerfstudio dataset of the robot's frames
-(:mod:`gsrmr_common.nerfstudio`: per frame a rectified pinhole camera — camera→world in ``map`` — an image and
-``gsrmr_pose`` = [a_m, b_m, theta_rad], the planar pose of ``base_link`` in ``map``).
-
-1. **Which frames** (:func:`select_frames`): views the model was *not* trained on — the dataset's held-out split
-   (:func:`gsrmr_common.nerfstudio.holdout_split`, every N-th frame, N as the model's ``train.json`` records
-   it, :func:`recorded_split`) or every frame of a second lap (``all_frames``). Training views are optimistic (the
-   model was fitted to them) and are surveyed only when explicitly allowed. A frame without ``gsrmr_pose`` cannot
-   be keyed in the map: it is skipped and counted.
-2. **Each frame** (:func:`survey_frames`) is scaled to the width the server renders at (the robot's uplink width:
-   aspect kept, never enlarged, ``cv2.INTER_AREA`` as the trainer downscales: :func:`frame_at_width`) and scored
-   by :func:`gsrmr_offline.frame_loss.frame_loss` with the server's composer rendering at the frame's own camera
-   (the frame's mount relative to its ``gsrmr_pose``, :func:`frame_mount`): the key slot's GS loss L and the
-   image slot's loss J (the frame's JPEG at the robot's quality) and its sample bias (what the live server's loss
-   sample reads above the loss against the frame), with the MR content at the frame's content time.
-3. **Content time** (:func:`route_time_s`): the time since the round start at which a robot driving the route
-   from its start at the nominal speed — the scheduler's own prediction of a round (route file) — passes the
-   route point nearest the frame: the slot time the simulator's survey and the live server compose such a view at.
-4. **The map** (:func:`seed_loss_map`): L keyed by ``gsrmr_pose`` in the scheduler's
-   :class:`~gsrmr_scheduler.loss_map.LossMap`, the mean J as its ``image_loss`` and the mean sample bias as its
-   ``sample_offset``; a CSV of every frame
-   (:func:`write_frames_csv`).
-
-Units: metres, radians (degrees where named ``_deg``), seconds; losses are the MR loss 0.8·L1 + 0.2·(1 − SSIM).
+Which frames (:func:`select_frames`), how each is scored (:func:`survey_frames`), its content time
+(:func:`route_time_s`) and the map (:func:`seed_loss_map`): docs/scheduling.md, "Seeding the loss map from the mapping
+round: ``gsrmr-survey``". Units: metres, radians (degrees where named ``_deg``), seconds; ``gsrmr_pose`` =
+[a_m, b_m, theta_rad], ``base_link`` in ``map``; losses are the MR loss 0.8·L1 + 0.2·(1 − SSIM).
 """
 
 from __future__ import annotations
@@ -41,6 +21,7 @@ import numpy as np
 
 from gsrmr_common.camera import Camera, CameraMount, camera_to_world_from_pose
 from gsrmr_common.nerfstudio import DatasetFrame, holdout_split, read_dataset
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.tf_tree import planar_transform, transform_matrix
 from gsrmr_common.wire import PoseKey
 from gsrmr_offline.frame_loss import FrameLoss, frame_loss
@@ -105,7 +86,7 @@ class SurveyedFrame:
     index: int
     file_path: str
     split: str
-    pose: tuple[float, float, float]
+    pose: Pose2D
     content_time_s: float
     width_px: int
     height_px: int
@@ -146,9 +127,9 @@ def has_pose(frame: DatasetFrame) -> bool:
 
 def select_frames(frames: list[DatasetFrame], *, split: TrainSplit | None, all_frames: bool = False,
                   allow_training_views: bool = False) -> Selection:
-    """The frames to survey (module docstring, 1.): every frame with ``all_frames`` (a lap the model was not
-    trained on), else the held-out split ``split`` names — and its training views too with
-    ``allow_training_views``. SurveyInputError when nothing is left to survey or the split does not fit."""
+    """The frames to survey: every frame with ``all_frames`` (a lap the model was not trained on), else the
+    held-out split ``split`` names — and its training views too with ``allow_training_views``. SurveyInputError when
+    nothing is left to survey or the split does not fit."""
     if all_frames:
         chosen = [SelectedFrame(i, f, UNSEEN) for i, f in enumerate(frames)]
         rule = "every frame (--all-frames: a lap the model was not trained on)"
@@ -243,14 +224,14 @@ def frame_at_width(frame: DatasetFrame, width_px: int) -> DatasetFrame:
     return resize_frames([frame], min(int(width_px), frame.camera.width))[0]
 
 
-def frame_mount(camera: Camera, pose: tuple[float, float, float]) -> CameraMount:
+def frame_mount(camera: Camera, pose: Pose2D) -> CameraMount:
     """The mount that puts ``camera`` (in ``map``) on a robot at ``pose`` (a_m, b_m, theta_rad): pose ∘ mount is
     the frame's own camera. ValueError for a camera looking straight up or down."""
     map_from_base = transform_matrix(planar_transform(*pose))
     return CameraMount.from_optical_pose(np.linalg.inv(map_from_base) @ camera.camera_to_world)
 
 
-def composer_for_frame(base: MRComposer, camera: Camera, pose: tuple[float, float, float]) -> MRComposer:
+def composer_for_frame(base: MRComposer, camera: Camera, pose: Pose2D) -> MRComposer:
     """``base``'s composer (model, MR content, background, render threads) rendering at ``camera`` for pose key
     ``pose``: the frame's intrinsics and its :func:`frame_mount`."""
     return MRComposer(base.model, base.virtual, camera.intrinsics, frame_mount(camera, pose),
@@ -258,7 +239,7 @@ def composer_for_frame(base: MRComposer, camera: Camera, pose: tuple[float, floa
                       render_threads=base.render_threads)
 
 
-def camera_vs_mount(camera: Camera, pose: tuple[float, float, float], mount: CameraMount) -> tuple[float, float]:
+def camera_vs_mount(camera: Camera, pose: Pose2D, mount: CameraMount) -> tuple[float, float]:
     """(centre distance [m], rotation angle [deg]) between ``camera`` and pose ∘ ``mount``, the camera the live
     server renders for this pose key."""
     live = camera_to_world_from_pose(*pose, mount)
@@ -268,8 +249,8 @@ def camera_vs_mount(camera: Camera, pose: tuple[float, float, float], mount: Cam
     return float(np.linalg.norm(live[:3, 3] - own[:3, 3])), math.degrees(math.acos(cos))
 
 
-def route_time_s(route: RoutePredictor, pose: tuple[float, float, float]) -> float:
-    """The content time of a frame at ``pose`` (module docstring, 3.): arc length from the route's start to the
+def route_time_s(route: RoutePredictor, pose: Pose2D) -> float:
+    """The content time of a frame at ``pose``: arc length from the route's start to the
     route point nearest (a_m, b_m), over the nominal speed [s]."""
     return route.nearest_s(pose[0], pose[1]) / route.speed_mps
 
@@ -277,7 +258,7 @@ def route_time_s(route: RoutePredictor, pose: tuple[float, float, float]) -> flo
 def survey_frames(selected: Sequence[SelectedFrame], base: MRComposer, *, dataset: str | Path, width_px: int,
                   jpeg_quality: int | None, content_times_s: Sequence[float],
                   mount: CameraMount) -> list[SurveyedFrame]:
-    """Score every selected frame (module docstring, 2.): its image loaded from ``dataset``, scaled to
+    """Score every selected frame: its image loaded from ``dataset``, scaled to
     ``width_px``, composed by ``base``'s pipeline at its own camera and content time (``content_times_s``, one per
     frame) and scored (:func:`~gsrmr_offline.frame_loss.frame_loss`); ``mount`` is the configured camera mount,
     compared with the frame's camera."""

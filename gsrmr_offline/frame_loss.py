@@ -1,24 +1,6 @@
-"""The MR loss of one real frame, as the live server would compose it (pure, no ROS): a deployment library.
-
-For a camera frame r (H×W×3 uint8 RGB, at the size the composer renders) taken with the robot at pose key s,
-:func:`frame_loss` composes two slots with the server's own composer (:class:`~gsrmr_server.compose.MRComposer`,
-the pipeline of :meth:`gsrmr_server.slot_core.ServerCore.process`) at MR content time ``content_time_s`` and
-scores each with the server's scoring library (:func:`gsrmr_server.scoring.score_slot`) against the composite
-m = d·r + (1 − d)·v built from the frame and the slot's own virtual view v and mask d:
-
-* the **key slot** (pose key only): m̂ = d·Φ(s) + (1 − d)·v, published in 8 bit — its loss is the GS loss L
-  the scheduler's loss map holds (and PSNR [dB], SSIM);
-* the **image slot** (pose key and the robot's JPEG of r at ``jpeg_quality``): m̂ from the decoded JPEG — its
-  loss J is what an image slot leaves (the loss map's ``image_loss``) — and the **sample bias** of the slot: the
-  live server's loss sample (its GS composite against the composite of the *decoded JPEG*, what it has) minus
-  the loss of the same GS composite against the frame's composite (what the loss budget counts). The JPEG's
-  error adds to every sample: about +0.0026 on the sandbox at q80 (0.0009 spread, 1100 image slots of 10
-  recorded runs, nearly the same at every L), 4–6 % of a typical sample (the loss map's ``sample_offset``).
-
-Losses are the 3DGS image loss 0.8·L1 + 0.2·(1 − SSIM) (:func:`gsrmr_common.metrics.mr_loss`). The camera is
-the composer's: pose key ∘ its ``mount`` at its ``intrinsics``. The deployment survey
-(:mod:`gsrmr_offline.deployment_survey`) calls this with a mapping round's frames, the simulator's survey
-(``gsrmr_sim.survey``) with a recorded round's true frames.
+"""The MR loss of one real frame as the live server would compose and score it (pure, no ROS): :func:`frame_loss`, the
+scoring of the deployment survey (:mod:`gsrmr_offline.deployment_survey`) and of the simulator's survey
+(``gsrmr_sim.survey``). Why an image slot's sample bias matters: docs/scheduling.md, "The live loop", item 7.
 """
 
 from __future__ import annotations
@@ -69,8 +51,22 @@ def _composed_score(composer: MRComposer, uploads: SlotUploads, frame_u8: np.nda
 
 def frame_loss(composer: MRComposer, frame_u8: np.ndarray, pose: PoseKey, *, content_time_s: float,
                jpeg_quality: int | None, image_pose: PoseKey | None = None) -> FrameLoss:
-    """L, PSNR, SSIM of the key slot at ``pose`` and, with ``jpeg_quality``, J and the sample bias of the image slot
-    (module docstring).
+    """L, PSNR, SSIM of the key slot at ``pose`` and, with ``jpeg_quality``, J and the sample bias of the image slot.
+
+    Both slots are composed with the server's composer (``composer``: an
+    :class:`~gsrmr_server.compose.MRComposer`, the pipeline of :meth:`gsrmr_server.slot_core.ServerCore.process`)
+    at the MR content time ``content_time_s``, its camera the pose key ∘ the composer's ``mount`` at its
+    ``intrinsics``, and each is scored as the server scores a slot (:func:`gsrmr_server.scoring.score_slot`)
+    against the composite m = d·r + (1 − d)·v of the frame r with the slot's own virtual view v and mask d:
+
+    * the key slot (pose key only): m̂ = d·Φ(s) + (1 − d)·v, published in 8 bit; its loss is the GS loss L a loss
+      map holds;
+    * the image slot (the pose key and the robot's JPEG of r at ``jpeg_quality``): m̂ from the decoded JPEG; its
+      loss is J, what an image slot leaves (a loss map's ``image_loss``); its sample bias is the live server's loss
+      sample (its GS composite against the composite of the decoded JPEG, all it has) minus the loss of the same GS
+      composite against the frame's composite (what the loss budget counts): a loss map's ``sample_offset``.
+
+    Losses are the MR loss 0.8·L1 + 0.2·(1 − SSIM) (:func:`gsrmr_common.metrics.mr_loss`); PSNR in dB.
 
     ``frame_u8``: the real frame, H×W×3 uint8 RGB at the composer's intrinsics; ``pose``: the pose key (``map``:
     a_m, b_m, theta_rad; its ``slot`` names the frame in messages); ``content_time_s``: the MR content's time

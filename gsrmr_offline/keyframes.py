@@ -1,19 +1,6 @@
-"""Which frames of a recording become training views: sharpness, blur rejection, spacing and thinning.
-
-Pure numpy and OpenCV; every rule is deterministic (same input, same choice).
-
-* **Sharpness** (:func:`laplacian_variance`): the variance of the Laplacian (3×3 aperture) of the frame's grey
-  image (8-bit scale) — high for crisp edges, low for motion blur or defocus.
-* **Blur** (:func:`blurred`): frame i is blurred when its sharpness is below ``ratio`` × the median sharpness of
-  its neighbours, the up to ``window`` frames before and ``window`` after it in time order (itself excluded).
-  The measure is relative because it depends on the scene; with fewer than two neighbours no frame is judged.
-  ``ratio`` 0 turns the rule off.
-* **Spacing** (:func:`spaced`): walking in time order, the first frame is kept, then a frame only when its
-  camera moved at least ``min_translation_m`` from the last kept camera's position *or* turned at least
-  ``min_rotation_deg`` from its orientation. Both 0 keep every frame.
-* **Thinning** (:func:`thin_evenly`): at most ``max_frames`` of the survivors, at the evenly spread positions
-  ``i·(n − 1)/(max_frames − 1)`` rounded half up, i = 0 … max_frames − 1 (the first and the last always among
-  them).
+"""Which frames of a recording become training views (pure numpy and OpenCV; deterministic): sharpness
+(:func:`laplacian_variance`), blur rejection (:func:`blurred`), spacing (:func:`spaced`) and even thinning
+(:func:`thin_evenly`), by the rules of docs/dataset_tool.md, "Keyframes".
 """
 
 from __future__ import annotations
@@ -35,7 +22,9 @@ def laplacian_variance(rgb_or_grey: np.ndarray) -> float:
 
 
 def blurred(sharpness: Sequence[float], window: int, ratio: float) -> list[bool]:
-    """For each frame (time order), whether it is blurred by the rule of the module docstring."""
+    """For each frame (time order), whether it is blurred: its sharpness below ``ratio`` × the median of its
+    neighbours' (up to ``window`` frames on each side, itself excluded); not judged with fewer than two neighbours;
+    ``ratio`` 0 turns the rule off."""
     values = np.asarray(sharpness, dtype=np.float64)
     out = [False] * len(values)
     if ratio <= 0.0 or window < 1:

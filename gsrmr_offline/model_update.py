@@ -1,43 +1,8 @@
-"""Between rounds the model learns from what the robot paid to send (issue 27, item 2) — pure, no ROS.
-
-The server records every image it composed a slot with and that slot's pose key (``run.mcap``:
-``/gsrmr/received/...``); ``gsrmr-dataset`` makes a nerfstudio dataset of them (docs/dataset_tool.md, "What the
-server received, as a dataset"). An update (:func:`update_model`):
-
-1. **Holds out** the round's most recent received frames (:attr:`UpdateConfig.holdout_frames`, the last image slots
-   of the round): they validate the update and are never trained on. Recent, because they show the world as it is
-   now — the state a persistent change left.
-2. **Trains** on the other received frames plus a **replay buffer** of the mapping round's frames
-   (:func:`replay_buffer`: at most :attr:`UpdateConfig.replay_frames`, evenly spaced over the round, the same ones
-   every time), so that what the robot no longer sends images of is not forgotten. A mapping frame a received
-   training frame *supersedes* — a camera within :attr:`UpdateConfig.supersede_m` (0.3 m) and
-   :attr:`UpdateConfig.supersede_deg` (30°) of it, the same view later — is not replayed (:func:`superseded`):
-   replaying the old view would teach the model the world before the change the received one shows. A held-out
-   frame supersedes nothing: it is not trained on, and where neither view is trained on the fine-tune learns
-   nothing there and drifts (docs/results.md, "The update's collapse"). A received frame teaches only what it shares
-   with the current model and the changes **another round confirms** (:mod:`gsrmr_offline.change_confirmation`): a
-   change seen once — a person crossing, a flickering light — is replaced by the current model's render in that
-   frame, so it is not burned in (:attr:`UpdateConfig.confirm_changes`; it needs the round each frame came from,
-   ``received_rounds``). The current model is fine-tuned
-   (:func:`update_train_config`: the recipe's rates, the position rate at its final value, the SH degree fixed, no
-   opacity reset; densification on, so a new object can grow Gaussians, up to :attr:`UpdateConfig.growth` more of
-   them; no pruning of what the training views do not see — they see part of the scene) and, optionally, compacted
-   again (:class:`~gsrmr_splat.compact.Compactor`, within :attr:`UpdateConfig.max_psnr_drop_db` of the
-   fine-tuned model on the held-out frames, each Gaussian ranked over every view the model serves: the training
-   frames' and every mapping frame's camera).
-3. **Validates** with the MR loss the live system pays (``score``: in ``gsrmr-update``, the deployment survey's
-   :func:`~gsrmr_offline.frame_loss.frame_loss` — the server's composer at each frame's camera) of the old and the
-   new model on the same held-out frames, and decides by :func:`paired_verdict`: the new model is accepted only
-   when its mean loss is lower by more than ``significance_z`` (2) standard errors of the per-frame differences — a
-   one-sided paired test at about 97.5 %. Why this margin: the renders are deterministic, so the only noise is which
-   frames were held out; a fixed relative margin (say 2 %) would refuse a real but small gain on many frames and
-   accept a large swing on three. Fewer than ``min_holdout_frames`` (6) held-out frames give no verdict: refused.
-4. **Versions** (:func:`write_version`): ``model_vN.ply`` and ``model_vN.json`` (parent version, the rounds and the
-   image slots it saw, the held-out loss before and after, accepted or refused and why, the CPU seconds of
-   fine-tuning and of compaction). A refused model is written too (the record says so); the version in use stays
-   the parent. Setting an older version's ``.ply`` back (the server's ``model_path``) is the rollback.
-
-Units: losses are the MR loss 0.8·L1 + 0.2·(1 − SSIM) of images in [0, 1]; times in CPU seconds of this process.
+"""Between rounds the model learns from what the robot paid to send (pure, no ROS): :func:`update_model` holds out the
+round's most recent received frames, fine-tunes the model in use on the others plus a replay buffer of the mapping
+round (learning only the changes another round confirms), compacts it again, validates it on the held-out frames
+(:func:`paired_verdict`) and :func:`write_version` writes it. The steps and why: docs/model_update.md, "3. Update".
+Losses are the MR loss 0.8·L1 + 0.2·(1 − SSIM) of images in [0, 1]; times are CPU seconds of this process.
 """
 
 from __future__ import annotations
@@ -67,7 +32,7 @@ Scorer = Callable[[GaussianModel, Sequence[DatasetFrame]], Sequence[float]]
 
 @dataclass(frozen=True)
 class UpdateConfig:
-    """How an update trains and decides (module docstring)."""
+    """How an update trains and decides (docs/model_update.md, "3. Update")."""
 
     holdout_frames: int = 16  # the round's most recent received frames, held out to validate
     min_holdout_frames: int = 6  # fewer held out: no verdict (refused)
@@ -212,9 +177,9 @@ def update_model(current: GaussianModel, received: Sequence[DatasetFrame], mappi
                  score: Scorer, train_config: TrainConfig, config: UpdateConfig | None = None,
                  log: Callable[[str], None] = lambda _line: None,
                  received_rounds: Sequence[int] | None = None) -> UpdateResult:
-    """One update (module docstring, 1–3): the candidate and its verdict. ``received_rounds[i]``: the round received
-    frame ``i`` came from (for the change confirmation; None: not confirmed, every received pixel trained on).
-    ValueError when nothing can be trained."""
+    """One update (docs/model_update.md, "3. Update", steps 1–3): the candidate and its verdict.
+    ``received_rounds[i]``: the round received frame ``i`` came from (for the change confirmation; None: not
+    confirmed, every received pixel trained on). ValueError when nothing can be trained."""
     cfg = config or UpdateConfig()
     if received_rounds is not None and len(received_rounds) != len(received):
         raise ValueError(f"update: {len(received)} received frames but {len(received_rounds)} round indices")

@@ -1,13 +1,7 @@
 """``gsrmr-survey MODEL DATASET --out loss_map.json``: the scheduler's seed loss map from the mapping round.
 
-Scores the views of DATASET (a nerfstudio dataset of the robot's frames with ``gsrmr_pose``) that MODEL (a 3DGS
-.ply) was not trained on, as the live server composes and measures them
-(:mod:`gsrmr_offline.deployment_survey`), and writes the :class:`~gsrmr_scheduler.loss_map.LossMap` JSON the
-scheduler's ``loss_map_file`` parameter takes (``server.launch.py loss_map_file:=…``), plus ``<out>.frames.csv``
-(one row per frame). Defaults come from the package's parameter files, as the nodes load them: the MR content and
-background from ``config/server.yaml``, the JPEG quality and uplink width from ``config/robot.yaml``, the loss
-prior from ``config/scheduler.yaml``, the route from ``config/routes/sandbox.yaml``, the mount from
-``config/camera_mount.yaml``. Bad input: one line naming what is wrong and the fix, exit code 2.
+What it surveys, how, and what it writes: docs/scheduling.md, "Seeding the loss map from the mapping round:
+``gsrmr-survey``"; its defaults come from the package's parameter files, as the nodes load them (``--help``).
 """
 
 from __future__ import annotations

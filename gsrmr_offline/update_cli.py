@@ -1,16 +1,8 @@
 """``gsrmr-update MODELS --received DATASET…``: between rounds, the model learns from the images the robot sent.
 
-MODELS is a folder of versions (``model_vN.ply`` + ``model_vN.json``, :mod:`gsrmr_offline.model_update`); its
-first version comes from ``--init MODEL.ply`` (the mapping round's model). Each ``--received`` dataset is what
-``gsrmr-dataset`` made of a server's ``run.mcap`` (docs/dataset_tool.md, "What the server received, as a
-dataset"), oldest first; ``--mapping`` is the mapping round's dataset (the replay buffer). The version in use —
-the newest accepted one — is fine-tuned, compacted again (``--no-compact`` to skip) and validated on the most
-recent received frames, held out, by the MR loss the live server would pay there; a received frame teaches only the
-changes another ``--received`` round saw too (``--no-confirm``: every pixel; composition options as
-``gsrmr-survey``'s); the new version is written either way, accepted or refused with the reason. The last stdout
-line is a JSON object: ``version``, ``parent``, ``accepted``, ``reason``, ``heldout_loss_before``,
-``heldout_loss_after``, ``finetune_cpu_s``, ``compact_cpu_s``, ``model`` (the .ply to use now: the new one if
-accepted, else the parent's — set it as the server's ``model_path``). Bad input: one line, exit code 2.
+MODELS is a folder of versions (:mod:`gsrmr_offline.model_update`). The options and the last stdout line (the new
+version's record as JSON, with ``model``: the .ply to set as the server's ``model_path``): docs/model_update.md,
+"3. Update"; the exit codes: :func:`main`.
 """
 
 from __future__ import annotations

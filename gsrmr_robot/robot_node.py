@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from dataclasses import replace
 import json
-import math
 import threading
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -25,6 +24,7 @@ from std_msgs.msg import Float64MultiArray
 
 from gsrmr_common.interrupts import console_main
 from gsrmr_common.plausibility import Implausible, ScheduleLimits
+from gsrmr_common.pose2d import Pose2D, yaw_from_quaternion
 from gsrmr_common.ros_admission import GatedInputs, ParameterAudit
 from gsrmr_common.ros_node import (
     aligned_timer,
@@ -57,12 +57,7 @@ from gsrmr_robot.scene_change import SceneChangeDetector
 from gsrmr_robot.static_tf import StaticFrames
 from gsrmr_robot.uplink_backlog import UplinkBacklog
 from gsrmr_robot.uplink_camera_port import UplinkCameraPort
-from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, odom_to_map, stale
-
-
-def yaw_of(q) -> float:
-    """Yaw (rad, about +z) of a geometry_msgs/Quaternion."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, stale
 
 
 class RobotNode(Node):
@@ -167,15 +162,16 @@ class RobotNode(Node):
             self._frame_stamp_ns = stamp_ns
 
     def _on_odom(self, msg: Odometry) -> None:
-        p = msg.pose.pose
+        p, q = msg.pose.pose, msg.pose.pose.orientation
         try:
             stamp_ns = stamp_to_ns(msg.header.stamp)
         except ValueError as err:
             self.get_logger().warning(f"odometry refused: {err}", throttle_duration_sec=5.0)
             return
         with self._lock:
-            self._poses.add(stamp_ns, odom_to_map(self.params.map_from_odom, p.position.x, p.position.y,
-                                                  yaw_of(p.orientation)), self.get_clock().now().nanoseconds)
+            odom_pose = (p.position.x, p.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
+            self._poses.add(stamp_ns, Pose2D.of(self.params.map_from_odom).compose(odom_pose),
+                            self.get_clock().now().nanoseconds)
 
     def _on_channel(self, msg: Float64MultiArray) -> None:
         try:

@@ -16,19 +16,10 @@ import numpy as np
 
 from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.link_model import LinkBudget
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.wire import LedgerRow, PoseKey, ScheduleMsg
 from gsrmr_robot.ledger import EnergyLedger
 from gsrmr_robot.scene_change import ChangeProbe, SceneChangeDetector
-
-Pose = tuple[float, float, float]  # (a_m, b_m, theta_rad) of base_link in map
-
-
-def odom_to_map(map_from_odom: Pose, x_m: float, y_m: float, yaw_rad: float) -> Pose:
-    """A pose in ``odom`` expressed in ``map``, given the pose of ``odom`` in ``map`` (θ wrapped to (−π, π])."""
-    a0, b0, t0 = map_from_odom
-    c, s = math.cos(t0), math.sin(t0)
-    return (a0 + c * x_m - s * y_m, b0 + s * x_m + c * y_m, math.atan2(math.sin(t0 + yaw_rad), math.cos(t0 + yaw_rad)))
-
 
 #: A stamp within this of the node's clock is taken to be on it (a driver stamping on another clock — device time, a
 #: bag's — is judged by arrival only).
@@ -56,12 +47,12 @@ class PoseHistory:
     queued odometry, or the oldest queued odometry runs first, arriving fresh with a stamp 2 s old."""
 
     def __init__(self, maxlen: int = 100) -> None:
-        self._poses: deque[tuple[int, Pose]] = deque(maxlen=maxlen)
-        self.latest: Pose | None = None
+        self._poses: deque[tuple[int, Pose2D]] = deque(maxlen=maxlen)
+        self.latest: Pose2D | None = None
         self.latest_arrival_ns: int | None = None
         self.latest_stamp_ns: int | None = None
 
-    def add(self, stamp_ns: int, pose: Pose, arrival_ns: int | None = None) -> bool:
+    def add(self, stamp_ns: int, pose: Pose2D, arrival_ns: int | None = None) -> bool:
         """Keep a pose (``arrival_ns``: when it arrived, default its stamp); a non-finite one is refused (returns
         False)."""
         if not all(math.isfinite(v) for v in pose):
@@ -72,7 +63,7 @@ class PoseHistory:
         self._poses.append((int(stamp_ns), pose))
         return True
 
-    def at(self, stamp_ns: int | None, now_ns: int | None = None, max_age_ns: int | None = None) -> Pose | None:
+    def at(self, stamp_ns: int | None, now_ns: int | None = None, max_age_ns: int | None = None) -> Pose2D | None:
         """The pose nearest in time to ``stamp_ns`` (the latest one when ``stamp_ns`` is None); None when there is none
         or — given ``now_ns`` and ``max_age_ns`` — the newest pose arrived more than ``max_age_ns`` before ``now_ns``
         (the odometry, or this node, stalled: no pose is known for now; :func:`stale`)."""
@@ -93,7 +84,7 @@ class SlotInputs:
     slot: int
     frame: np.ndarray | None  # H×W×3 uint8 RGB, None when no frame is fresh enough
     frame_stamp_ns: int | None  # its capture stamp
-    pose: Pose | None  # at the frame's capture time (the latest pose when there is no frame)
+    pose: Pose2D | None  # at the frame's capture time (the latest pose when there is no frame)
     entry: tuple[int, float] | None  # (x, power_w) of the schedule, None when no schedule covers the slot
     measured_gain: float | None = None  # the radio's channel gain g = |h|² for this slot (None: not measured)
     gain_threshold: float | None = None  # the schedule's in-slot rule: image iff measured_gain ≥ this

@@ -1,8 +1,7 @@
-"""Numba kernel of the exact solver's core dynamic programming (see :mod:`gsrmr_scheduler.exact`).
+"""Numba kernel of the exact solver's dynamic programming (:mod:`gsrmr_scheduler.exact`).
 
-Items are sorted by efficiency ``e = v/w`` (descending). States ``(W, ΔV, node)`` are kept sorted by W with
-strictly increasing ΔV (Pareto). ``node`` indexes a pool of (item toggled, parent node) records, so the
-incumbent's toggles are recovered by following parents to the root (node 0).
+States ``(W, ΔV, node)`` are kept sorted by W with strictly increasing ΔV (Pareto); ``node`` indexes a pool of
+(item toggled, parent node) records, so the incumbent's toggles are recovered by following parents to node 0.
 """
 
 from __future__ import annotations

@@ -1,22 +1,7 @@
-"""Accelerated penalty optimisation (APO, paper Sec. IV) with CVXPY.
+"""Accelerated penalty optimisation (APO, paper Sec. IV) with CVXPY: :func:`solve_apo`.
 
-Relax x ∈ [0,1], add the penalty ``φ(x) = (1/β)·Σ x_t(1 − x_t)`` (joules, added to the energy τΣp) and run
-the difference-of-convex iterations: at iteration n+1 the concave part ``−(1/β)Σx²`` is linearised at
-``x^[n]``, giving the convex problem
-
-    min  τΣ p_t + (1/β)·Σ (1 − 2x^[n]_t)·x_t + const
-    s.t. τB·log2(1 + g_t p_t/σ²) ≥ x_t I + (1 − x_t) S,   Σ L_t (1 − x_t) ≤ T·L_th,   p ≥ 0, 0 ≤ x ≤ 1,
-
-started from the ranking solution. Conditioning: p is substituted by ``p_t = (σ²/g_t)·Q_t·u_t`` with
-``Q_t = 2^{I/τB} − 1`` (u = 1 is exactly an image's power), so the rate constraint reads
-``log(1 + Q_t u_t) ≥ a_t + b_t x_t`` (exp cone) and the objective coefficients are energies, which are
-divided by their largest magnitude. A solve that fails or is "inaccurate" is retried rescaled and then
-with the next solver (CLARABEL → SCS); what happened is recorded per iteration.
-
-At the end x is rounded at 0.5 — the paper's APO stops here, and that result is reported first
-(``extras["paper"]``: energy, mean loss, images, whether it meets the budget). Ours adds one named,
-optional post-step, ``repair`` (on by default): if the rounding broke the loss budget, the keys with the
-lowest saving per unit loss turn back into images. p is recomputed in closed form.
+The penalty, the difference-of-convex iterations, the substitution that conditions the exponential cone, the solver
+chain and the optional post-step ``repair_budget`` (ours): docs/scheduling.md, "``apo`` (paper Sec. IV)".
 """
 
 from __future__ import annotations

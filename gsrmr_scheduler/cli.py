@@ -1,9 +1,6 @@
-"""``gsrmr-schedule``: solve a P_GS instance from JSON, or write a paper-default instance.
+"""``gsrmr-schedule``: solve a P_GS instance from JSON, or write a paper-default instance (``make-problem``).
 
-    gsrmr-schedule PROBLEM.json --method NAME [--option KEY=VALUE ...] [-o OUT.json]
-    gsrmr-schedule make-problem --slots T --seed N [--loss-threshold L] [--loss-max L] [-o OUT.json]
-
-Bad input exits with status 2 and one line naming the field; no traceback.
+Usage, input and output keys, and the one-line errors (exit code 2): docs/scheduling.md, "CLI"; ``--help``.
 """
 
 from __future__ import annotations

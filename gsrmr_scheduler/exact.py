@@ -1,19 +1,8 @@
-"""Certified optimum of P_GS: with x binary P_GS is a 0-1 knapsack with real weights.
+"""Certified optimum of P_GS (``exact``): with x binary, P_GS is a 0-1 knapsack with real weights, solved here by a
+Pisinger-style expanding core with Pareto dynamic programming (its core: :mod:`gsrmr_scheduler._knapsack_kernel`).
 
-With x fixed, the rate constraint is tight at the optimum, so ``E(x) = Σ_t [x_t·E^img_t + (1−x_t)·E^key_t]``.
-Choosing a key in slot t saves ``v_t = E^img_t − E^key_t > 0`` joules and spends ``w_t = L_t`` of the loss
-budget ``C = T·L_th``: minimising energy ⇔ ``max Σ v_t·y_t  s.t.  Σ w_t·y_t ≤ C, y ∈ {0,1}`` (y = 1 − x).
-Slots with ``L_t = 0`` are always keys; slots that cannot carry an image are forced keys (their loss is
-taken from C first; if it exceeds C the problem is infeasible).
-
-Algorithm (Pisinger-style expanding core with Pareto dynamic programming): sort items by efficiency
-``e = v/w``, take the greedy break solution (items before the break item b are keys), then alternately
-let the next item before the core be removed and the next item after it be added. States ``(W, ΔV)``
-(weight, value relative to the break solution) are kept Pareto-optimal and fathomed with a valid upper
-bound (LP bound with the efficiencies of the next unprocessed items, tightened by the smallest remaining
-weight). When no state can beat the incumbent the incumbent is optimal (gap 0, to a relative tolerance of
-1e-12 of the saved energy). Past ``time_limit_s`` (or ``max_states``) the incumbent is returned with the
-certified relative gap ``(E − E_lb)/E_lb``, E_lb from the largest live bound.
+The reduction, the bound, the tolerance and the certified gap past ``time_limit_s``: docs/scheduling.md, "P_GS is a
+0-1 knapsack once x is binary" and "``exact``: certified optimum".
 """
 
 from __future__ import annotations

@@ -14,6 +14,7 @@ from gsrmr_common.plausibility import (
     ledger_image_sent,
     ledger_problem,
 )
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.wire import LedgerRow, LossSample, MRSlotInfo
 
 #: Slots whose ledger rows and pose keys the loss-sample check remembers.
@@ -25,7 +26,6 @@ LOSS_WAIT_SLOTS = 20
 #: At most this many loss samples wait for their ledger rows.
 LOSS_WAITING_MAX = 16
 
-Pose = tuple[float, float, float]
 
 
 @dataclass(frozen=True)
@@ -50,7 +50,7 @@ class SchedulerIntake:
         self.poses = PoseTrack(max_speed_mps, slot_s)
         self.loss_check = LossSampleCheck(MEMORY_SLOTS)
         self._ledger_x: OrderedDict[int, int] = OrderedDict()  # slot → what the robot's ledger row says it did
-        self._key_poses: OrderedDict[int, Pose] = OrderedDict()  # slot → its accepted key
+        self._key_poses: OrderedDict[int, Pose2D] = OrderedDict()  # slot → its accepted key
         self._waiting: dict[int, LossSample] = {}  # samples whose slot's ledger row has not come yet
         self._first_ledger_slot: int | None = None
         self.loss_samples_unverified = 0
@@ -72,7 +72,7 @@ class SchedulerIntake:
         self._first_ledger_slot = row.slot if first is None else min(row.slot, first)
         return x, self._waiting.pop(row.slot, None)
 
-    def key(self, slot: int, pose: Pose) -> bool:
+    def key(self, slot: int, pose: Pose2D) -> bool:
         """A valid pose key; False (counted ``pose_jump``) when it moved faster than the robot drives."""
         if not self.poses.offer(slot, pose[0], pose[1]):
             self.implausible["pose_jump"] += 1

@@ -1,25 +1,7 @@
-"""Loss map over robot poses: what the GS render costs (MR loss L_t) where, learned online.
+"""Loss map over robot poses: the MR loss L_t of the GS render where the robot is, learned online (pure Python/numpy).
 
-The server measures the true L_t whenever an image arrives (it renders Φ(s_t) at that slot's pose
-and compares). Those samples land in a grid over the ``map`` plane (cell size ``cell_m`` metres) and
-heading (``heading_bins`` sectors of 2π/heading_bins, 0 = facing +x). The scheduler predicts L_t at
-future poses from the same map: the cell's estimate if it has samples, else the inverse-distance
-weighted mean of sampled cells of the same heading sector within ``radius_m``, else ``prior``.
-
-Each cell keeps an exponentially weighted mean (``forgetting`` = weight of the newest sample once a
-cell has more than 1/forgetting samples) so the map follows a world that changes during a round. A sample
-enters it clipped to [mean / ``outlier_factor``, mean × ``outlier_factor``] (``outlier_factor`` = 20, the bound
-of :data:`gsrmr_scheduler.loss_predictor.MAX_LOG_DEVIATION`; the mean floored at 10⁻³ for the upper bound): a sample of
-the metric's maximum counts as 20× its cell, not as 60×, while a lasting change is followed at once. Clean rounds
-do not reach the bound: a loss sample lay at most 13.0× from its cell's mean in the 2146 image slots of 20 recorded
-rounds (``gsrmr-plausibility-replay --seed-map``; a bound of 4× would have clipped about one sample in eight).
-``image_loss`` (optional) is the mean MR loss an *image* slot leaves — its JPEG — measured where the map
-was made (the mapping-round survey encodes each frame at the robot's quality). ``sample_offset`` (optional) is
-the mean by which the live server's loss samples read above the loss the map holds, measured there too: the
-server scores its render against the composite of the decoded JPEG (it has no other), the map and the loss budget
-against the camera's frame, and the JPEG's error adds to every sample
-(:func:`gsrmr_offline.frame_loss.frame_loss`). The map's cells, like the samples the scheduler adds to them, are
-losses against the frame. Pure Python/numpy; JSON save/load so a run can seed the next one.
+Poses are (a_m, b_m, theta_rad) in ``map`` (θ = 0 faces +x); losses are MR losses against the camera's frame. The
+grid, how it predicts, forgets and bounds a sample: docs/scheduling.md, "The loss map: grid, prediction, bounds".
 """
 
 from __future__ import annotations

@@ -1,43 +1,10 @@
-"""L_t predicted along the route and through the round, corrected online (pure; used by the scheduler).
+"""L_t predicted along the route and through the round, corrected online: the burst model (pure; the planner's default).
 
-What a deployment knows before round 2 is the **mapping round**: the seed :class:`~gsrmr_scheduler.loss_map.LossMap`
-holds the model's MR loss L at the route's poses in the world as it was mapped. Round 2 differs from it in
-two ways the seed cannot see, and the sandbox demo shows both (``gsrmr-planner-replay``):
-
-* a steady offset — the reported pose carries odometry error and the model renders a view it was not
-  trained on — that makes the measured L about 1.2× the seed's everywhere;
-* **bursts**: changes in the world (a light switched, a crate moved, a bag dropped) raise L 3–5× for the
-  20–60 slots in which they are in view.
-
-So the predictor works on the log-ratio ℓ = ln(L_measured / L_seed(pose)) that each image slot measures,
-and models it as a level μ plus a burst that decays back to it (an Ornstein–Uhlenbeck process in time):
-
-* μ is the median of the measured log-ratios so far (robust to the bursts; 0 before the first sample);
-* a future slot t predicts ℓ̂(t) = μ + (ℓ_last − μ)·exp(−(t − t_last)/τ) from the last measurement
-  (``burst_time_constant_slots`` τ: how long a change stays in view);
-* a past *key* slot (no measurement of its own) is estimated by interpolating ℓ linearly between the
-  measurements before and after it — the run's loss spent so far is re-estimated as measurements arrive —
-  unless the robot's scene-change test fired in between (:meth:`LossPredictor.note_change`, the ledger's
-  ``scene_change``): then the world changed *at* that slot, not gradually, and the slots before it take the
-  earlier measurement's ℓ, the slots from it on the later one's (a **step**). Interpolated across a light switched
-  off, the slots still lit were charged as half dark, and across one switched on the dark slots as half lit:
-  over the 123 recorded runs of ``gsrmr-key-estimates`` the step cuts the spread of the round's booked mean loss
-  by a quarter (sd 0.00084 → 0.00063)
-  (``docs/scheduling.md``, "Change slots, missed uploads and a 1 % back-off: measured");
-* the **safety margin is learned**, conformal style: every measurement is compared with what the planner
-  had predicted for that slot when it planned it, and predictions are multiplied by the
-  ``margin_quantile`` (0.75) of those measured/predicted ratios over the last ``margin_window`` (30) samples
-  (1 until 3 samples; clipped to [1/4, 4]). Instead of a fixed ``loss_margin`` the margin is what the run's
-  own errors say it must be: P(measured ≤ margin × predicted) ≈ the quantile on recent slots.
-
-Robust to one writer's outliers: a measured ℓ enters clipped to μ ± ``ln 20`` (:data:`MAX_LOG_DEVIATION`: the
-bursts seen are 3–5×, so they pass whole) around the level so far — one sample of 0 or of the metric's maximum
-moves the burst prediction by at most 20× for τ slots and the level (a median) hardly at all —, while a lasting
-change moves the median within half the history. The scheduler takes one sample per slot, after its plausibility
-checks (:class:`gsrmr_common.plausibility.LossSampleCheck`).
-
-Loss values are the MR loss ``(1 − λ)·L1 + λ·(1 − SSIM)`` (λ = 0.2) of images in [0, 1]; poses are
-(a_m, b_m, theta_rad) in ``map``; slots are absolute slot indices.
+:class:`LossPredictor` works on the log-ratio ℓ = ln(L_measured / L_seed(pose)) of each measured image slot: a level
+μ (their median), a burst that decays back to it, key slots estimated between measurements (a step at a scene change
+the robot saw), a learned margin, and a bound on one sample's weight — docs/scheduling.md, "The live loop", items 1
+and 2; docs/security.md, "Plausibility, even from the right writer". Losses are MR losses of images in [0, 1]; poses
+are (a_m, b_m, theta_rad) in ``map``; slots are absolute slot indices.
 """
 
 from __future__ import annotations
@@ -47,6 +14,7 @@ import math
 
 import numpy as np
 
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_scheduler.loss_map import LossMap
 
 _FLOOR = 1e-4  # a seed value below this carries no ratio information
@@ -55,7 +23,8 @@ MAX_LOG_DEVIATION = math.log(20.0)
 
 
 class LossPredictor:
-    """Seed map × an online, decaying correction, with a learned margin (see the module docstring)."""
+    """Seed map × an online, decaying correction, with a learned margin (docs/scheduling.md, "The live loop",
+    items 1 and 2)."""
 
     def __init__(self, seed_map: LossMap, *, burst_time_constant_slots: float = 25.0, margin_quantile: float = 0.75,
                  margin_window: int = 30, history_slots: int = 600) -> None:
@@ -71,7 +40,7 @@ class LossPredictor:
         self._changes: deque[int] = deque(maxlen=int(history_slots))  # slots the robot's change test fired in
 
     # ------------------------------------------------------------------ measurements
-    def observe(self, slot: int, pose: tuple[float, float, float], loss: float,
+    def observe(self, slot: int, pose: Pose2D, loss: float,
                 predicted: float | None = None) -> None:
         """An image slot's measured L at ``pose``; ``predicted``: what the plan had predicted for it."""
         if not math.isfinite(loss) or loss < 0:
@@ -92,7 +61,7 @@ class LossPredictor:
 
     def note_change(self, slot: int) -> None:
         """The robot's scene-change test fired on ``slot``'s frame: key slots between the measurements around it
-        are estimated as a step there (module docstring)."""
+        are estimated as a step there (:meth:`estimate`)."""
         if slot not in self._changes:
             self._changes.append(int(slot))
 
@@ -103,7 +72,8 @@ class LossPredictor:
 
     @property
     def margin(self) -> float:
-        """The learned factor on predictions (the ``margin_quantile`` of measured/predicted)."""
+        """The learned factor on predictions: the ``margin_quantile`` of measured / predicted over the last
+        ``margin_window`` ratios (1 with fewer than 3; clipped to [1/4, 4])."""
         if len(self._errors) < 3 or self.margin_quantile <= 0:
             return 1.0
         return float(np.clip(np.quantile(self._errors, self.margin_quantile), 0.25, 4.0))
@@ -147,9 +117,10 @@ class LossPredictor:
         """Expected L_t for future ``slots`` at predicted ``poses`` (N×3); the learned margin not included."""
         return self.seed_map.predict_many(poses) * self.ratio_ahead(slots)
 
-    def estimate(self, slot: int, pose: tuple[float, float, float]) -> float:
+    def estimate(self, slot: int, pose: Pose2D) -> float:
         """Best estimate (no margin) of the L a past key slot left, from the measurements around it: ℓ
-        interpolated, or a step at the first change the robot found between them (module docstring)."""
+        interpolated, or a step at the first change the robot found between them: the slots before the change take
+        the earlier measurement's ℓ, the slots from it on the later one's."""
         return float(self.seed_map.predict(*pose) * math.exp(self._stepped_log_ratio(slot)))
 
     def _stepped_log_ratio(self, slot: int) -> float:

@@ -1,12 +1,6 @@
 """The GSCLO problem P_GS (paper Sec. III) and the schedule every method returns (pure, no rclpy).
 
-P_GS: slots t = 0..T−1 of τ = ``slot_s`` seconds; ``x_t = 1`` uploads an image of I = ``image_bits``,
-``x_t = 0`` a pose key of S = ``pose_bits``. Minimise ``τ·Σ p_t`` s.t. ``τ·R_t(p_t) ≥ x_t·I + (1−x_t)·S``,
-``Σ L_t·(1−x_t) ≤ T·L_th``, ``p ≥ 0``, ``x ∈ {0,1}``. ``L_t`` = ``gs_loss[t]`` is the MR loss added when
-slot t uses the GS render instead of the image (dimensionless, same scale as ``loss_threshold``).
-
-Units: ``slot_s`` s, ``image_bits``/``pose_bits`` bits, ``bandwidth_hz`` Hz, ``noise_w`` W (σ²),
-``channel_gain`` dimensionless power gain ``|h_t|²``, energies J, powers W.
+:class:`Problem` states P_GS and its units; the knapsack view and the log-domain rules: docs/scheduling.md.
 """
 
 from __future__ import annotations
@@ -59,7 +53,35 @@ def _array(name: str, value: Any) -> np.ndarray:
 
 @dataclass
 class Problem:
-    """One P_GS instance (validated on construction; raises :class:`ProblemError`)."""
+    """One P_GS instance: T slots of τ = ``slot_s`` seconds, validated on construction.
+
+    In slot t, ``x_t = 1`` uploads an image of I = ``image_bits``, ``x_t = 0`` a pose key of S = ``pose_bits``, at a
+    power p_t (W). P_GS minimises the energy τ·Σ p_t (J) subject to τ·B·log2(1 + g_t·p_t/σ²) ≥ x_t·I + (1 − x_t)·S,
+    Σ L_t·(1 − x_t) ≤ T·L_th, p ≥ 0 and x ∈ {0, 1} (docs/scheduling.md, "Units and conventions").
+
+    Args:
+        channel_gain: g_t per slot: the dimensionless power gain ``|h_t|²`` (T values ≥ 0).
+        gs_loss: L_t per slot: the MR loss added when slot t is composed from the GS render instead of the image
+            (dimensionless, the scale of ``loss_threshold``; T values ≥ 0).
+        loss_threshold: L_th, the mean MR loss per slot allowed (≥ 0).
+        slot_s: τ, the slot length (s).
+        image_bits: I, the image's payload (bits; more than ``pose_bits``).
+        pose_bits: S, the pose key's payload (bits).
+        bandwidth_hz: B, the bandwidth (Hz).
+        noise_w: σ², the noise and interference power (W).
+        energy_budget_j: the energy (J) the rate-allocation baselines ``maxrate`` and ``fairness`` spend; None:
+            another method's energy (:func:`gsrmr_scheduler.solve.solve`, ``budget_from``).
+
+    Raises:
+        ProblemError: an input that is not a finite number (or list of them) in its range, gain and loss lists of
+            different lengths, or ``image_bits`` ≤ ``pose_bits``; its ``field`` names the input.
+
+    Example:
+        Three slots; a key instead of an image saves :attr:`saving_j` joules per slot::
+
+            problem = Problem(channel_gain=[2e-6, 5e-7, 1e-6], gs_loss=[0.02, 0.05, 0.01], loss_threshold=0.02)
+            problem.saving_j, problem.loss_budget  # J per slot; T·L_th = 0.06
+    """
 
     channel_gain: np.ndarray
     gs_loss: np.ndarray
@@ -219,11 +241,31 @@ class Problem:
 
 @dataclass
 class Schedule:
-    """Result of one method: per-slot decision, power, and diagnostics.
+    """The result of one method: per-slot decision and power, and diagnostics.
 
-    ``x`` int8 (1 image, 0 key), ``power_w`` float64 W (allocated transmit power), ``energy_j`` = τ·Σ p,
-    ``mean_loss`` = (1/T)·Σ loss of the delivered content, ``delivered`` per slot ``image``/``key``/``none``,
-    ``optimality_gap`` relative energy gap ``(E − E_lb)/E_lb`` certified by a bound (only ``exact``).
+    Args:
+        method: the method's name (a key of :data:`gsrmr_scheduler.solve.METHODS`).
+        x: per slot 1 = image, 0 = pose key (int8, T values).
+        power_w: the transmit power allocated per slot (W, float64; 0 W where the slot delivers nothing).
+        energy_j: the energy τ·Σ p_t (J).
+        mean_loss: (1/T)·Σ of the MR loss the slots leave: L_t for a key, 0 for an image, an undelivered slot as
+            the method charges it (dimensionless).
+        feasible: every slot delivers what x says and the loss budget holds (``maxrate`` and ``fairness``: the
+            mean loss ≤ L_th and the energy within their budget).
+        solve_time_s: the solve's wall-clock time (s).
+        iterations: what the method counts as its iterations or steps.
+        history: per-iteration records (``apo``), else None.
+        optimality_gap: ``exact`` only: the certified relative energy gap (E − E_lb)/E_lb (0: optimal); else None.
+        delivered: per slot ``"image"``, ``"key"`` or ``"none"``.
+        notes: one-line remarks (why infeasible, a repair, where the budget came from).
+        extras: method-specific values (``apo``'s ``paper`` result, ``exact``'s ``energy_lower_bound_j`` …).
+
+    Example:
+        ::
+
+            sched = solve(problem, "exact")  # gsrmr_scheduler.solve.solve
+            sched.x, sched.power_w, sched.energy_j
+            json.dumps(sched.to_json())      # the CLI's output
     """
 
     method: str
@@ -241,7 +283,7 @@ class Schedule:
     extras: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
-        """JSON-ready dict: the issue's CLI keys plus ``delivered``, ``notes`` and ``extras``."""
+        """JSON-ready dict: the CLI's output keys (docs/scheduling.md, "CLI")."""
         return {
             "method": self.method,
             "x": [int(v) for v in self.x],

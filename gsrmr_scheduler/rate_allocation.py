@@ -1,15 +1,7 @@
-"""The physical-layer baselines of the paper's Sec. V on P_GS (pure numpy): maxrate and fairness.
+"""The physical-layer baselines of the paper's Sec. V on P_GS (pure numpy): ``maxrate`` and ``fairness``.
 
-Both ignore the MR loss: they spend an energy budget by water-filling (``maxrate``) or max-min rate
-(``fairness``). A slot whose allocated bits ``τ·R_t`` reach I delivers its image, else the key if they reach
-S, else nothing. A delivered key costs ``L_t``; an undelivered slot costs ``undelivered_loss`` (default
-``"gs"``: ``L_t``, i.e. the server renders the GS view at a dead-reckoned pose, an optimistic charge; a
-number charges that loss instead).
-
-The budget is ``energy_budget_j``, else the problem's ``energy_budget_j``. Without either,
-:func:`gsrmr_scheduler.solve.solve` gives them the energy of another method (its ``budget_from``
-option; the paper uses APO's energy): that method is solved through the registry, which these solvers do
-not import.
+Both ignore the MR loss and spend an energy budget; what a slot then delivers, the charge of an undelivered slot
+(``undelivered_loss``) and where the budget comes from: docs/scheduling.md, "Baselines".
 """
 
 from __future__ import annotations

@@ -22,6 +22,7 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from gsrmr_common.interrupts import console_main
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.ros_admission import GatedInputs, ParameterAudit
 from gsrmr_common.ros_node import declare_link_budget, declare_parameters, diagnostics_msg, run_node
 from gsrmr_common.ros_wire import (
@@ -67,7 +68,7 @@ class SchedulerNode(Node):
         self.planner = OnlinePlanner(p.planner_config(loss_map), RoutePredictor(p.waypoints, p.route_speed_mps),
                                      loss_map, p.link)
         self._lock = threading.RLock()
-        self._pose: tuple[float, float, float] | None = None
+        self._pose: Pose2D | None = None
         self._replan_reason: str | None = "start"
         self._new_loss_map: LossMap | None = None  # a loss_map_file read by the on-set check, for the post-set
         self.log = ReplanLog()

@@ -1,12 +1,8 @@
-"""The scheduler node's parameters (:class:`SchedulerParameters`): names, defaults, descriptors and rules (pure,
-no ROS; no renderer either: see the import contracts in pyproject.toml).
+"""The scheduler node's parameters (:class:`SchedulerParameters`): names, defaults, descriptions, ranges and the rules a
+change must meet (pure, no ROS); :meth:`SchedulerParameters.planner_config` maps them onto the planner's.
 
-:class:`gsrmr_scheduler.scheduler_node.SchedulerNode` declares them, refuses a change
-:meth:`SchedulerParameters.change_problem` gives a reason for (on-set callback) and applies an accepted one by
-replacing its ``params`` (post-set callback): a change of a :data:`PLANNING_PARAMETERS` one updates the planner
-and requests a replan, ``replan_period_s`` re-times the replan timer — live changes only when the node was started
-with ``live_parameter_changes`` (off by default: without SROS2 any participant can call the parameter service); the
-others are read-only, among them the writer lists of the known-writer checks (``docs/security.md``).
+How the node applies a change: docs/nodes.md, "The scheduler"; which are live, and only with
+``live_parameter_changes``: docs/security.md, "Services, parameters, readers".
 """
 
 from __future__ import annotations

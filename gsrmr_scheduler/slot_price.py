@@ -1,17 +1,7 @@
-"""The in-slot image/key rule (pure): a price on the loss budget, turned into per-slot gain thresholds.
-
-The plan knows L_t (predicted) and the channel's *statistics* (mean gain m_t = ρ0·d_t^−α, Rician
-fading of factor K with E|h|² = 1), not the fade each slot will see; the robot measures g_t at the start
-of slot t. Taking a key instead of an image in slot t saves ``v_t(g) = c/g`` joules
-(``c = τσ²·(expm1(a_I) − expm1(a_S))``, a = bits·ln2/(τB)) and spends L_t of the loss budget. The
-Lagrangian of the budget-constrained problem gives the rule "key iff v_t(g_t) ≥ λ·L_t", i.e.
-
-    image iff g_t ≥ g*_t = c / (λ·L_t)        (L_t = 0: always a key, g* = +inf)
-
-with the price λ (J per unit of loss) set so that the *expected* loss of the rule over the horizon,
-``Σ L_t·P(g_t < g*_t) = Σ L_t·F_K(g*_t / m_t)``, equals the horizon's loss budget. F_K, the CDF of the
-Rician power, is taken from a fixed set of 4096 seeded draws (its mean normalised to 1). An image sent in
-a deep fade is what this avoids: with K = 1 the fade alone spreads an image's energy over decades.
+"""The in-slot image/key rule (pure): a price λ on the loss budget (J per unit of loss), turned into per-slot gain
+thresholds: the robot sends an image in slot t iff the gain its radio measures (a dimensionless ``|h|²``) reaches
+``g*_t = c/(λ·L_t)``, c in J (:func:`saving_coefficient_j`). The derivation and the expected-loss condition that
+sets λ: docs/scheduling.md, "The in-slot rule: the price and the gain thresholds".
 """
 
 from __future__ import annotations
@@ -41,10 +31,10 @@ def gain_thresholds(mean_gain: np.ndarray, loss: np.ndarray, loss_cap: float, co
     (λ = 0, g* = +inf); images in all but the deepest fades when nothing fits (λ = +inf).
 
     Slots whose fade is among the deepest ``DEEP_FADE_FRACTION`` never send an image (the threshold is at
-    least that quantile of m_t·|h|²), even when nothing fits (λ = +inf).
+    least that quantile of ``m_t·|h|²``), even when nothing fits (λ = +inf).
 
     ``min_image_prob`` (exploration): every slot with L_t > 0 sends an image at least when its fade is in
-    the best ``min_image_prob`` fraction (g*_t capped at that quantile of m_t·|h|²) — cheap images that
+    the best ``min_image_prob`` fraction (g*_t capped at that quantile of ``m_t·|h|²``) — cheap images that
     keep measuring L_t where the predictions may be wrong (a scalar, or one fraction per slot). The
     expected loss returned includes it."""
     thresholds, lam, _ = _price(mean_gain, loss, loss_cap, coeff_j, samples)

@@ -1,8 +1,8 @@
-"""One entry point for every method: ``solve(problem, method, **options)`` → :class:`Schedule`.
+"""One entry point for every method: :func:`solve` (``solve(problem, method, **options)`` → a
+:class:`~gsrmr_scheduler.problem.Schedule`).
 
-The registry of methods (:data:`METHODS`) lives here and nowhere else; a method that needs another one's
-result gets it through :func:`solve` (the rate-allocation baselines' reference budget, ``budget_from``), so no
-solver module imports the registry.
+The registry :data:`METHODS` lives here and nowhere else: a method that needs another one's result (the
+rate-allocation baselines' ``budget_from``) gets it through :func:`solve`, so no solver module imports the registry.
 """
 
 from __future__ import annotations
@@ -46,12 +46,41 @@ def method_options(method: str) -> list[str]:
 
 
 def solve(problem: Problem, method: str, **options: Any) -> Schedule:
-    """Solve P_GS with ``method`` (a key of :data:`METHODS`).
+    """Solve P_GS with one method: the single entry point to every solver.
 
-    ``time_limit_s`` is honoured by ``exact`` (returns a certified gap), ``apo`` (stops iterating),
-    ``search`` and ``exchange``; the closed-form methods ignore it. Raises ``ValueError`` for an unknown
-    method or option.
-    The result is checked: no NaN/inf, no negative power, and ``feasible`` only if the loss budget holds.
+    Every result is checked before it is returned: no NaN or inf, no negative power, and ``feasible`` only if the
+    loss budget ``Σ L_t·(1 − x_t) ≤ T·L_th`` holds.
+
+    Args:
+        problem: the instance (gains dimensionless ``|h|²``, payloads in bits, noise in W, slots of
+            τ = ``problem.slot_s`` seconds).
+        method: a key of :data:`METHODS` (``"exact"``, ``"apo"``, ``"ranking"``, …).
+        **options: the method's keyword options (:func:`method_options` names them). ``time_limit_s`` (s, > 0)
+            is accepted by every method and honoured by ``exact`` (it returns the incumbent with a certified
+            gap), ``apo`` (it stops iterating), ``search`` and ``exchange``; the closed-form methods ignore it.
+            ``maxrate`` and ``fairness`` also take ``budget_from``: the method whose energy (J) is their budget
+            when neither their ``energy_budget_j`` nor the problem's gives one (default ``"exact"``).
+
+    Returns:
+        :class:`~gsrmr_scheduler.problem.Schedule`: per slot x (1 = image) and power (W), the energy (J),
+        the mean loss, ``feasible``, and the wall-clock seconds of this call at least (``solve_time_s``).
+
+    Raises:
+        ValueError: an unknown method or option, ``time_limit_s`` ≤ 0, or a ``budget_from`` that is not a method
+            choosing its own energy.
+
+    Example:
+        A 288-slot instance on the paper's route (Rician channel, seed 1), solved to optimality::
+
+            import numpy as np
+            from gsrmr_common.channel import ChannelModel, paper_route_distances
+            from gsrmr_scheduler.problem import Problem
+            from gsrmr_scheduler.solve import solve
+
+            gains = ChannelModel(seed=1).gains(paper_route_distances(288))
+            losses = np.random.default_rng(0).uniform(0.0, 0.096, 288)
+            sched = solve(Problem(channel_gain=gains, gs_loss=losses, loss_threshold=0.03), "exact")
+            sched.energy_j, sched.mean_loss, sched.optimality_gap  # J, ≤ 0.03, 0.0: certified optimal
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")

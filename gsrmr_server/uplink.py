@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass, field
-import math
 
+from gsrmr_common.pose2d import wrap_angle
 from gsrmr_common.wire import PoseKey, UplinkFault
 
 
@@ -93,7 +93,7 @@ class UplinkAssembler:
         last = self._last_pose
         if last is not None and key.slot > last.slot:
             n = key.slot - last.slot
-            dtheta = math.atan2(math.sin(key.theta_rad - last.theta_rad), math.cos(key.theta_rad - last.theta_rad))
+            dtheta = wrap_angle(key.theta_rad - last.theta_rad)
             self._velocity = ((key.a_m - last.a_m) / n, (key.b_m - last.b_m) / n, dtheta / n)
         if last is None or key.slot > last.slot:
             self._last_pose = key

@@ -32,10 +32,11 @@ import numpy as np
 
 from gsrmr_common.camera import Intrinsics
 from gsrmr_common.link_model import SLOT_S, LinkBudget
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.slot_clock import SlotClock
 from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
 from gsrmr_common.wire import LedgerRow, PoseKey
-from gsrmr_robot.uplink_core import Pose, PoseHistory, SlotDecision, SlotInputs, UplinkCore
+from gsrmr_robot.uplink_core import PoseHistory, SlotDecision, SlotInputs, UplinkCore
 from gsrmr_server.ledger_book import SlotPlan
 from gsrmr_server.recording import RunRecorder
 from gsrmr_server.scoring import score_slot
@@ -80,10 +81,10 @@ class RobotSide:
         self.core = UplinkCore(link or LinkBudget(), slot_s, jpeg_quality, default_upload_image=True)
         self.poses = PoseHistory()
 
-    def run_slot(self, slot: int, frame: np.ndarray | None, frame_stamp_ns: int, pose: Pose,
+    def run_slot(self, slot: int, frame: np.ndarray | None, frame_stamp_ns: int, pose: Pose2D,
                  entry: tuple[int, float] | None = None) -> SlotDecision:
         """Slot ``slot``: odometry ``pose`` at ``frame_stamp_ns``, the frame taken then, the schedule's entry."""
-        self.poses.add(frame_stamp_ns, pose)
+        self.poses.add(frame_stamp_ns, Pose2D(*pose))
         return self.core.run_slot(SlotInputs(slot, frame, frame_stamp_ns if frame is not None else None,
                                              self.poses.at(frame_stamp_ns), entry))
 

@@ -18,7 +18,7 @@ import time
 
 from gsrmr_common.nerfstudio import holdout_split, read_dataset
 from gsrmr_sim.world.recorder import record_round1, with_resolution
-from gsrmr_sim.world.scene import Scene, load_scene, resolve_scene_path
+from gsrmr_sim.world.scene import Scene, load_scene, scene_cache_text
 from gsrmr_splat.compact import CompactConfig, Compactor
 from gsrmr_splat.model import GaussianModel
 from gsrmr_splat.train import HistoryRow, Trainer
@@ -43,10 +43,10 @@ class ModelRecipe:
     eval_every: int = 0  # held-out PSNR every n iterations (0: at the end only)
 
     def key(self) -> str:
-        """Cache key: the scene file's text, this recipe and :data:`CACHE_VERSION`, hashed."""
+        """Cache key: the scene (:func:`scene_cache_text`), this recipe and :data:`CACHE_VERSION`, hashed."""
         recipe = asdict(self)
         recipe["config"] = self.config.to_dict()
-        blob = resolve_scene_path(self.scene).read_text() + json.dumps(recipe, sort_keys=True, default=str)
+        blob = scene_cache_text(self.scene) + json.dumps(recipe, sort_keys=True, default=str)
         return hashlib.sha256(f"{blob}v{CACHE_VERSION}".encode()).hexdigest()[:12]
 
     def recorded_scene(self) -> Scene:

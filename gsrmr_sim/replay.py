@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_robot.scene_change import ChangeProbe
 from gsrmr_scheduler.planner import OnlinePlanner
 from gsrmr_sim.hindsight import hindsight_optimum
@@ -23,7 +24,7 @@ class RecordedSlot:
     """One slot of a recorded run: the world as it was, whatever the scheduler did."""
 
     slot: int
-    pose: tuple[float, float, float]  # (a_m, b_m, theta_rad) the robot reported, map frame
+    pose: Pose2D  # (a_m, b_m, theta_rad) the robot reported, map frame
     gain: float  # channel power gain the radio measured (linear)
     energy_image_j: float
     energy_key_j: float
@@ -95,7 +96,7 @@ class TruthLossPredictor:
         """The recorded truth of ``slots``."""
         return np.array([self._truth.get(int(k), self._default) for k in slots], np.float64)
 
-    def estimate(self, slot: int, _pose: tuple[float, float, float]) -> float:
+    def estimate(self, slot: int, _pose: Pose2D) -> float:
         """The recorded truth of ``slot``."""
         return self._truth.get(int(slot), self._default)
 
@@ -107,7 +108,7 @@ def replay(slots: list[RecordedSlot], planner: OnlinePlanner, *, loss_threshold:
            measurement_delay: int = 1, on_plan: Callable[[int, object], None] | None = None,
            observe_keys: bool = False, scene_changes: Collection[int] = (),
            change_probe: ChangeProbe | None = None,
-           mean_gain: Callable[[tuple[float, float, float]], float] | None = None) -> ReplayResult:
+           mean_gain: Callable[[Pose2D], float] | None = None) -> ReplayResult:
     """Play ``slots`` through ``planner`` (a fresh :class:`OnlinePlanner`); see the module docstring.
     ``observe_keys`` (a hindsight study, never live): the L_t forecast also learns every *key* slot's loss sample,
     as if each slot had been measured — what knowing the past exactly is worth. ``scene_changes``: the slots in
@@ -120,7 +121,7 @@ def replay(slots: list[RecordedSlot], planner: OnlinePlanner, *, loss_threshold:
     changes = frozenset(int(k) for k in scene_changes)
     x = np.zeros(len(slots), np.int8)
     pending: list[tuple[int, RecordedSlot, bool]] = []  # (index when it arrives, slot measured, an image slot)
-    pose: tuple[float, float, float] | None = None
+    pose: Pose2D | None = None
     replan_due, replans, plan_time = True, 0, 0.0
     since_plan = 0
     for i, s in enumerate(slots):

@@ -26,6 +26,7 @@ from gsrmr_common import tf_tree
 from gsrmr_common.calibration import PLUMB_BOB, CameraCalibration, rectified_intrinsics
 from gsrmr_common.camera import CameraMount, Intrinsics, camera_from_pose, camera_to_world_from_pose
 from gsrmr_common.jpeg import encode_jpeg
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.wire import JPEG_FORMAT
 from gsrmr_sim.world.kinematics import Drive, drive_route, start_pose, unicycle_step
 from gsrmr_sim.world.points import make_world
@@ -125,7 +126,7 @@ class TruthFrame:
     index: int
     stamp_ns: int
     log_time_ns: int
-    pose: tuple[float, float, float]
+    pose: Pose2D
     map_from_optical: np.ndarray = field(repr=False)
     blurred: bool
     blur_length_px: int
@@ -154,7 +155,7 @@ class RobotBag:
     calibration: CameraCalibration
     rectified: Intrinsics  # the rectified pinhole camera (P), pixel centres at +0.5
     mount: CameraMount
-    map_from_odom: tuple[float, float, float]  # a_m, b_m, theta_rad: the true pose where odometry started
+    map_from_odom: Pose2D  # a_m, b_m, theta_rad: the true pose where odometry started
     tf_first_stamp_ns: int
     tf_last_stamp_ns: int
     drift: OdometryDrift | None
@@ -178,11 +179,10 @@ class TrueTrajectory:
         self.drive: Drive = drive_route(route, steps, _CONTROL_STEP_NS / _NS_PER_S, pose0=start_pose(route),
                                         substeps=1)
 
-    def pose_at(self, t_ns: int) -> tuple[float, float, float]:
+    def pose_at(self, t_ns: int) -> Pose2D:
         """(a_m, b_m, theta_rad) of ``base_link`` in ``map`` at ``t_ns``."""
         if t_ns <= 0:
-            a, b, th = self.drive.poses[0]
-            return float(a), float(b), float(th)
+            return Pose2D.of(self.drive.poses[0])
         k = int(t_ns // _CONTROL_STEP_NS)
         if k >= len(self.drive.poses):
             raise ValueError(f"t_ns {t_ns} is past the driven trajectory")
@@ -191,34 +191,19 @@ class TrueTrajectory:
         return unicycle_step((a, b, th), v_mps, omega_rps, (t_ns - k * _CONTROL_STEP_NS) / _NS_PER_S)
 
 
-def compose_planar(p: tuple[float, float, float], q: tuple[float, float, float]) -> tuple[float, float, float]:
-    """Planar pose ``q`` (x_m, y_m, yaw_rad, in the frame of ``p``) expressed in ``p``'s parent: p ∘ q."""
-    a, b, th = p
-    x, y, yaw = q
-    c, s = math.cos(th), math.sin(th)
-    return a + c * x - s * y, b + s * x + c * y, math.remainder(th + yaw, math.tau)
-
-
-def invert_planar(p: tuple[float, float, float]) -> tuple[float, float, float]:
-    """The inverse of planar pose ``p``: p ∘ p⁻¹ = identity."""
-    a, b, th = p
-    c, s = math.cos(th), math.sin(th)
-    return -(c * a + s * b), -(-s * a + c * b), math.remainder(-th, math.tau)
-
-
-def odometry_poses(map_poses: list[tuple[float, float, float]],
-                   drift: OdometryDrift | None) -> list[tuple[float, float, float]]:
+def odometry_poses(map_poses: list[Pose2D],
+                   drift: OdometryDrift | None) -> list[Pose2D]:
     """``odom → base_link`` at each sample of the true ``map`` poses; ``odom`` is the first pose. Without drift
     exact; with drift, the true increments between samples, corrupted by ``drift``, integrated from zero."""
-    origin_inverse = invert_planar(map_poses[0])
+    origin_inverse = Pose2D.of(map_poses[0]).inverse()
     if drift is None:
-        return [compose_planar(origin_inverse, p) for p in map_poses]
-    out = [(0.0, 0.0, 0.0)]
+        return [origin_inverse.compose(p) for p in map_poses]
+    out = [Pose2D()]
     for before, after in itertools.pairwise(map_poses):
-        dx, dy, dyaw = compose_planar(invert_planar(before), after)
+        dx, dy, dyaw = Pose2D.of(after).relative_to(before)
         travelled_m = math.hypot(dx, dy)
         scale = 1.0 + drift.scale_error
-        out.append(compose_planar(out[-1], (dx * scale, dy * scale, dyaw + drift.yaw_rad_per_m * travelled_m)))
+        out.append(out[-1].compose((dx * scale, dy * scale, dyaw + drift.yaw_rad_per_m * travelled_m)))
     return out
 
 
@@ -309,7 +294,7 @@ def tf_message(transforms: list[Any]) -> Any:
     return _MSG["tf2_msgs/msg/TFMessage"](transforms=transforms)
 
 
-def odometry_message(stamp_ns: int, pose: tuple[float, float, float], v_mps: float, omega_rps: float) -> Any:
+def odometry_message(stamp_ns: int, pose: Pose2D, v_mps: float, omega_rps: float) -> Any:
     """``nav_msgs/Odometry`` ``odom → base_link``: pose (x_m, y_m, yaw_rad) in ``odom``, twist in ``base_link``."""
     t = tf_tree.odom_from_base_transform(*pose)
     zeros36 = np.zeros(36, np.float64)
@@ -415,7 +400,7 @@ def write_robot_bag(out_dir: str | Path, recipe: RobotBagRecipe | None = None, *
     for j, (t_ns, pose) in enumerate(zip(timeline.tf_ns, odom, strict=True)):
         stamp = start_ns + t_ns
         prev = odom[max(j - 1, 0)]
-        step = compose_planar(invert_planar(prev), pose)
+        step = Pose2D.of(pose).relative_to(prev)
         v_mps, omega_rps = (math.copysign(math.hypot(step[0], step[1]), step[0]) / dt_s, step[2] / dt_s) if j else (
             0.0, 0.0)
         log = stamp + round(float(tf_latency_ns[j]))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_offline.deployment_survey import seed_loss_map
 from gsrmr_offline.frame_loss import frame_loss
 from gsrmr_scheduler.loss_map import LossMap
@@ -26,7 +27,7 @@ class SlotLoss:
     """GS loss of one slot (the 3DGS image loss of the published 8-bit m̂ against m; PSNR in dB)."""
 
     t: int
-    pose: tuple[float, float, float]
+    pose: Pose2D
     loss: float
     psnr_db: float
     ssim: float

@@ -20,7 +20,7 @@ from launch_ros.parameter_descriptions import ParameterValue
 def _security(context, node_name: str) -> dict:
     """The Node arguments that run ``node_name`` enforced in its enclave when ``keystore:=`` names a keystore
     (as the SROS2 tutorials export them; Enforce: a node whose enclave is missing does not start), else none.
-    The same rule as server.launch.py and gsrmr_sim/launch_nodes.py (test/test_security.py holds them to
+    The same rule as server.launch.py and gsrmr_sim/launch_nodes.py (test/system/test_security.py holds them to
     config/security/policy.xml)."""
     keystore = LaunchConfiguration("keystore").perform(context)
     if not keystore:

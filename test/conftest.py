@@ -16,7 +16,7 @@ import tempfile
 import time
 
 import pytest
-from ros_domain import USED_DOMAINS, mark_pytest_session, next_domain_id, stop_ros2_daemons
+from support.ros_domain import USED_DOMAINS, mark_pytest_session, next_domain_id, stop_ros2_daemons
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -1,22 +1,12 @@
 """A custom import-linter contract type: no import cycle among the modules of each wing.
 
 Registered in ``pyproject.toml`` (``[tool.importlinter] contract_types``) and run by ``lint-imports`` from the
-repository root. import-linter's own ``acyclic_siblings`` looks at the children of one package at a time, with
-each child's descendants squashed into it: it misses a cycle through a package's ``__init__`` and one between
-two packages of a wing (``gsrmr_common`` ↔ ``gsrmr_shapes``), and flags package-level cycles that no module
-closes. This contract takes the modules themselves: every module belongs to the wing that lists the longest
-package containing it (with ``"a: pkg", "b: pkg.lib"``, ``pkg.lib.x`` is in wing ``b``, ``pkg.x`` in ``a``), and
-the imports among one wing's modules — function-local ones and those under
-``TYPE_CHECKING`` included, as grimp records them — must form no cycle.
-
-Configuration (each wing one string, ``"<name>: <package>, <package>, ..."``)::
-
-    [[tool.importlinter.contracts]]
-    name = "No import cycle inside a wing"
-    type = "acyclic_wings"
-    wings = ["libraries: gsrmr_common, gsrmr_shapes, gsrmr_splat", "server: gsrmr_server"]
-
-A broken contract lists each cycle once, as a chain of imports with their line numbers.
+repository root (docs/architecture.md, "The import rules", rule 5): import-linter's own ``acyclic_siblings`` squashes
+each package's children, so it misses cycles through a package's ``__init__`` or between two packages of a wing and
+flags package-level cycles that no module closes. Here every module belongs to one wing (:func:`wing_of`), and the
+imports among one wing's modules — function-local ones and those under ``TYPE_CHECKING`` included, as grimp records
+them — must form no cycle. A wing is one string, ``"<name>: <package>, <package>, ..."``, in the contract's ``wings``
+list (``type = "acyclic_wings"``). A broken contract lists each cycle once, as a chain of imports with line numbers.
 """
 
 from __future__ import annotations

@@ -2,9 +2,9 @@
 
 Usage: ``.venv/bin/python bench/acceptance/hostile_graph.py [--runs 3] [--cases NAME ...] [--quick] [-- DEMO_ARGS...]``.
 Each run is one ``gsrmr-demo --channel-seed 3`` (288 slots, ~45 s with the model cached). Once the round is under
-way (the demo's second progress line, ~5 s in) the rogue — ``test/hostile.py CASE``, a process of its own in the
+way (the demo's second progress line, ~5 s in) the rogue — ``test/support/hostile.py CASE``, a process of its own in the
 demo's ROS domain, at nice 19 (on a real network it is another machine: its own CPU is not the system's) — lies
-until the round ends. Cases: ``none`` (no rogue: the clean reference) and every case of ``test/hostile.py``.
+until the round ends. Cases: ``none`` (no rogue: the clean reference) and every case of ``test/support/hostile.py``.
 
 Per run it prints: images sent, mean MR loss (the scorer's, against the simulator's truth), regret and the energy
 ratio against upload-all **on the simulator's true channel** — each slot's energies (the run's, upload-all's and the
@@ -41,12 +41,12 @@ from typing import Any
 from gsrmr_sim.machine_probe import machine_line
 
 REPO = Path(__file__).resolve().parents[2]
-ROGUE_SCRIPT = REPO / "test" / "hostile.py"  # the hostile-graph suite's rogue: run as the rogue process, read here
+ROGUE_SCRIPT = REPO / "test" / "support" / "hostile.py"  # the hostile-graph suite's rogue: run, and read here
 
 
 def _rogue_module() -> ModuleType:
-    """``test/hostile.py`` as a module (its cases, targets, /diagnostics watch and marker), loaded from its file: the
-    rogue is the test suite's, not the package's, and nothing else of ``test/`` is made importable."""
+    """``test/support/hostile.py`` as a module (its cases, targets, /diagnostics watch and marker), loaded from its
+    file: the rogue is the test suite's, not the package's, and nothing else of ``test/`` is made importable."""
     spec = importlib.util.spec_from_file_location("hostile", ROGUE_SCRIPT)
     module = importlib.util.module_from_spec(spec)
     sys.modules["hostile"] = module
@@ -57,6 +57,7 @@ def _rogue_module() -> ModuleType:
 _rogue = _rogue_module()
 CASES, DEPLOYMENT_NODES, ROGUE_NAME, TARGETS = _rogue.CASES, _rogue.DEPLOYMENT_NODES, _rogue.ROGUE_NAME, _rogue.TARGETS
 DiagnosticsWatch, named_marker = _rogue.DiagnosticsWatch, _rogue.named_marker
+
 ALL_CASES = ("none", *CASES)
 ROGUE_NICE = 19
 ROUND_SLOTS, SLOT_S = 288, 0.1  # the sandbox scene's round 2

@@ -66,9 +66,10 @@ import numpy as np
 
 from gsrmr_common.camera import Camera, camera_from_pose
 from gsrmr_common.nerfstudio import DatasetFrame, holdout_split, read_dataset
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_sim.machine_probe import machine_line
 from gsrmr_sim.models import live_recipe
-from gsrmr_sim.robot_bag import OdometryDrift, compose_planar, odometry_poses
+from gsrmr_sim.robot_bag import OdometryDrift, odometry_poses
 from gsrmr_sim.world.recorder import record_round1, with_resolution
 from gsrmr_sim.world.scene import Scene, load_scene
 from gsrmr_splat.camera_opt import corrected_world_to_camera_np
@@ -123,7 +124,7 @@ def drifted_cameras(frames: list[DatasetFrame], scene: Scene) -> list[Camera]:
     first one (``map → odom`` at the first pose), the scene's mount on it."""
     truth = [tuple(float(v) for v in f.pose) for f in frames]
     odom = odometry_poses(truth, DRIFT)
-    return [camera_from_pose(*compose_planar(truth[0], o), scene.camera.mount, f.camera.intrinsics)
+    return [camera_from_pose(*Pose2D.of(truth[0]).compose(o), scene.camera.mount, f.camera.intrinsics)
             for f, o in zip(frames, odom, strict=True)]
 
 

@@ -172,7 +172,7 @@ def bench_acceptance(run_s: float, seed: int) -> None:
             x, y, yaw = mock.true_pose()
             o = drv.snapshot().pose
             line_err = math.hypot(o.x_m - x, o.y_m - y)
-            line_yaw_err = abs(o.yaw_rad - yaw)
+            line_yaw_err = abs(o.theta_rad - yaw)
             k = 0
             while time.monotonic() - t_start < run_s:
                 drv.set_command(0.3, 0.6 * math.sin(0.5 * k * 0.02))

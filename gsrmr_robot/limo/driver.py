@@ -16,9 +16,10 @@ from typing import Any
 
 import serial
 
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_robot.limo import kinematics as kin
 from gsrmr_robot.limo import protocol as proto
-from gsrmr_robot.limo.odometry import Odometry2D, Pose2D
+from gsrmr_robot.limo.odometry import Odometry2D
 
 DEFAULT_PORT = "/dev/ttyTHS1"
 DEFAULT_BAUD = 460800

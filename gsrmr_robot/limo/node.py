@@ -132,7 +132,7 @@ class LimoBaseNode(Node):
         msg.child_frame_id = self.base_frame
         msg.pose.pose.position.x = snap.pose.x_m
         msg.pose.pose.position.y = snap.pose.y_m
-        msg.pose.pose.orientation = yaw_pitch_roll_to_quaternion(snap.pose.yaw_rad, 0.0, 0.0)
+        msg.pose.pose.orientation = yaw_pitch_roll_to_quaternion(snap.pose.theta_rad, 0.0, 0.0)
         msg.pose.covariance = snap.pose_covariance
         msg.twist.twist.linear.x = snap.velocity.vx_mps
         msg.twist.twist.linear.y = snap.velocity.vy_mps

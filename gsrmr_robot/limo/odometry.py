@@ -9,27 +9,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 
+from gsrmr_common.pose2d import Pose2D, wrap_angle
 from gsrmr_robot.limo.kinematics import BodyVelocity
 
 HEADING_SOURCES = ("imu", "gyro_integration")
 UNESTIMATED_VAR = 1e6  # variance given to z, roll, pitch (planar odometry)
-
-
-def wrap_angle(a_rad: float) -> float:
-    """Wrap an angle to (-π, π]."""
-    w = math.fmod(a_rad + math.pi, 2 * math.pi)
-    if w <= 0:
-        w += 2 * math.pi
-    return w - math.pi
-
-
-@dataclass(frozen=True)
-class Pose2D:
-    """Pose of base_link in odom: metres, metres, radians."""
-
-    x_m: float = 0.0
-    y_m: float = 0.0
-    yaw_rad: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -61,12 +45,12 @@ class Odometry2D:
 
     def reset(self, pose: Pose2D = Pose2D()) -> None:
         """Restart at ``pose`` with zero covariance growth."""
-        self._x, self._y, self._yaw = pose.x_m, pose.y_m, pose.yaw_rad
+        self._x, self._y, self._yaw = pose.x_m, pose.y_m, pose.theta_rad
         self._t_prev: float | None = None
         self._imu_ref: float | None = None  # (IMU yaw unwrapped at reference)
         self._imu_prev: float | None = None
         self._imu_unwrapped = 0.0
-        self._yaw_at_imu_ref = pose.yaw_rad
+        self._yaw_at_imu_ref = pose.theta_rad
         self.distance_m = 0.0
         self.turned_rad = 0.0
         self.velocity = BodyVelocity()

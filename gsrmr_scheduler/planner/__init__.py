@@ -1,16 +1,7 @@
 """Online planning over a receding horizon (pure): predict poses, losses and gains, then solve P_GS.
 
-:class:`OnlinePlanner` (``online.py``) composes one plan from small objects, each owning one concept:
-
-* :class:`PlannerConfig` (``config.py``) — every knob, frozen and validated; the scheduler's parameters map
-  onto it in :meth:`gsrmr_scheduler.scheduler_params.SchedulerParameters.planner_config`;
-* :class:`RoutePredictor` (``route.py``) — future poses along the route;
-* :class:`LossForecast` (``forecast.py``) — L_t predicted, estimated for booked slots, learned from samples;
-* :class:`LossBudget` (``budget.py``) — booked slots, rounds, the Σ loss each block of a plan may leave;
-* :class:`LinkCap` (``link_cap.py``) — the image fraction the uplink carries;
-* :class:`InSlotPricing` (``pricing.py``) — the in-slot rule's gain thresholds, exploration and probing;
-* :class:`DriftMonitor` (``drift.py``) — when measured losses call for a replan;
-* :class:`SampleAlignedCadence` (``cadence.py``) — when the periodic replan runs: right after the next loss sample.
+:class:`OnlinePlanner` composes one plan from small objects, each owning one concept (all exported here); which owns
+what: docs/scheduling.md, "The planner's code".
 """
 
 from gsrmr_scheduler.planner.budget import LossBudget

@@ -1,28 +1,8 @@
-"""The loss budget of the next plan (pure): booked slots, their estimated losses, rounds.
+"""The loss budget of the next plan (pure): :class:`LossBudget` books the slots that passed — what the robot did (its
+ledger, else the plan's x), at the pose it reported, as the server composed them — with their estimated MR loss, and
+gives each block of a plan the Σ loss it may leave (:meth:`LossBudget.caps`).
 
-Every slot a schedule covered is **booked** once it has passed: with what the robot did there (its ledger,
-else the plan's x) and the pose it reported (else none). A booked slot counts with its *estimated* MR loss:
-``image_slot_loss`` J for an image (its JPEG), for a key what ``key_loss(slot, pose)`` says — the L_t model's
-estimate from the measurements around it, re-estimated as they arrive, frozen once ``refine_slots`` newer slots
-are booked.
-
-What the server composed the slot from (its ``mr/slot_info``, :meth:`LossBudget.record_composed`) overrides the
-robot's x: an image the server did not have in time (late on a slow link or a loaded server) left the loss of a
-render, not J — a ``render`` is charged as a key, a ``fallback`` (neither key nor image in time: the render at the
-server's pose estimate) or ``none`` at :data:`FALLBACK_LOSS_FACTOR` × the key's estimate. Booked as images, such
-slots were the loss a loaded machine's runs spent without knowing it: 0.0002–0.0017 of the round's mean loss in
-the 25 of 118 recorded runs that had them (``docs/scheduling.md``, "Change slots, missed uploads and a 1 % back-off:
-measured").
-
-The budget a plan of H slots from slot ``first`` must meet (:meth:`LossBudget.caps`, Σ loss allowed per block):
-
-* **round mode** (``round_slots`` T > 0): a round starts at the first reported pose more than ``round_start_m``
-  from where the robot stood; cap = target·(n + r) − Σ booked in the round (n slots booked, r left in it),
-  split at the round's end — what follows gets a fresh budget, target·(H − r). Before a round started, and
-  after it ended until the robot moves again, the running mean below applies (to the slots booked so far);
-* **running mean** otherwise: cap = target·(n_done + H) − Σ booked over every booked slot.
-
-``target`` is the mean loss aimed at (L_th·(1 − loss_margin)).
+Why rounds, and why slots are charged as composed: docs/scheduling.md, "The live loop", items 4 and 9.
 """
 
 from __future__ import annotations
@@ -31,10 +11,10 @@ from collections import deque
 from collections.abc import Callable
 import math
 
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.wire import ScheduleMsg
 
-Pose = tuple[float, float, float]  # (a_m, b_m, theta_rad) in map
-KeyLoss = Callable[[int, Pose | None], float]  # (slot, reported pose or None) → estimated loss of a key there
+KeyLoss = Callable[[int, Pose2D | None], float]  # (slot, reported pose or None) → estimated loss of a key there
 HISTORY_SLOTS = 1000  # ledger rows and reported poses kept this long before the slot is booked
 #: A slot the server composed at its fallback pose (its upload missing) is charged at this × the key's estimate: over
 #: 78 such slots of 90 recorded sandbox runs its true loss was 1.79× the burst model's estimate of a key there on
@@ -45,7 +25,10 @@ _MISSED_SOURCES = frozenset({"fallback", "none"})  # composed without the slot's
 
 
 class LossBudget:
-    """Booked slots and the loss budget of the next plan (see the module docstring)."""
+    """Booked slots and the loss budget of the next plan.
+
+    A booked slot counts with its estimated MR loss (:meth:`slot_loss`); a key's estimate follows the measurements
+    that arrive until ``refine_slots`` newer slots are booked, then it is frozen."""
 
     def __init__(self, key_loss: KeyLoss, *, image_slot_loss: float = 0.0, round_slots: int = 0,
                  round_start_m: float = 0.05, refine_slots: int = 300) -> None:
@@ -59,9 +42,9 @@ class LossBudget:
         self.refine_slots = int(refine_slots)
         self.slots_done = 0  # slots booked so far
         self._actual_x: dict[int, int] = {}  # slot → what the robot did (its ledger)
-        self._reported: dict[int, Pose] = {}  # slot → the pose it reported
+        self._reported: dict[int, Pose2D] = {}  # slot → the pose it reported
         self._composed: dict[int, str] = {}  # slot → what the server composed it from (its mr/slot_info source)
-        self._done: deque[tuple[int, int, Pose | None]] = deque()  # (slot, x, pose) still re-estimated
+        self._done: deque[tuple[int, int, Pose2D | None]] = deque()  # (slot, x, pose) still re-estimated
         self._frozen_spent = 0.0  # Σ estimated loss of the slots no longer re-estimated
         self._accounted_up_to: int | None = None  # last slot booked (or planned from)
         self._round_start: int | None = None  # first slot the reported pose left its start (round mode)
@@ -78,7 +61,7 @@ class LossBudget:
         for old in [k for k in self._actual_x if k < slot - HISTORY_SLOTS]:
             del self._actual_x[old]
 
-    def record_pose(self, slot: int, pose: Pose) -> None:
+    def record_pose(self, slot: int, pose: Pose2D) -> None:
         """The pose the robot reported for ``slot`` (its pose key): a key there is charged at it; in round mode
         the first move of more than ``round_start_m`` starts a round."""
         if not self._rebook(slot, pose=pose):
@@ -95,7 +78,7 @@ class LossBudget:
 
     def record_composed(self, slot: int, source: str) -> None:
         """What the server composed ``slot`` from (``image``, ``render``, ``fallback`` or ``none``: its
-        ``mr/slot_info``): the slot is charged by it (module docstring), booked or not."""
+        ``mr/slot_info``): the slot is charged by it (:meth:`slot_loss`), booked or not."""
         self._composed[int(slot)] = str(source)
         if len(self._composed) > 2 * HISTORY_SLOTS:
             for old in [k for k in self._composed if k < slot - HISTORY_SLOTS]:
@@ -131,14 +114,13 @@ class LossBudget:
     def freeze_all(self) -> None:
         """Fix the estimate of every slot booked so far, with the key-loss estimate as it is now: before the seed
         map changes (a model swap), the slots the old model served keep the loss estimated for them — the new
-        map describes the new model, and re-estimating the round's past with it (no measurement of it yet) once
-        made the planner send an image in 77–100 % of the slots left after a swap."""
+        map describes the new model, and re-estimating the round's past with it (no measurement of it yet) makes the
+        planner send an image in 77–100 % of the slots left after a swap."""
         self._freeze(0)
 
-    def _rebook(self, slot: int, *, x: int | None = None, pose: Pose | None = None) -> bool:
+    def _rebook(self, slot: int, *, x: int | None = None, pose: Pose2D | None = None) -> bool:
         """Correct a booked slot that is still re-estimated with a ledger row or pose key that came after the plan
-        that booked it (delayed on the way; it was dropped before, the slot booked with the plan's x or at no pose
-        for good). True when ``slot`` is such a slot."""
+        that booked it (delayed on the way). True when ``slot`` is such a slot."""
         if self._accounted_up_to is None or slot > self._accounted_up_to:
             return False
         for i in range(len(self._done) - 1, -1, -1):
@@ -155,9 +137,11 @@ class LossBudget:
         self._accounted_up_to = now_slot
 
     # ------------------------------------------------------------------ what it cost
-    def slot_loss(self, slot: int, x: int, pose: Pose | None) -> float:
-        """Estimated MR loss a booked slot left: ``image_slot_loss`` for an image, ``key_loss`` for a key — as the
-        server composed it when it said (an image it did not have is a key, or its fallback: module docstring)."""
+    def slot_loss(self, slot: int, x: int, pose: Pose2D | None) -> float:
+        """Estimated MR loss a booked slot left: the image slot's loss J (``image_slot_loss``) for an image,
+        ``key_loss`` for a key — as the server composed it when it said: an image it did not have in time but
+        rendered at the key (``render``) counts as a key, a slot composed without its upload at the server's pose
+        estimate (``fallback``) or from nothing (``none``) at :data:`FALLBACK_LOSS_FACTOR` × the key's estimate."""
         source = self._composed.get(slot)
         if source in _MISSED_SOURCES:
             return FALLBACK_LOSS_FACTOR * self.key_loss(slot, pose)
@@ -186,7 +170,14 @@ class LossBudget:
 
     def caps(self, first: int, horizon_slots: int, target: float) -> list[tuple[slice, float]]:
         """The plan's blocks from slot ``first``: (slice of the horizon, Σ loss allowed over it) — one block, or
-        two when the round ends inside the horizon (see the module docstring)."""
+        two when the round ends inside the horizon.
+
+        With ``target`` the mean loss aimed at (L_th·(1 − loss_margin)) and H = ``horizon_slots``: inside a round
+        (``round_slots`` T > 0; it starts at the first reported pose more than ``round_start_m`` from where the robot
+        stood), cap = target·(n + min(r, H)) − Σ booked in the round, n slots booked in it and r left, and what
+        follows its end gets a fresh target·(H − r). Otherwise — no rounds, before a round started, or after one ended
+        until the robot moves again — the running mean: cap = target·(n_done + H) − Σ booked over every booked
+        slot."""
         remaining = self.round_remaining(first)
         if remaining is None:
             return [(slice(0, horizon_slots), target * (self.slots_done + horizon_slots) - self.loss_spent)]

@@ -1,14 +1,8 @@
-"""The online planner's configuration (pure): every knob of :class:`~gsrmr_scheduler.planner.OnlinePlanner` in one
-frozen, validated value.
-
-The scheduler node builds it from its ROS parameters in one place,
-:meth:`gsrmr_scheduler.scheduler_params.SchedulerParameters.planner_config`; a live parameter change builds a new
-one and hands it to :meth:`OnlinePlanner.reconfigure <gsrmr_scheduler.planner.OnlinePlanner.reconfigure>`, which
-takes a change of the :data:`LIVE_FIELDS` only (the others shape the planner's state: set them at start-up).
-
-The defaults are the plain receding-horizon planner — every refinement of the live loop off (no in-slot rule, no
-exploration or probing, no round, image slots free); the node sets each field from its parameters
-(``config/scheduler.yaml``; why those values: ``docs/scheduling.md``, "The live loop").
+"""The online planner's configuration (pure): :class:`PlannerConfig`, every knob of the
+:class:`~gsrmr_scheduler.planner.OnlinePlanner`, frozen and validated; its defaults are the plain receding-horizon
+planner, every refinement of the live loop off. The node sets each field from its parameters
+(:meth:`gsrmr_scheduler.scheduler_params.SchedulerParameters.planner_config`; the values and why: docs/scheduling.md,
+"The live loop"); a running planner takes a change of the :data:`LIVE_FIELDS` only.
 """
 
 from __future__ import annotations
@@ -29,7 +23,8 @@ LIVE_FIELDS = frozenset({"loss_threshold", "horizon_slots", "method", "solver_op
 
 @dataclass(frozen=True)
 class PlannerConfig:
-    """The planner's knobs (losses are MR losses, the scale of ``loss_threshold``; see the module docstring)."""
+    """The planner's knobs: losses are MR losses, the scale of ``loss_threshold``; τ = ``slot_s`` in seconds, the
+    payloads in bits, ``round_start_m`` in metres."""
 
     loss_threshold: float  # L_th: the mean MR loss per slot the plan must meet
     horizon_slots: int  # H: slots per plan

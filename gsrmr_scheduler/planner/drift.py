@@ -8,7 +8,7 @@ import numpy as np
 
 
 class DriftMonitor:
-    """The mean |measured − predicted| L of the last ``window_samples`` measured slots against ``threshold``."""
+    """The mean ``|measured − predicted|`` L of the last ``window_samples`` measured slots against ``threshold``."""
 
     def __init__(self, threshold: float, window_samples: int) -> None:
         if not threshold >= 0 or window_samples < 1:
@@ -17,7 +17,7 @@ class DriftMonitor:
         self._errors: deque[float] = deque(maxlen=self.window_samples)
 
     def add(self, error: float) -> bool:
-        """A measured slot's |measured − predicted| L; True when a replan is due (a full window whose mean
+        """A measured slot's ``|measured − predicted|`` L; True when a replan is due (a full window whose mean
         exceeds the threshold)."""
         self._errors.append(error)
         return len(self._errors) >= self.window_samples and float(np.mean(self._errors)) > self.threshold

@@ -1,21 +1,9 @@
-"""L_t for the plan (pure): predicted at future slots, estimated for booked key slots, learned from measurements.
+"""L_t for the plan (pure): :class:`LossForecast` predicts future slots, estimates booked key slots and learns from each
+loss sample, first corrected by the samples' JPEG bias (``sample_offset``).
 
-Two sources:
-
-* the **burst model** (default, what a deployment plans with):
-  :class:`~gsrmr_scheduler.loss_predictor.LossPredictor` over a frozen copy of the seed map (the mapping round's)
-  — an online correction that follows measured bursts and decays back — with its learned margin on the
-  predictions (``margin_quantile`` of measured / predicted over the last ``margin_window_samples``);
-* ``trust_loss_map``: the loss map as it stands — its cells, each updated by the measured samples — with no
-  correction and no margin. The oracle plans so: its map is a survey of the very round being scored.
-
-Every sample is first corrected to the loss the budget counts (:meth:`LossForecast.corrected`): the server scores
-its render against the decoded JPEG, whose error adds ``sample_offset`` (the seed map's survey measures it,
-:attr:`gsrmr_scheduler.loss_map.LossMap.sample_offset`) to what the render loses against the camera's frame.
-
-Either way every measured sample also goes into the live loss map (which the scheduler saves for later runs),
-and :class:`LossForecast` keeps what each plan predicted per slot (the margin not included): the burst model's
-margin and the drift test compare measurements with it.
+Two sources: the burst model (:class:`~gsrmr_scheduler.loss_predictor.LossPredictor` over a frozen copy of the seed
+map, with its learned margin: what a deployment plans with) or, with ``trust_loss_map``, the live loss map as it
+stands (the oracle's). docs/scheduling.md, "The live loop", items 1, 2 and 7.
 """
 
 from __future__ import annotations
@@ -25,10 +13,10 @@ from typing import Protocol
 
 import numpy as np
 
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_scheduler.loss_map import LossMap
 from gsrmr_scheduler.loss_predictor import LossPredictor
 
-Pose = tuple[float, float, float]  # (a_m, b_m, theta_rad) in map
 HISTORY_SLOTS = 1000  # predictions kept this long after the plan that made them
 
 
@@ -39,17 +27,17 @@ class SlotLossModel(Protocol):
     margin: float
     samples: int
 
-    def observe(self, slot: int, pose: Pose, loss: float, predicted: float | None = None) -> None: ...
+    def observe(self, slot: int, pose: Pose2D, loss: float, predicted: float | None = None) -> None: ...
 
     def predict(self, slots: np.ndarray, poses: np.ndarray) -> np.ndarray: ...
 
-    def estimate(self, slot: int, pose: Pose) -> float: ...
+    def estimate(self, slot: int, pose: Pose2D) -> float: ...
 
     def note_change(self, slot: int) -> None: ...
 
 
 class LossForecast:
-    """L_t predictions and estimates from the burst model or the loss map (see the module docstring)."""
+    """L_t predictions and estimates from the burst model, or from the loss map as it stands (``trust_loss_map``)."""
 
     def __init__(self, loss_map: LossMap, *, trust_loss_map: bool = False, burst_time_constant_slots: float = 25.0,
                  margin_quantile: float = 0.75, margin_window_samples: int = 30,
@@ -104,7 +92,7 @@ class LossForecast:
         """What the latest plan covering ``slot`` predicted for it (no margin), or None."""
         return self._predicted.get(slot)
 
-    def key_loss(self, slot: int, pose: Pose | None) -> float:
+    def key_loss(self, slot: int, pose: Pose2D | None) -> float:
         """Estimated L a past key slot left: from the measurements around it at the pose the robot reported,
         the plan's prediction without a reported pose (the map's prior without either)."""
         if pose is None:
@@ -119,7 +107,7 @@ class LossForecast:
         if self.model is not None:
             self.model.note_change(slot)
 
-    def observe(self, slot: int, pose: Pose, loss: float) -> float | None:
+    def observe(self, slot: int, pose: Pose2D, loss: float) -> float | None:
         """An image slot's measured L_t at ``pose``; returns what the plan had predicted for it (or None)."""
         predicted = self._predicted.get(slot)
         if self.model is not None:

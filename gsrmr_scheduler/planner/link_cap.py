@@ -1,13 +1,6 @@
-"""The uplink's carrying capacity as a cap on planned images (pure): what a slow link can deliver in its slots.
-
-The robot's ledger rows say, per slot, what it sent, whether it held an asked-for image back (its last one still
-queued), its estimate of the image throughput the uplink sustains (the image bits acknowledged over the time
-images were waiting for their acknowledgement or held back, :mod:`gsrmr_robot.uplink_backlog`) and the size of the
-slot's frame as a JPEG; the server's loss samples say which images it composed in their slot. :class:`LinkCap`
-turns the last :data:`LINK_WINDOW_SLOTS` of them into the fraction of slots a plan may give an image
-(:meth:`LinkCap.image_cap`); the in-slot rule then raises its price until the expected images fit
-(:func:`gsrmr_scheduler.slot_price.cap_expected_images`), a plan without it keeps the images that save the most loss
-per joule (:func:`cap_planned_images`).
+"""The uplink's carrying capacity as a cap on planned images (pure): :class:`LinkCap` turns the robot's ledger rows
+(throughput estimate, held-back images, JPEG sizes: :mod:`gsrmr_robot.uplink_backlog`) and the server's loss samples
+into the fraction of slots a plan may give an image (:meth:`LinkCap.image_cap`).
 """
 
 from __future__ import annotations

@@ -1,39 +1,5 @@
-"""The receding-horizon planner (pure): :class:`OnlinePlanner` composes the planning steps of one replan.
-
-The scheduler node calls :meth:`OnlinePlanner.plan` at every replan, with ``now_slot`` the slot in which it
-expects the plan to be done (now + the p90 of its plan times). A plan covers ``now_slot`` and the slots after it:
-
-1. predicts the robot's poses for the next ``horizon_slots`` along the route (:class:`~.route.RoutePredictor`);
-2. predicts L_t there (:class:`~.forecast.LossForecast`: the burst model with its learned margin, or the loss map
-   as it stands with ``trust_loss_map``);
-3. takes g_t from the channel's statistics: the expected gain ρ0·d^−α at the predicted robot–server distance
-   (:meth:`~gsrmr_common.link_model.LinkBudget.mean_gain`) — what a deployment knows. With ``oracle_channel`` it
-   takes the simulator's future realisation instead (the fading of each slot's index since the round started,
-   :meth:`learn_round_start`): an upper bound for comparison, not deployable;
-4. sets the loss budget (:class:`~.budget.LossBudget`): an image slot leaves ``image_slot_loss`` J, so
-   Σ x·J + (1 − x)·L ≤ cap becomes the knapsack Σ (1 − x)(L − J) ≤ cap − n·J, per block (the round's rest and
-   what follows it);
-5. solves each block with :func:`gsrmr_scheduler.solve`;
-6. with ``in_slot_decision`` (and no oracle) adds per-slot gain thresholds (:class:`~.pricing.InSlotPricing`);
-   without, holds the solved images to what the uplink carries (:class:`~.link_cap.LinkCap`).
-
-Why the horizon starts at ``now_slot`` and not after it: the robot replaces its schedule with each new one as it
-arrives, and a slot its schedule has no entry for uploads the image (``default_upload_image``), in whatever fade. A
-plan the node's timer starts just before a slot boundary is expected to be done in the next slot, ``now_slot``,
-but usually is done and published before that slot starts — so the robot decides ``now_slot`` with it. Planned
-from ``now_slot + 1`` (until issue 28), that slot had no entry: a round whose timer fired at that phase of the slot
-(it keeps one phase for the whole round) left 10–30 slots to the default, each an image at whatever gain the slot
-had; the few of them in deep fades (3–6 % of the mean gain: 10–30 typical images each) were the live regret tail
-(3.77 in a clean seed-2 round with 19 such slots; 2.2–3.8 in one acceptance run in five). A plan that is done
-within ``now_slot`` covers a slot the robot has already decided; it is booked at the next plan, by its ledger row.
-(A lead of more than one slot — a solver much slower than ``exact`` whose plan is done early — can still leave
-slots before ``now_slot`` without an entry.)
-
-Between plans it takes in what happened — the robot's ledger (:meth:`record_action`), its pose keys
-(:meth:`record_pose`), what the server composed each slot from (:meth:`record_composed`), the server's loss samples
-(:meth:`observe`, which also says when the prediction drifted enough for a replan, :class:`~.drift.DriftMonitor`).
-Why the node's settings: ``docs/scheduling.md`` ("The live
-loop").
+"""The receding-horizon planner (pure): :class:`OnlinePlanner` composes the steps of one replan
+(:meth:`OnlinePlanner.plan`). Design, and why the node's settings: docs/scheduling.md, "The live loop".
 """
 
 from __future__ import annotations
@@ -45,6 +11,7 @@ import time
 import numpy as np
 
 from gsrmr_common.link_model import LinkBudget
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.wire import ScheduleMsg
 from gsrmr_scheduler.loss_map import LossMap
 from gsrmr_scheduler.planner.budget import LossBudget
@@ -89,11 +56,38 @@ class _Blocks:
 
 
 class OnlinePlanner:
-    """Receding-horizon GSCLO planner: one :class:`PlannerConfig` and its collaborators (see the module docstring).
+    """Receding-horizon GSCLO planner: plans the next ``horizon_slots`` slots from what a deployment knows.
 
-    ``route`` predicts the poses, ``loss_map`` is the seed loss map (it keeps learning from the measured samples),
-    ``link`` the uplink's budget (bandwidth, noise, path loss and its Rician K). ``loss_model`` replaces the burst
-    model (a study's hindsight bound, :class:`gsrmr_sim.replay.TruthLossPredictor`).
+    One :class:`~gsrmr_scheduler.planner.config.PlannerConfig` and the objects that own one concept each (route,
+    L_t forecast, loss budget, link cap, in-slot pricing, drift test: docs/scheduling.md, "The planner's code").
+    Between plans it takes in what happened: the robot's ledger (:meth:`record_action`), its pose keys
+    (:meth:`record_pose`), what the server composed each slot from (:meth:`record_composed`) and the server's loss
+    samples (:meth:`observe`, which also says when the prediction drifted enough for a replan).
+
+    Args:
+        config: every knob (losses are MR losses, the scale of ``loss_threshold``; slots of τ = ``config.slot_s``
+            seconds; payloads in bits).
+        route: predicts the robot's poses (a_m, b_m, theta_rad) in ``map`` along the route.
+        loss_map: the seed loss map; it keeps learning from the measured samples (:attr:`loss_map`).
+        link: the uplink's budget: bandwidth (Hz), noise σ² (W), path loss and Rician K; its gains g_t are
+            dimensionless power gains ``|h|²``.
+        loss_model: replaces the burst model (a study's hindsight bound,
+            :class:`gsrmr_sim.replay.TruthLossPredictor`); None: the burst model.
+
+    Raises:
+        ValueError: ``loss_model`` given with ``config.trust_loss_map``.
+
+    Example:
+        A planner on a square route, planning the first 100 slots from the route's start::
+
+            from gsrmr_common.link_model import LinkBudget
+            from gsrmr_scheduler.loss_map import LossMap
+            from gsrmr_scheduler.planner import OnlinePlanner, PlannerConfig, RoutePredictor
+
+            route = RoutePredictor([(0, 0), (2, 0), (2, 2), (0, 2)], speed_mps=0.2)
+            config = PlannerConfig(loss_threshold=0.03, horizon_slots=100)
+            planner = OnlinePlanner(config, route, LossMap(), LinkBudget())
+            result = planner.plan(now_slot=0, pose=(0.0, 0.0, 0.0))
     """
 
     def __init__(self, config: PlannerConfig, route: RoutePredictor, loss_map: LossMap, link: LinkBudget,
@@ -202,7 +196,7 @@ class OnlinePlanner:
 
     # ------------------------------------------------------------------ planning
     def gains(self, first: int, poses: np.ndarray) -> np.ndarray:
-        """g_t for slots ``first …`` at the predicted ``poses`` (see the module docstring, step 3)."""
+        """g_t (dimensionless ``|h|²``) for slots ``first …`` at the predicted ``poses`` (:meth:`plan`, step 3)."""
         if not self.config.oracle_channel or self._round_start_slot is None:
             return np.array([self.link.mean_gain(poses[i, :2]) for i in range(len(poses))])
         out = []
@@ -211,9 +205,50 @@ class OnlinePlanner:
             out.append(self.link.gain(k if k >= 0 else first + i, poses[i, :2]))
         return np.array(out)
 
-    def plan(self, now_slot: int, pose: tuple[float, float, float] | None) -> PlanResult:
-        """Solve the horizon starting at ``now_slot`` — the slot in which the schedule is expected to reach the
-        robot (see the module docstring) — from the robot's last reported ``pose``."""
+    def plan(self, now_slot: int, pose: Pose2D | None) -> PlanResult:
+        """Plan the ``horizon_slots`` slots from ``now_slot``, the slot in which the schedule is expected to reach
+        the robot.
+
+        The node passes the slot in which it expects the plan to be done (now + the p90 of its plan times). The plan
+        covers that slot too: the robot replaces its schedule with each new one, a schedule published before the
+        slot starts decides it, and a slot its schedule has no entry for uploads the image whatever the fade. A
+        plan done within ``now_slot`` covers a slot the robot has already decided; the next plan books that slot by
+        its ledger row. The steps:
+
+        1. the robot's poses along the route (:class:`~.route.RoutePredictor`);
+        2. L_t there (:class:`~.forecast.LossForecast`: the burst model with its learned margin, or the loss map as
+           it stands with ``trust_loss_map``);
+        3. g_t from the channel's statistics: the expected gain ρ0·d^−α at the predicted robot–server distance
+           (:meth:`~gsrmr_common.link_model.LinkBudget.mean_gain`), what a deployment knows; with
+           ``oracle_channel`` the simulator's future fading (:meth:`learn_round_start`: an upper bound, not
+           deployable);
+        4. the loss budget of each block, the round's rest and what follows it (:meth:`~.budget.LossBudget.caps`);
+           an image slot leaves the loss J = ``image_slot_loss``, so Σ x·J + (1 − x)·L ≤ cap becomes the knapsack
+           Σ (1 − x)(L − J) ≤ cap − n·J;
+        5. each block solved with :func:`gsrmr_scheduler.solve.solve` (``method``, ``solver_options``);
+        6. with ``in_slot_decision`` (and no oracle) per-slot gain thresholds (:class:`~.pricing.InSlotPricing`);
+           without, the solved images held to what the uplink carries (:class:`~.link_cap.LinkCap`).
+
+        Args:
+            now_slot: the absolute slot index (slots of τ = ``config.slot_s`` s) the plan starts at.
+            pose: the robot's last reported pose (a_m, b_m, theta_rad) in ``map``; None: the route's start.
+
+        Returns:
+            :class:`PlanResult`: the wire schedule (per slot x, power in W and, with the in-slot rule, the gain
+            thresholds as dimensionless ``|h|²``), the images planned, the plan's energy (J), the mean predicted
+            loss, the first block's loss budget per slot, whether every block was feasible, the solve time (s) and
+            the predicted L_t (margin included).
+
+        Raises:
+            ValueError: an option in ``config.solver_options`` the method does not take.
+
+        Example:
+            After the planner of the class example has taken in a few slots::
+
+                planner.observe(3, 0.06, 0.0, 0.0, loss=0.08)  # an image slot's loss sample
+                result = planner.plan(now_slot=5, pose=(0.1, 0.0, 0.0))
+                result.schedule.first_slot, result.images, result.energy_j
+        """
         cfg = self.config
         self.budget.account_until(now_slot, self._active)
         first, h = now_slot, cfg.horizon_slots

@@ -1,15 +1,6 @@
-"""The in-slot rule's prices for a plan (pure): per-slot gain thresholds, exploration and probing, the link's cap.
-
-With the in-slot rule the robot sends an image in slot t only when the gain its radio measures reaches g*_t
-(:mod:`gsrmr_scheduler.slot_price`: a price λ on the loss budget, set so that the rule's expected loss meets it).
-:class:`InSlotPricing` adds what keeps the measurements coming and what the uplink allows:
-
-* exploration: an image at least when the slot's fade is in the best ``explore_image_fraction`` of fades; in the
-  better half until the L_t predictor holds ``startup_explore_samples`` measurements (the seed map may be far off);
-* probing: ``probe_gap_slots`` after the last image the bound has ramped up to the median fade (any fade at or
-  above it sends an image), so that a burst of L_t is not missed for long;
-* the link's cap: the rule's expected images held to what the uplink carries
-  (:func:`~gsrmr_scheduler.slot_price.cap_expected_images`, which raises the price).
+"""The in-slot rule's prices for a plan (pure): :class:`InSlotPricing` turns the price on the loss budget
+(:mod:`gsrmr_scheduler.slot_price`) into per-slot gain thresholds, with exploration, probing and the link's cap on the
+expected images (docs/scheduling.md, "The live loop", item 5).
 """
 
 from __future__ import annotations
@@ -20,7 +11,7 @@ from gsrmr_scheduler.slot_price import cap_expected_images, gain_thresholds, ric
 
 
 class InSlotPricing:
-    """Gain thresholds per slot for the in-slot rule (see the module docstring)."""
+    """Gain thresholds per slot for the in-slot rule, with exploration, probing and the link's cap."""
 
     def __init__(self, rician_k: float, *, explore_image_fraction: float = 0.0, probe_gap_slots: int = 0,
                  startup_explore_samples: int = 0) -> None:

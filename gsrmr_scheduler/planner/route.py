@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.route import LoopPath
 
 
@@ -26,7 +27,7 @@ class RoutePredictor:
         d2 = (self._dense_xy[:, 0] - a_m) ** 2 + (self._dense_xy[:, 1] - b_m) ** 2
         return float(self._dense_s[int(np.argmin(d2))])
 
-    def predict(self, pose: tuple[float, float, float] | None, n_slots: int, slot_s: float) -> np.ndarray:
+    def predict(self, pose: Pose2D | None, n_slots: int, slot_s: float) -> np.ndarray:
         """n_slots×3 poses (a_m, b_m, theta_rad) for the next slots (route start if pose is None)."""
         s0 = 0.0 if pose is None else self.nearest_s(pose[0], pose[1])
         s = s0 + self.speed_mps * slot_s * np.arange(1, n_slots + 1)

@@ -17,6 +17,7 @@ import yaml
 
 from gsrmr_common.camera import Camera
 from gsrmr_common.config_files import resolve_config
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_server.mr.blend import compose_mask
 from gsrmr_shapes.raycast import render_shapes
 from gsrmr_shapes.spec import (
@@ -124,7 +125,7 @@ def load_mr_content(name_or_path: str) -> MRContent:
         raise MRContentError(f"{path}: {exc}") from exc
 
 
-def agent_pose(agent: Agent, t_s: float) -> tuple[float, float, float]:
+def agent_pose(agent: Agent, t_s: float) -> Pose2D:
     """(x_m, y_m, yaw_rad) of an agent at round time ``t_s`` (map frame)."""
     body = agent.body
     if agent.path is None:

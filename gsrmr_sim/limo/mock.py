@@ -21,8 +21,10 @@ import threading
 import time
 import tty
 
+from gsrmr_common.pose2d import Pose2D, wrap_angle
 from gsrmr_robot.limo import kinematics as kin
 from gsrmr_robot.limo import protocol as proto
+from gsrmr_sim.limo.odometry_errors import OdometryErrorDraw, OdometryErrors
 
 # The mock's true pose (nav_msgs/Odometry, gsrmr_sim.limo.mock_ros), read by the simulated camera, radio and
 # route follower. Relative, so that each robot of a fleet has its own (/robot2/sim/ground_truth/odom); a node in
@@ -51,8 +53,9 @@ class MockLimo:
     def __init__(self, link_path: str, *, motion_mode: int = proto.MotionMode.DIFF,
                  cmd_timeout_s: float = 0.3, rate_hz: float = 50.0, battery_voltage_v: float = 12.3,
                  faults: FaultConfig | None = None,
-                 record: bool = False, start_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
-                 limits: kin.Limits = kin.DEFAULT_LIMITS, geometry: kin.Geometry = kin.DEFAULT_GEOMETRY) -> None:
+                 record: bool = False, start_pose: Pose2D = Pose2D(),
+                 limits: kin.Limits = kin.DEFAULT_LIMITS, geometry: kin.Geometry = kin.DEFAULT_GEOMETRY,
+                 odometry: OdometryErrorDraw | None = None) -> None:
         if rate_hz <= 0 or cmd_timeout_s <= 0:
             raise ValueError("rate_hz and cmd_timeout_s must be > 0")
         self.link_path = os.path.abspath(link_path)
@@ -74,6 +77,8 @@ class MockLimo:
         host_ids = frozenset({proto.ID_MOTION_COMMAND, proto.ID_CONTROL_MODE})
         self._parser = proto.FrameParser(known_ids=host_ids, confirm_frames=1, check_count=False)
         self._x, self._y, self._yaw = start_pose
+        self.odometry = odometry  # what its wheel odometry and IMU get wrong (None: nothing)
+        self._imu_offset_rad = 0.0
         self._pose_stamp_ns = 0
         self._vel = kin.BodyVelocity()
         self._cmd: proto.MotionCommand | None = None
@@ -115,16 +120,16 @@ class MockLimo:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def true_pose(self) -> tuple[float, float, float]:
+    def true_pose(self) -> Pose2D:
         """True pose of base_link in map: (x_m, y_m, yaw_rad), yaw unwrapped."""
         with self._lock:
-            return self._x, self._y, self._yaw
+            return Pose2D(self._x, self._y, self._yaw)
 
-    def true_pose_stamped(self) -> tuple[int, tuple[float, float, float]]:
+    def true_pose_stamped(self) -> tuple[int, Pose2D]:
         """(system time in ns at which the pose is true — the integration tick that made it —, true pose):
         what a motion-capture system would stamp it with (0 before the first tick: the start pose)."""
         with self._lock:
-            return self._pose_stamp_ns, (self._x, self._y, self._yaw)
+            return self._pose_stamp_ns, Pose2D(self._x, self._y, self._yaw)
 
     def true_velocity(self) -> kin.BodyVelocity:
         """Velocity applied over the current tick (base_link frame)."""
@@ -258,6 +263,8 @@ class MockLimo:
             self._x += (v.vx_mps * math.cos(ym) - v.vy_mps * math.sin(ym)) * dt
             self._y += (v.vx_mps * math.sin(ym) + v.vy_mps * math.cos(ym)) * dt
             self._pose_stamp_ns = time.time_ns()  # the system (ROS) time this pose is true at
+            if self.odometry is not None:
+                self._imu_offset_rad = self.odometry.advance(dt)
             # 2) report that velocity and the state
             frames = [self._system_state(), self._motion_state(v), self._euler()]
             # 3) apply the latest command for the next tick (own watchdog: stop when commands stop)
@@ -296,10 +303,11 @@ class MockLimo:
         applied = self._applied
         if self.motion_mode == proto.MotionMode.ACKERMANN:
             return proto.encode_message(proto.MotionState(v.vx_mps, 0.0, 0.0, applied.steering_raw))
-        return proto.encode_message(proto.MotionState(v.vx_mps, v.wz_radps, v.vy_mps, 0.0))
+        vx = v.vx_mps if self.odometry is None else self.odometry.errors.reported_speed(v.vx_mps, v.wz_radps)
+        return proto.encode_message(proto.MotionState(vx, v.wz_radps, v.vy_mps, 0.0))
 
     def _euler(self) -> bytes:
-        yaw = math.atan2(math.sin(self._yaw), math.cos(self._yaw))
+        yaw = wrap_angle(self._yaw + self._imu_offset_rad)
         return proto.encode_message(proto.ImuEuler(yaw, 0.0, 0.0))
 
     def _inject(self, raw: bytes, now: float) -> bytes:
@@ -353,12 +361,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=None, help="fault-injection RNG seed")
     p.add_argument("--start-pose", default="0,0,0", type=pose_arg,
                    help="true start pose 'x_m,y_m,yaw_rad' in the map frame")
+    p.add_argument("--odometry", default="", type=odometry_arg, metavar="NAME=VALUE,...",
+                   help="odometry errors (gsrmr_sim.limo.odometry_errors.OdometryErrors fields; '' = perfect)")
+    p.add_argument("--odometry-seed", type=int, default=0, help="seed of the IMU bias and random walk")
     p.add_argument("--ros", action=argparse.BooleanOptionalAction, default=True,
                    help=f"publish the true pose on {GROUND_TRUTH_TOPIC} (relative to the node's namespace)")
     return p
 
 
-def pose_arg(text: str) -> tuple[float, float, float]:
+def pose_arg(text: str) -> Pose2D:
     """argparse type of ``--start-pose x_m,y_m,yaw_rad``."""
     try:
         values = tuple(float(v) for v in text.split(","))
@@ -366,7 +377,19 @@ def pose_arg(text: str) -> tuple[float, float, float]:
         raise argparse.ArgumentTypeError(f"--start-pose: {err}") from err
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
         raise argparse.ArgumentTypeError("--start-pose needs three finite numbers x_m,y_m,yaw_rad")
-    return values  # type: ignore[return-value]
+    return Pose2D.of(values)
+
+
+def odometry_arg(text: str) -> OdometryErrors:
+    """argparse type of ``--odometry scale_error=0.03,imu_bias_radps=0.0002,...``."""
+    values: dict[str, float] = {}
+    try:
+        for item in filter(None, (s.strip() for s in text.split(","))):
+            name, _, value = item.partition("=")
+            values[name.strip()] = float(value)
+        return OdometryErrors(**values)
+    except (TypeError, ValueError) as err:
+        raise argparse.ArgumentTypeError(f"--odometry: {err}") from err
 
 
 def mock_from_args(ns: argparse.Namespace) -> MockLimo:
@@ -377,4 +400,5 @@ def mock_from_args(ns: argparse.Namespace) -> MockLimo:
                          silence_s=ns.silence_s, reopen_every_s=ns.reopen_every_s, reopen_gap_s=ns.reopen_gap_s,
                          seed=ns.seed)
     return MockLimo(ns.link, motion_mode=mode, cmd_timeout_s=ns.cmd_timeout_s, rate_hz=ns.rate_hz,
-                    battery_voltage_v=ns.battery_v, faults=faults, start_pose=ns.start_pose)
+                    battery_voltage_v=ns.battery_v, faults=faults, start_pose=ns.start_pose,
+                    odometry=None if ns.odometry.perfect else OdometryErrorDraw(ns.odometry, ns.odometry_seed))

@@ -8,7 +8,6 @@ ROS convention (pixel centres at integers), plumb_bob with zero distortion and P
 from __future__ import annotations
 
 from dataclasses import dataclass
-import math
 
 from nav_msgs.msg import Odometry
 import numpy as np
@@ -21,6 +20,7 @@ from gsrmr_common.camera import camera_from_pose
 from gsrmr_common.interrupts import console_main
 from gsrmr_common.node_help import Endpoint, NodeInterface, ParameterGroup
 from gsrmr_common.node_params import NodeParameters, ros_parameter
+from gsrmr_common.pose2d import Pose2D, yaw_from_quaternion
 from gsrmr_common.ros_node import declare_parameters, run_node
 from gsrmr_common.ros_wire import ns_to_stamp, stamp_to_ns
 from gsrmr_common.route import LoopPath
@@ -33,23 +33,18 @@ from gsrmr_sim.world.recorder import with_resolution
 from gsrmr_sim.world.scene import load_scene
 
 
-def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
-    """Yaw (rad, about +z) of a quaternion."""
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
 @dataclass(frozen=True)
 class TruePose:
     """A true pose from ``odom_topic``: (a_m, b_m, theta_rad) of ``base_link`` in ``map``, the time it holds for
     (``stamp_ns``: its ``header.stamp``, or its arrival when unstamped) and its arrival on the node clock [ns]."""
 
-    pose: tuple[float, float, float]
+    pose: Pose2D
     stamp_ns: int
     received_ns: int
 
 
 def frame_pose(latest: TruePose | None, now_ns: int, odom_timeout_s: float,
-               last_frame_stamp_ns: int | None) -> tuple[int, tuple[float, float, float] | None] | None:
+               last_frame_stamp_ns: int | None) -> tuple[int, Pose2D | None] | None:
     """The stamp [ns] and pose of the frame a tick renders: the newest true pose at its own stamp when it arrived at
     most ``odom_timeout_s`` ago; else ``now_ns`` and None (the scripted pose at that time). None: no frame, the
     newest true pose was rendered already (its stamp is ``last_frame_stamp_ns``)."""
@@ -148,7 +143,7 @@ class MockCamera(Node):
         if self.round_param == 0:
             self.create_subscription(Int32, "sim/route/lap", self._on_lap, 10)
         self.true_pose: TruePose | None = None
-        self.rest_pose: tuple[float, float, float] | None = None  # first true pose, while waiting for motion
+        self.rest_pose: Pose2D | None = None  # first true pose, while waiting for motion
         # the round's start on the node clock [ns] (None: waiting for the true pose to move)
         self.start_ns: int | None = None if self.clock_from_motion else self.get_clock().now().nanoseconds
         self.last_frame_stamp_ns: int | None = None
@@ -171,7 +166,7 @@ class MockCamera(Node):
 
     def _on_odom(self, msg: Odometry) -> None:
         q = msg.pose.pose.orientation
-        pose = (msg.pose.pose.position.x, msg.pose.pose.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
+        pose = Pose2D(msg.pose.pose.position.x, msg.pose.pose.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
         received_ns = self.get_clock().now().nanoseconds
         try:
             stamp_ns = stamp_to_ns(msg.header.stamp) or received_ns  # unstamped: holds for its arrival
@@ -185,7 +180,7 @@ class MockCamera(Node):
                 self.start_ns = stamp_ns
                 self.get_logger().info("robot moving: round clock started")
 
-    def scripted_pose(self, t_s: float) -> tuple[float, float, float]:
+    def scripted_pose(self, t_s: float) -> Pose2D:
         """Open-loop route pose at round time ``t_s``: arc length speed·t along the loop."""
         s = self.scene.route.speed_mps * t_s
         x, y = self.path.point_at(s)

@@ -8,7 +8,6 @@ On hardware the radio's driver publishes the same message from its own measureme
 from __future__ import annotations
 
 from dataclasses import dataclass
-import math
 
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -19,6 +18,7 @@ from gsrmr_common.interrupts import console_main
 from gsrmr_common.link_params import LinkParameters
 from gsrmr_common.node_help import Endpoint, NodeInterface, ParameterGroup
 from gsrmr_common.node_params import NodeParameters, ros_parameter
+from gsrmr_common.pose2d import Pose2D, yaw_from_quaternion
 from gsrmr_common.ros_node import aligned_timer, declare_link_budget, declare_parameters, run_node
 from gsrmr_common.ros_wire import channel_sample_to_msg
 from gsrmr_common.slot_clock import SlotClock
@@ -68,8 +68,7 @@ class ChannelNode(Node):
 
     def _on_odom(self, msg: Odometry) -> None:
         p, q = msg.pose.pose, msg.pose.pose.orientation
-        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-        self.truth.observe_pose((p.position.x, p.position.y, yaw))
+        self.truth.observe_pose(Pose2D(p.position.x, p.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)))
 
     def _tick(self) -> None:
         ahead_ns = self.get_clock().now().nanoseconds + self.lead_ns

@@ -11,12 +11,12 @@ import math
 
 import numpy as np
 
+from gsrmr_common.pose2d import Pose2D, wrap_angle
 from gsrmr_common.route import LoopPath, PurePursuit
 from gsrmr_sim.world.scene import Route
 
 
-def unicycle_step(pose: tuple[float, float, float], v_mps: float, omega_rps: float,
-                  dt_s: float) -> tuple[float, float, float]:
+def unicycle_step(pose: Pose2D, v_mps: float, omega_rps: float, dt_s: float) -> Pose2D:
     """Pose after driving (v, ω) for ``dt_s`` seconds from ``pose`` (exact arc integration)."""
     a, b, th = pose
     if abs(omega_rps) < 1e-9:
@@ -26,8 +26,7 @@ def unicycle_step(pose: tuple[float, float, float], v_mps: float, omega_rps: flo
         r = v_mps / omega_rps
         a += r * (math.sin(th + omega_rps * dt_s) - math.sin(th))
         b -= r * (math.cos(th + omega_rps * dt_s) - math.cos(th))
-    th = math.atan2(math.sin(th + omega_rps * dt_s), math.cos(th + omega_rps * dt_s))
-    return a, b, th
+    return Pose2D(a, b, wrap_angle(th + omega_rps * dt_s))
 
 
 @dataclass
@@ -43,15 +42,15 @@ class Drive:
     step_controls: np.ndarray
 
 
-def has_moved(pose: tuple[float, float, float], rest: tuple[float, float, float], *, min_move_m: float = 0.01,
+def has_moved(pose: Pose2D, rest: Pose2D, *, min_move_m: float = 0.01,
               min_turn_rad: float = 0.01) -> bool:
     """Whether ``pose`` (a_m, b_m, theta_rad) left ``rest`` by more than ``min_move_m`` or turned by more
     than ``min_turn_rad`` (the round of the simulated world starts then)."""
     return (math.hypot(pose[0] - rest[0], pose[1] - rest[1]) > min_move_m
-            or abs(math.remainder(pose[2] - rest[2], math.tau)) > min_turn_rad)
+            or abs(wrap_angle(pose[2] - rest[2])) > min_turn_rad)
 
 
-def start_pose(route: Route, jitter_m: float = 0.0, seed: int = 0) -> tuple[float, float, float]:
+def start_pose(route: Route, jitter_m: float = 0.0, seed: int = 0) -> Pose2D:
     """The route's start (first waypoint, facing the second), displaced by up to ``jitter_m`` (seeded)."""
     path = LoopPath(route.waypoints)
     x, y = path.point_at(0.0)
@@ -61,10 +60,10 @@ def start_pose(route: Route, jitter_m: float = 0.0, seed: int = 0) -> tuple[floa
         dx, dy = rng.uniform(-jitter_m, jitter_m, 2)
         x, y = x + float(dx), y + float(dy)
         th += float(rng.uniform(-1, 1)) * jitter_m
-    return x, y, th
+    return Pose2D(x, y, th)
 
 
-def drive_route(route: Route, slots: int, slot_s: float, *, pose0: tuple[float, float, float] | None = None,
+def drive_route(route: Route, slots: int, slot_s: float, *, pose0: Pose2D | None = None,
                 substeps: int = 10) -> Drive:
     """Drive the route closed-loop (pure pursuit + unicycle) and sample it at every slot start.
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from gsrmr_common.camera import Camera, CameraMount, Intrinsics, camera_from_pose
 from gsrmr_common.nerfstudio import DatasetFrame, write_dataset
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_sim.world.kinematics import drive_route, start_pose
 from gsrmr_sim.world.points import make_world
 from gsrmr_sim.world.scene import Scene
@@ -124,7 +125,7 @@ class SlotRecord:
 
     t: int
     time_s: float
-    pose: tuple[float, float, float]
+    pose: Pose2D
     camera: Camera
     image: np.ndarray
     depth_m: np.ndarray

@@ -6,14 +6,13 @@ of ``base_link`` in ``map`` (REP-103).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from gsrmr_common.pose2d import Pose2D, wrap_angle
 from gsrmr_robot.limo import protocol as proto
 from gsrmr_robot.limo.kinematics import feedback_to_body
 from gsrmr_robot.limo.odometry import Odometry2D
-from gsrmr_robot.uplink_core import odom_to_map
+from gsrmr_sim.limo.odometry_errors import OdometryErrorDraw
 from gsrmr_sim.world.kinematics import Drive, unicycle_step
 
 
@@ -22,29 +21,33 @@ def _wire(msg):
     return proto.decode_message(proto.decode_frame(proto.encode_message(msg)))
 
 
-def reported_poses(drive: Drive, slot_s: float) -> np.ndarray:
-    """T×3 poses the robot reports at each slot start of ``drive`` (true start pose ``drive.poses[0]``)."""
+def reported_poses(drive: Drive, slot_s: float, odometry: OdometryErrorDraw | None = None) -> np.ndarray:
+    """T×3 poses the robot reports at each slot start of ``drive`` (true start pose ``drive.poses[0]``), its
+    odometry wrong as ``odometry`` says (the mock LIMO's model; None: only the wire's quantisation and the
+    integration): the robot believes it started at the true start moved by the operator's error."""
     steps = drive.step_controls.shape[1]
     dt = slot_s / steps
-    start = tuple(float(v) for v in drive.poses[0])
+    true = Pose2D.of(drive.poses[0])
+    believed = true if odometry is None else true.compose(odometry.start_error.inverse())
     odo = Odometry2D(heading_source="imu")
-    true = start
     now = 0.0
+    imu_offset = 0.0
     out = np.zeros_like(drive.poses)
 
     def feed(v_mps: float, w_radps: float) -> None:
-        yaw = math.atan2(math.sin(true[2]), math.cos(true[2]))
+        yaw = wrap_angle(true[2] + imu_offset)
         odo.update_imu_yaw(_wire(proto.ImuEuler(yaw, 0.0, 0.0)).yaw_rad)
-        state = _wire(proto.MotionState(v_mps, w_radps, 0.0, 0.0))
+        v_reported = v_mps if odometry is None else odometry.errors.reported_speed(v_mps, w_radps)
+        state = _wire(proto.MotionState(v_reported, w_radps, 0.0, 0.0))
         odo.update_velocity(feedback_to_body(proto.MotionMode.DIFF, state), now)
 
     feed(0.0, 0.0)
     for t in range(drive.poses.shape[0]):
-        p = odo.pose
-        out[t] = odom_to_map(start, p.x_m, p.y_m, p.yaw_rad)
+        out[t] = believed.compose(odo.pose)
         for v, w in drive.step_controls[t]:
             true = unicycle_step(true, float(v), float(w), dt)
             now += dt
+            imu_offset = 0.0 if odometry is None else odometry.advance(dt)
             feed(float(v), float(w))
     return out
 

@@ -18,11 +18,11 @@ from std_msgs.msg import Float64MultiArray, Int32
 from gsrmr_common.interrupts import console_main
 from gsrmr_common.node_help import Endpoint, NodeInterface, ParameterGroup
 from gsrmr_common.node_params import NodeParameters, ros_parameter
+from gsrmr_common.pose2d import Pose2D, yaw_from_quaternion
 from gsrmr_common.ros_node import declare_parameters, run_node
 from gsrmr_common.ros_wire import UPLINK_QOS
 from gsrmr_common.route import LoopPath, PurePursuit, laps_completed
 from gsrmr_common.wire import MR_SLOT_INFO_TOPIC
-from gsrmr_sim.world.camera_node import yaw_from_quaternion
 from gsrmr_sim.world.scene import load_scene
 
 
@@ -70,7 +70,7 @@ class RouteFollower(Node):
         if wait_for_server:
             self._server_sub = self.create_subscription(Float64MultiArray, MR_SLOT_INFO_TOPIC, self._on_slot_info,
                                                         UPLINK_QOS)
-        self.pose: tuple[float, float, float] | None = None
+        self.pose: Pose2D | None = None
         self.s0: float | None = None
         self.s = 0.0
         self.laps = 0
@@ -91,7 +91,7 @@ class RouteFollower(Node):
     def _on_odom(self, msg: Odometry) -> None:
         q = msg.pose.pose.orientation
         p = msg.pose.pose.position
-        self.pose = (p.x, p.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
+        self.pose = Pose2D(p.x, p.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
         if self.s0 is None:
             self.s0 = self.path.project(self.pose[0], self.pose[1], 0.0, window_m=self.path.length_m)
             self.s = self.s0

@@ -8,7 +8,7 @@ values raise :class:`SceneError`, its message starting with the key path.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 import hashlib
 import math
 from pathlib import Path
@@ -30,6 +30,7 @@ from gsrmr_shapes.spec import parse_waypoints as _waypoints
 from gsrmr_shapes.spec import string as _str
 from gsrmr_shapes.spec import unique as _unique
 from gsrmr_shapes.spec import vector as _vec
+from gsrmr_sim.limo.odometry_errors import OdometryErrors
 from gsrmr_sim.world.events import Event, WorldState, change_times_s, world_state
 
 EVENT_TYPES = ("move", "add", "remove", "light", "region_light", "walker", "flicker")
@@ -120,6 +121,7 @@ class Scene:
     model_train_width_px: int | None = None  # training resolution (None: 160 px)
     model_budget: int | None = None  # max Gaussians (None: 100k)
     model_init_points: int | None = None  # Gaussians initialised from round-1 depth (None: the trainer's 30k)
+    odometry: OdometryErrors = field(default_factory=OdometryErrors)  # what the LIMO's odometry gets wrong
 
     def state_at(self, round_index: int, t_s: float) -> WorldState:
         """Objects, lights and illumination regions of the real world at round time ``t_s``."""
@@ -235,8 +237,9 @@ def _event(value: Any, path: str, objects: dict[str, Shape], lights: set[str]) -
     return ev
 
 
+ODOMETRY_KEY = "odometry"
 _TOP_KEYS = {"name", "camera", "slot_s", "slots", "frames", "ambient", "background", "room", "lights",
-             "objects", "mr_content", "route", "events", "server", "points", "model"}
+             "objects", "mr_content", "route", "events", "server", "points", "model", ODOMETRY_KEY}
 
 
 def parse_scene(data: Any, source: str = "", base_dir: Path | None = None) -> Scene:
@@ -316,7 +319,14 @@ def parse_scene(data: Any, source: str = "", base_dir: Path | None = None) -> Sc
 
     model_seconds = _num(model["train_seconds"], "model.train_seconds", positive=True) \
         if "train_seconds" in model else None
-    return Scene(name=name, camera=camera, route=route, slot_s=slot_s, slots=slots, frames=frames,
+    odometry = OdometryErrors()
+    if m.get(ODOMETRY_KEY) is not None:
+        om = _mapping(m[ODOMETRY_KEY], ODOMETRY_KEY, {f.name for f in fields(OdometryErrors)})
+        try:
+            odometry = OdometryErrors(**{k: _num(v, f"{ODOMETRY_KEY}.{k}") for k, v in om.items()})
+        except ValueError as err:
+            raise _fail(ODOMETRY_KEY, str(err)) from err
+    return Scene(name=name, camera=camera, route=route, slot_s=slot_s, slots=slots, frames=frames, odometry=odometry,
                  ambient=ambient, background=background, room=room, lights=lights,  # type: ignore[arg-type]
                  objects=objects, mr_content=mr_content, events=events,
                  server_position_m=server_pos, points=points, source=source,  # type: ignore[arg-type]
@@ -342,10 +352,25 @@ def resolve_scene_path(name_or_path: str) -> Path:
     return resolve_config(name_or_path, "scenes", "scene", REPO_SCENES_DIR)
 
 
+def scene_cache_text(name_or_path: str) -> str:
+    """The scene file's text without its top-level ``odometry`` section: what the caches of things made from the
+    mapping round (headless laps, models, loss maps) are keyed by. The mapping round keeps true poses, so the
+    robot's odometry errors change none of them."""
+    out: list[str] = []
+    skipping = False
+    for line in resolve_scene_path(name_or_path).read_text().splitlines(keepends=True):
+        top_level = bool(line.strip()) and not line[0].isspace() and not line.lstrip().startswith("#")
+        if top_level:
+            skipping = line.startswith(f"{ODOMETRY_KEY}:")
+        if not skipping:
+            out.append(line)
+    return "".join(out)
+
+
 def scene_digest(name_or_path: str) -> str:
-    """The first 12 hex digits of the SHA-256 of the scene file's text: a cache of anything made from the scene
+    """The first 12 hex digits of the SHA-256 of :func:`scene_cache_text`: a cache of anything made from the scene
     (headless laps, models) keyed by it is never stale after an edit."""
-    return hashlib.sha256(resolve_scene_path(name_or_path).read_bytes()).hexdigest()[:12]
+    return hashlib.sha256(scene_cache_text(name_or_path).encode()).hexdigest()[:12]
 
 
 def load_scene(name_or_path: str, overrides: Callable[[dict], None] | None = None) -> Scene:

@@ -7,10 +7,9 @@ before the round carry ``round_slot = −1``): docs/world.md, "Nodes", ``gsrmr-s
 from __future__ import annotations
 
 from gsrmr_common.link_model import LinkBudget
+from gsrmr_common.pose2d import Pose2D
 from gsrmr_common.wire import ChannelSample
 from gsrmr_sim.world.kinematics import has_moved
-
-Pose = tuple[float, float, float]  # (a_m, b_m, theta_rad) of base_link in map
 
 
 class TrueChannel:
@@ -18,11 +17,11 @@ class TrueChannel:
 
     def __init__(self, link: LinkBudget) -> None:
         self.link = link
-        self.pose: Pose | None = None
-        self.rest_pose: Pose | None = None
+        self.pose: Pose2D | None = None
+        self.rest_pose: Pose2D | None = None
         self.round_start_slot: int | None = None
 
-    def observe_pose(self, pose: Pose) -> None:
+    def observe_pose(self, pose: Pose2D) -> None:
         """The robot's true pose now (map, m, rad); the first motion arms the round start."""
         self.pose = pose
         self.rest_pose = self.rest_pose or pose
