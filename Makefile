@@ -41,8 +41,14 @@ test-long: venv
 demo: venv
 	$(VENV)/bin/gsrmr-demo $(DEMO_ARGS)
 
+# Every performance bench (bench/perf/), each with no arguments, one after the other to the end; the first that fails
+# stops it. None needs root or a network namespace. The acceptance runs (bench/acceptance/: whole demo rounds, two
+# hosts, given inputs) are run by hand, as their docstrings say.
+PERF_BENCHES := $(sort $(wildcard bench/perf/*.py))
+
 bench: venv
-	@for b in bench/*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+	@for b in $(PERF_BENCHES); do echo "== $$b"; t0=$$(date +%s); $(PY) $$b || exit 1; \
+		echo "== $$b: $$(( $$(date +%s) - t0 )) s"; done
 
 # The docs tree (README, CHANGELOG, docs/*.md through MyST) and the library's API reference, warnings as errors.
 docs: venv

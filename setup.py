@@ -51,6 +51,12 @@ CONSOLE_SCRIPTS = [
     "gsrmr-experiments = gsrmr_sim.experiments.cli:main",
     "gsrmr-demo = gsrmr_sim.demo:main",
     "gsrmr-uplink-relay = gsrmr_sim.fault_relay_node:main",
+    # after a run: tables from recorded gsrmr-demo reports (README "Reading recorded runs")
+    "gsrmr-regret-split = gsrmr_sim.analysis.regret_split:main",
+    "gsrmr-key-estimates = gsrmr_sim.analysis.key_estimates:main",
+    "gsrmr-planner-replay = gsrmr_sim.analysis.planner_replay:main",
+    "gsrmr-planner-tail = gsrmr_sim.analysis.planner_tail:main",
+    "gsrmr-plausibility-replay = gsrmr_sim.analysis.plausibility_replay:main",
 ]
 
 

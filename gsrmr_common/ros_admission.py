@@ -161,7 +161,7 @@ class GatedInputs:
     def log_summary(self, implausible: dict[str, int] | None = None, **extra: Any) -> None:
         """One INFO line at shutdown, ``input checks: {JSON}`` (:data:`SUMMARY_PREFIX`): the writers refused by
         name, the implausible inputs by reason, the writer alarms and ``extra`` counters (a run's log then shows that
-        a clean run refused nothing; ``bench/demo.py`` sums these lines)."""
+        a clean run refused nothing; ``bench/acceptance/demo.py`` sums these lines)."""
         values = self.diagnostic_values()
         values.pop("writers_held", None)
         values["implausible"] = dict(sorted((implausible or {}).items()))

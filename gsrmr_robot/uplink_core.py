@@ -118,7 +118,7 @@ def covering_schedule(slot: int, newest: ScheduleMsg | None, before: ScheduleMsg
 
 
 class UplinkCore:
-    """Decides each slot's upload and books its energy; the node and ``bench/soak.py``-style drivers call it alike.
+    """Decides each slot's upload and books its energy; the node and ``bench/perf/soak.py``-style drivers call it alike.
 
     The slot's channel gain is the radio's measurement (``radio/channel_gain``; the simulator's
     ``gsrmr-sim-channel`` in simulation); without one the ledger books the expected gain ρ0·d^−α at the odometry

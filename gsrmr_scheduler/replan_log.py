@@ -68,7 +68,7 @@ class ServiceGate:
 
 class ReplanLog:
     """Every replan's reason, wall time, solve time and slack (end of the first covered slot − schedule ready [s]:
-    > 0 in time, < 0 late; ``bench/demo.py``'s ``replans_late``)."""
+    > 0 in time, < 0 late; ``bench/acceptance/demo.py``'s ``replans_late``)."""
 
     def __init__(self) -> None:
         self.last: PlanResult | None = None

@@ -1,5 +1,5 @@
 """The scheduler's state on disk (``state_dir``): the last schedule and the loss map, so that a restarted scheduler
-resumes from its last schedule, and every replan's solve time (``bench/demo.py`` reads it). Pure, no ROS."""
+resumes from its last schedule, and every replan's solve time (``bench/acceptance/demo.py`` reads it). Pure, no ROS."""
 
 from __future__ import annotations
 

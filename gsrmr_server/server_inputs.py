@@ -106,7 +106,8 @@ class ServerInputs:
 
     def on_ledger(self, msg: Float64MultiArray, now_ns: int) -> None:
         """The robot's ledger row: taken once per slot, for a slot near the one being composed (the clock's before
-        the first: a replay driving the node faster than real time, ``bench/soak.py --node``, stays near it too)."""
+        the first: a replay driving the node faster than real time, ``bench/perf/soak.py --node``, stays near it
+        too)."""
         with self.lock:
             try:
                 row = ledger_from_msg(msg)

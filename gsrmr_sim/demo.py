@@ -238,8 +238,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                          "render time per slot grows with it (docs/splatting.md)")
     ap.add_argument("--max-psnr-drop-db", type=float, default=None,
                     help=f"compact the trained model to the smallest one within this held-out PSNR loss (default "
-                         f"{LIVE_MAX_PSNR_DROP_DB}; gsrmr-compact; bench/compact.py: sandbox 97k → 17k Gaussians at "
-                         "−0.21 dB)")
+                         f"{LIVE_MAX_PSNR_DROP_DB}; gsrmr-compact; bench/perf/compact.py: sandbox 97k → 17k Gaussians "
+                         "at −0.21 dB)")
     ap.add_argument("--no-compact", action="store_true", help="run on the trained (uncompacted) model")
     ap.add_argument("--channel-seed", type=int, default=7,
                     help="seed of the simulated channel: the fading of the k-th slot of round 2 depends only "

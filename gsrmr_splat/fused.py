@@ -179,7 +179,7 @@ class FusedEngine:
         self._box = np.zeros((0, 4), np.int32)
         self._grads: dict[str, np.ndarray] = {}
         self._dirty = False
-        #: when a dict, wall seconds per phase are added to it (a profile: bench/train.py --profile)
+        #: when a dict, wall seconds per phase are added to it (a profile: bench/perf/train.py --profile)
         self.timings: dict[str, float] | None = None
         self.clock = time.perf_counter  # the clock of the profile (time.thread_time: CPU of a 1-thread run)
         self._t = 0.0

@@ -4,8 +4,8 @@
 plumb_bob distortion, image stamps between the 50 Hz TF samples) → ``gsrmr-dataset`` (keyframing off) → every kept
 frame's camera and planar pose against ``truth.json``, the dropped frames and their reasons in ``frames.csv``, a
 second run byte for byte → ``gsrmr-train`` (a tiny model) → ``gsrmr-survey`` on its held-out frames → the map loaded
-the way the scheduler loads its ``loss_map_file`` and planned with. No live round here: that is ``bench/demo.py``
-with ``gsrmr-demo --model … --loss-map …`` (docs/hardware.md).
+the way the scheduler loads its ``loss_map_file`` and planned with. No live round here: that is
+``bench/acceptance/demo.py`` with ``gsrmr-demo --model … --loss-map …`` (docs/hardware.md).
 """
 
 from __future__ import annotations

@@ -156,7 +156,7 @@ def test_base_stops_within_0_6_s_of_the_last_command(link):
         assert wait_until(lambda: mock.true_velocity().vx_mps == 0.0, 2.0, period_s=0.002)
         stopped_after_s = time.monotonic() - last_cmd_t
         # never before the timeout; after it, within a bound against "late by a period", not a latency figure
-        # (bench/limo.py table 5 measures it: loaded CI machines delay any thread by tens of ms)
+        # (bench/perf/limo.py table 5 measures it: loaded CI machines delay any thread by tens of ms)
         assert 0.5 <= stopped_after_s < 1.0
         assert not drv.snapshot().command_active
         x_stop = mock.true_pose()[0]

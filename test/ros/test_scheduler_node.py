@@ -20,8 +20,9 @@ from gsrmr_scheduler.scheduler_node import SchedulerNode
 
 REPO = Path(__file__).resolve().parents[2]
 # every module that drives an OnlinePlanner from outside the planner package
-PLANNER_USERS = ["gsrmr_scheduler/scheduler_node.py", "gsrmr_scheduler/replan_log.py", "bench/planner_replay.py",
-                 "gsrmr_sim/replay.py", "bench/scheduler.py", "bench/scheduler_start.py"]
+PLANNER_USERS = ["gsrmr_scheduler/scheduler_node.py", "gsrmr_scheduler/replan_log.py",
+                 "gsrmr_sim/analysis/planner_replay.py", "gsrmr_sim/replay.py", "bench/perf/scheduler.py",
+                 "bench/perf/scheduler_start.py"]
 ROUTE = [-1.0, -1.1, 1.0, -1.1, 1.2, 0.9, -1.2, 0.9]
 
 

@@ -288,7 +288,7 @@ def test_fused_training_reaches_the_torch_engines_psnr():
     Without density control, because with it the trainer is chaotic at this size whatever the engine: moving the
     initial means by a relative 1e-6 moves the torch engine's held-out PSNR after the same 300 steps with densification
     (12k Gaussians) by −0.60, −0.05 and +0.21 dB (seeds 0–2), and the fused engine's by as much; fused against torch
-    then differ by −0.45…+0.23 dB per seed, about zero on average. bench/train.py compares the engines with density
+    then differ by −0.45…+0.23 dB per seed, about zero on average. bench/perf/train.py compares the engines with density
     control at full size over several seeds."""
     frames = views(16, width=64, height=48)
     test = frames[3::4]

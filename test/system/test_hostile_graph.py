@@ -6,7 +6,8 @@ the module (``ros`` + ``slow``) (the simulated closed loop as processes, every n
 ``gsrmr_sim.sim_stack.SIM_WRITERS``; the scheduler plans an image in every slot, so that the robot's hold-back shows),
 one rogue node (``gsrmr_hostile``) lying case after case (``hostile.CASES``); each test checks that the lie changed
 nothing it must not change, that its target named the rogue on ``/diagnostics``, and that a clean stack counted
-nothing before the first lie. The full rounds with the energy and loss figures are ``bench/hostile_graph.py``.
+nothing before the first lie. The full rounds with the energy and loss figures are
+``bench/acceptance/hostile_graph.py``.
 """
 
 from __future__ import annotations
@@ -433,7 +434,8 @@ def test_the_stack_exits_cleanly_after_the_lies(stack):
         assert proc.returncode == 0, (name, proc.returncode, took.get(name), stack.log(name)[-1500:])
     summary = json.loads((stack.tmp / "rec" / "server_summary.json").read_text())
     assert f"/{ROGUE_NAME}" in summary["writers_refused"]
-    # each deployment node's last word: what its input checks counted, one JSON object (what bench/demo.py sums)
+    # each deployment node's last word: what its input checks counted, one JSON object (what
+    # bench/acceptance/demo.py sums)
     from gsrmr_common.ros_admission import SUMMARY_PREFIX
 
     checks = {}
