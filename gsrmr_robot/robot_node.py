@@ -45,8 +45,10 @@ from gsrmr_common.ros_wire import (
     stamp_to_ns,
 )
 from gsrmr_common.slot_clock import SlotClock, SlotTicker
+from gsrmr_common.wire import MapCorrection
 from gsrmr_robot.dds_profile import use_uplink_profile
 from gsrmr_robot.image_acks import ImageAcks
+from gsrmr_robot.odometry_calibration import CalibratedOdometry
 from gsrmr_robot.robot_params import INTERFACE, RobotParameters
 from gsrmr_robot.scene_change import SceneChangeDetector
 from gsrmr_robot.static_tf import StaticFrames
@@ -77,6 +79,8 @@ class RobotNode(Node):
         self._frame_stamp_ns = 0
         # Recent odometry poses (odom): the key is map → odom ∘ the pose at the capture time of its frame.
         self._poses = PoseHistory()
+        # keys from calibrated odometry (the server's fixes teach it): docs/nodes.md, "The server localizes the robot"
+        self.odometry = CalibratedOdometry() if p.localization == "server" and p.odometry_calibration else None
         self.schedule_misses = self.no_frame = self.no_pose = 0
         detector = (SceneChangeDetector(ratio=self.params.scene_change_ratio)
                     if self.params.scene_change_ratio > 0 else None)
@@ -104,7 +108,7 @@ class RobotNode(Node):
             self.inputs.subscribe(kind, topic, lambda msg, _gid, cb=callback: cb(msg), qos, writers, rate_hz=rate_hz,
                                   burst=burst)
         self.workstation = WorkstationInputs(self, self.inputs, p, self.link, self.clock, self._lock, self.implausible,
-                                             self._position)
+                                             self._position, self._correction_applied)
         self.schedules, self.gains, self.maps = (self.workstation.schedules, self.workstation.gains,
                                                  self.workstation.maps)
         self.acks = ImageAcks(self, self._pub_img, p.image_readers, self.backlog, self._lock)
@@ -164,9 +168,16 @@ class RobotNode(Node):
         except ValueError as err:
             self.get_logger().warning(f"odometry refused: {err}", throttle_duration_sec=5.0)
             return
+        pose = Pose2D(p.position.x, p.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
         with self._lock:
-            self._poses.add(stamp_ns, Pose2D(p.position.x, p.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)),
-                            self.get_clock().now().nanoseconds)
+            if self.odometry is not None:
+                pose = self.odometry.add(stamp_ns, pose, msg.twist.twist.angular.z)
+            self._poses.add(stamp_ns, pose, self.get_clock().now().nanoseconds)
+
+    def _correction_applied(self, correction: MapCorrection) -> None:
+        """A correction is in force (the lock held): its fix teaches the odometry calibration."""
+        if self.odometry is not None:
+            self.odometry.learn(self.clock.slot_named(round(correction.stamp_s * 1e9)), self.maps.map_from_odom())
 
     def _position(self) -> tuple[float, float] | None:
         """The robot's latest (x, y) in map (the caller holds the lock)."""
@@ -192,7 +203,10 @@ class RobotNode(Node):
             raw = self._frame if fresh else None
             frame = self.port.frame(raw) if raw is not None else None
             frame_stamp_ns = self._frame_stamp_ns if frame is not None else None
-            odom_pose = self._poses.at(frame_stamp_ns, now_ns, round(self.params.max_pose_age_s * 1e9))
+            sample = self._poses.sample_at(frame_stamp_ns, now_ns, round(self.params.max_pose_age_s * 1e9))
+            odom_pose = None if sample is None else sample[1]
+            if sample is not None and self.odometry is not None:
+                self.odometry.key_made(slot, sample[0])
             map_from_odom = self.maps.map_from_odom()
             pose = None if odom_pose is None else map_from_odom.compose(odom_pose)
             sched = self.schedules.covering(slot)
@@ -226,8 +240,8 @@ class RobotNode(Node):
         totals = self.ledger.totals()
         extra = {"schedule_misses": self.schedule_misses, "no_frame": self.no_frame, "no_pose": self.no_pose,
                  "schedule_seq": self.schedules.newest.seq if self.schedules.newest else -1,
-                 "correction_seq": self.maps.seq, "map_from_odom": json.dumps([round(v, 4) for v in
-                                                                              self.maps.map_from_odom()]),
+                 "correction_seq": self.maps.seq, "odometry_calibration": self._calibration_text(),
+                 "map_from_odom": json.dumps([round(v, 4) for v in self.maps.map_from_odom()]),
                  "channel_unmeasured": self.gains.unmeasured,
                  "camera_info_changes": self.port.changes, "frames_uncalibrated": self.port.frames_withheld,
                  "uplink_camera": self.camera.describe(), "tf_published": self.static_tf.published,
@@ -245,6 +259,11 @@ class RobotNode(Node):
         self._pub_diag.publish(diagnostics_msg(
             self, name=f"{self.get_name()}: uplink energy ledger", hardware_id="gsrmr_robot",
             values={**totals, **extra}, problems=self._problems()))
+
+    def _calibration_text(self) -> str:
+        o = self.odometry
+        return "off" if o is None else json.dumps({"gain": round(o.gain, 4), "slip_per_radps": round(o.slip, 4),
+                                                   "pairs_used": o.pairs_used, "pairs_skipped": o.pairs_skipped})
 
     def on_shutdown(self) -> None:
         """Log what the input checks refused (called by run_node on exit)."""

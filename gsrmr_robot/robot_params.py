@@ -90,6 +90,9 @@ class RobotParameters(NodeParameters):
         "server", "Where map → odom comes from: server = map_from_odom corrected by the server's gsrmr/map_correction "
         "(the server localizes the robot from its images), off = map_from_odom alone (another localizer sets it)",
         read_only=True, constraints="one of: server, off")
+    odometry_calibration: bool = ros_parameter(
+        True, "With localization server: scale the odometry's distances by a gain and a turn slip learned from the "
+        "server's corrections (keys between fixes err less on wheels that slip)", read_only=True)
     correction_writers: tuple[str, ...] = ros_parameter(
         ("gsrmr_server",), "Nodes whose gsrmr/map_correction is taken", read_only=True)
     max_correction_step_m: float = ros_parameter(

@@ -67,14 +67,20 @@ class PoseHistory:
         """The pose nearest in time to ``stamp_ns`` (the latest one when ``stamp_ns`` is None); None when there is none
         or — given ``now_ns`` and ``max_age_ns`` — the newest pose arrived more than ``max_age_ns`` before ``now_ns``
         (the odometry, or this node, stalled: no pose is known for now; :func:`stale`)."""
+        sample = self.sample_at(stamp_ns, now_ns, max_age_ns)
+        return None if sample is None else sample[1]
+
+    def sample_at(self, stamp_ns: int | None, now_ns: int | None = None,
+                  max_age_ns: int | None = None) -> tuple[int, Pose2D] | None:
+        """As :meth:`at`, with the pose's stamp: ``(stamp_ns, pose)``."""
         if self.latest is None:
             return None
         if now_ns is not None and max_age_ns is not None and stale(self.latest_stamp_ns, self.latest_arrival_ns,
                                                                    now_ns, max_age_ns):
             return None
         if stamp_ns is None or not self._poses:
-            return self.latest
-        return min(self._poses, key=lambda item: abs(item[0] - stamp_ns))[1]
+            return self.latest_stamp_ns, self.latest
+        return min(self._poses, key=lambda item: abs(item[0] - stamp_ns))
 
 
 @dataclass(frozen=True)

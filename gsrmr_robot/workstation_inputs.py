@@ -23,7 +23,7 @@ from gsrmr_common.ros_wire import (
     schedule_from_msg,
 )
 from gsrmr_common.slot_clock import SlotClock
-from gsrmr_common.wire import CHANNEL_TOPIC, MAP_CORRECTION_TOPIC
+from gsrmr_common.wire import CHANNEL_TOPIC, MAP_CORRECTION_TOPIC, MapCorrection
 from gsrmr_robot.map_source import CorrectionLimits, MapSource
 from gsrmr_robot.robot_inputs import REPEAT, ChannelGains, ScheduleInbox
 from gsrmr_robot.robot_params import RobotParameters
@@ -31,13 +31,15 @@ from gsrmr_robot.robot_params import RobotParameters
 
 class WorkstationInputs:
     """Subscribes the robot's inputs from the workstation and the radio; ``lock`` guards what the slot reads;
-    ``position`` gives the robot's latest (x, y) in map (the gain band's centre)."""
+    ``position`` gives the robot's latest (x, y) in map (the gain band's centre); ``applied`` is called (holding the
+    lock) with each correction put in force."""
 
     def __init__(self, node: Node, inputs: GatedInputs, params: RobotParameters, link: LinkBudget,
                  clock: SlotClock, lock: threading.Lock, implausible: Implausible,
-                 position: Callable[[], tuple[float, float] | None]) -> None:
+                 position: Callable[[], tuple[float, float] | None],
+                 applied: Callable[[MapCorrection], None] = lambda _c: None) -> None:
         self.node, self.inputs, self.clock, self._lock, self.implausible = node, inputs, clock, lock, implausible
-        self.position = position
+        self.position, self.applied = position, applied
         self.schedules = ScheduleInbox(params.slot_s, ScheduleLimits(max_power_w=params.max_tx_power_w), implausible)
         self.gains = ChannelGains(link, implausible)
         limits = CorrectionLimits(max_step_m=params.max_correction_step_m,
@@ -91,6 +93,8 @@ class WorkstationInputs:
             return
         with self._lock:
             reason = self.maps.offer(correction, gid)
+            if reason is None and self.maps.seq == correction.seq:
+                self.applied(correction)
         if reason:
             self._warn(f"map correction seq {correction.seq} refused ({reason}) from "
                        f"{self.inputs.writer_of(MAP_CORRECTION_TOPIC, gid)}")

@@ -73,6 +73,9 @@ ROBOT_DECLARED = {
     "localization": ("server", None, True, "Where map → odom comes from: server = map_from_odom corrected by the "
                      "server's gsrmr/map_correction (the server localizes the robot from its images), off = "
                      "map_from_odom alone (another localizer sets it)"),
+    "odometry_calibration": (True, None, True, "With localization server: scale the odometry's distances by a gain "
+                             "and a turn slip learned from the server's corrections (keys between fixes err less on "
+                             "wheels that slip)"),
     "correction_writers": (["gsrmr_server"], None, True, "Nodes whose gsrmr/map_correction is taken"),
     "max_correction_step_m": (0.5, (0.01, 10.0), True, "A correction moving map → odom further than this from the one "
                               "in force is refused [m]"),

@@ -181,7 +181,12 @@ def _remapped(spec, name: str) -> str | None:
 # here (True / False; None: it may or may not be), from the specs and what imports: the comparison is exact.
 CONDITIONAL: dict[tuple[str, Grant], tuple[str, Callable[[dict], bool | None]]] = {
     ("/gsrmr_robot", ("topic", "publish", "/tf_static")):
-        ("map → odom, base_link → camera: only where tf2_ros imports", lambda specs: _imports("tf2_ros")),
+        ("base_link → camera: only where tf2_ros imports", lambda specs: _imports("tf2_ros")),
+    ("/gsrmr_robot", ("topic", "publish", "/tf")):
+        ("map → odom: only where tf2_ros imports", lambda specs: _imports("tf2_ros")),
+    ("/gsrmr_robot", ("topic", "subscribe", "/gsrmr/map_correction")):
+        ("the server's corrections: localization server (config/robot.yaml's default)",
+         lambda specs: _params(specs["gsrmr_robot"]).get("localization", "server") == "server"),
     ("/gsrmr_limo_base", ("topic", "publish", "/tf")):
         ("odom → base_link with publish_tf, where tf2_ros or tf2_msgs imports",
          lambda specs: bool(_params(specs["gsrmr_limo_base"]).get("publish_tf"))
