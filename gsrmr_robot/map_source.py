@@ -39,6 +39,8 @@ class MapSource:
         self.stamp_s = -math.inf  # of the newest fix in the correction in force
         self.variance = (math.inf, math.inf, math.inf)
         self._seq = SeqTracker()
+        self.driven_since_correction_m = 0.0  # odometry distance since the correction in force was applied …
+        self.driven_since_image_m = 0.0  # … and since the last image went (its fix may still come)
 
     def map_from_odom(self) -> Pose2D:
         """The pose of ``odom`` in ``map`` now."""
@@ -69,5 +71,23 @@ class MapSource:
             self.implausible[reason] += 1
             return reason
         self.correction, self.seq, self.stamp_s = x, c.seq, c.stamp_s
+        self.driven_since_correction_m = 0.0
         self.variance = (c.var_a_m2, c.var_b_m2, c.var_theta_rad2)
         return None
+
+    def moved(self, distance_m: float) -> None:
+        """The robot drove ``distance_m`` (odometry) since the last call."""
+        if math.isfinite(distance_m) and distance_m > 0:
+            self.driven_since_correction_m += distance_m
+            self.driven_since_image_m += distance_m
+
+    def image_sent(self) -> None:
+        """An image went: the server may fix the robot from it."""
+        self.driven_since_image_m = 0.0
+
+    def stale(self, max_driven_m: float) -> bool:
+        """Whether the keys' correction is stale: the robot drove more than ``max_driven_m`` since the correction in
+        force (or since the start, before any) and more than half that since the last image (whose fix would have
+        come by then). ``max_driven_m`` ≤ 0: never."""
+        return (max_driven_m > 0 and self.driven_since_correction_m > max_driven_m
+                and self.driven_since_image_m > 0.5 * max_driven_m)

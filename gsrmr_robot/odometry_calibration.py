@@ -98,6 +98,11 @@ class CalibratedOdometry:
         self._by_stamp[sample.stamp_ns] = sample
         return self._pose
 
+    def raw_frame(self) -> Pose2D:
+        """The base driver's ``odom`` frame in the calibrated one, at the newest pose (what turns a ``map →``
+        calibrated-frame pose into the ``map → odom`` TF consumers expect)."""
+        return Pose2D() if self._raw is None else self._pose.compose(self._raw.inverse())
+
     def key_made(self, slot: int, stamp_ns: int) -> None:
         """The key of ``slot`` was made from the calibrated pose stamped ``stamp_ns`` (one :meth:`add` returned)."""
         sample = self._by_stamp.get(int(stamp_ns))

@@ -48,13 +48,13 @@ from gsrmr_common.slot_clock import SlotClock, SlotTicker
 from gsrmr_common.wire import MapCorrection
 from gsrmr_robot.dds_profile import use_uplink_profile
 from gsrmr_robot.image_acks import ImageAcks
-from gsrmr_robot.odometry_calibration import CalibratedOdometry
+from gsrmr_robot.key_poses import KeyPoses
 from gsrmr_robot.robot_params import INTERFACE, RobotParameters
 from gsrmr_robot.scene_change import SceneChangeDetector
 from gsrmr_robot.static_tf import StaticFrames
 from gsrmr_robot.uplink_backlog import UplinkBacklog
 from gsrmr_robot.uplink_camera_port import UplinkCameraPort
-from gsrmr_robot.uplink_core import PoseHistory, SlotInputs, UplinkCore, stale
+from gsrmr_robot.uplink_core import SlotInputs, UplinkCore, stale
 from gsrmr_robot.workstation_inputs import WorkstationInputs
 
 
@@ -77,10 +77,6 @@ class RobotNode(Node):
         self._frame: np.ndarray | None = None
         self._frame_ns = 0
         self._frame_stamp_ns = 0
-        # Recent odometry poses (odom): the key is map → odom ∘ the pose at the capture time of its frame.
-        self._poses = PoseHistory()
-        # keys from calibrated odometry (the server's fixes teach it): docs/nodes.md, "The server localizes the robot"
-        self.odometry = CalibratedOdometry() if p.localization == "server" and p.odometry_calibration else None
         self.schedule_misses = self.no_frame = self.no_pose = 0
         detector = (SceneChangeDetector(ratio=self.params.scene_change_ratio)
                     if self.params.scene_change_ratio > 0 else None)
@@ -111,6 +107,9 @@ class RobotNode(Node):
                                              self._position, self._correction_applied)
         self.schedules, self.gains, self.maps = (self.workstation.schedules, self.workstation.gains,
                                                  self.workstation.maps)
+        # the key is map → odom ∘ the (calibrated) odometry pose at the capture time of its frame
+        server = p.localization == "server"
+        self.keys = KeyPoses(self.maps, server and p.odometry_calibration, p.stale_fix_m if server else 0.0)
         self.acks = ImageAcks(self, self._pub_img, p.image_readers, self.backlog, self._lock)
         # 5 ms tick: slot starts are detected with ≤ 5 ms jitter without a drifting periodic timer.
         # run each slot 1 ms after it starts (polling the clock at 200 Hz cost ~5 % of a core)
@@ -170,19 +169,15 @@ class RobotNode(Node):
             return
         pose = Pose2D(p.position.x, p.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
         with self._lock:
-            if self.odometry is not None:
-                pose = self.odometry.add(stamp_ns, pose, msg.twist.twist.angular.z)
-            self._poses.add(stamp_ns, pose, self.get_clock().now().nanoseconds)
+            self.keys.odom(stamp_ns, pose, msg.twist.twist.angular.z, self.get_clock().now().nanoseconds)
 
     def _correction_applied(self, correction: MapCorrection) -> None:
         """A correction is in force (the lock held): its fix teaches the odometry calibration."""
-        if self.odometry is not None:
-            self.odometry.learn(self.clock.slot_named(round(correction.stamp_s * 1e9)), self.maps.map_from_odom())
+        self.keys.correction_applied(self.clock.slot_named(round(correction.stamp_s * 1e9)))
 
     def _position(self) -> tuple[float, float] | None:
         """The robot's latest (x, y) in map (the caller holds the lock)."""
-        latest = self._poses.latest
-        return None if latest is None else self.maps.map_from_odom().compose(latest)[:2]
+        return self.keys.position()
 
     # ---------------------------------------------------------------- slots
     def _tick(self) -> None:
@@ -203,12 +198,8 @@ class RobotNode(Node):
             raw = self._frame if fresh else None
             frame = self.port.frame(raw) if raw is not None else None
             frame_stamp_ns = self._frame_stamp_ns if frame is not None else None
-            sample = self._poses.sample_at(frame_stamp_ns, now_ns, round(self.params.max_pose_age_s * 1e9))
-            odom_pose = None if sample is None else sample[1]
-            if sample is not None and self.odometry is not None:
-                self.odometry.key_made(slot, sample[0])
-            map_from_odom = self.maps.map_from_odom()
-            pose = None if odom_pose is None else map_from_odom.compose(odom_pose)
+            pose, tf_map_from_odom = self.keys.key(slot, frame_stamp_ns, now_ns,
+                                                   round(self.params.max_pose_age_s * 1e9))
             sched = self.schedules.covering(slot)
             frame_id = self.params.camera_frame_id
             gain, round_slot = self.gains.take(slot)
@@ -217,8 +208,11 @@ class RobotNode(Node):
             decision = self.core.run_slot(SlotInputs(slot, frame, frame_stamp_ns, pose,
                                                      sched.lookup(slot) if sched is not None else None, gain,
                                                      sched.threshold(slot) if sched is not None else None,
-                                                     round_slot, queued, self.backlog.rate_bps, self.maps.seq))
-        self.static_tf.send_map_to_odom(map_from_odom, self.odom_frame)
+                                                     round_slot, queued, self.backlog.rate_bps, self.maps.seq,
+                                                     self.keys.fix_stale()))
+            if decision.x == 1:
+                self.keys.image_sent()
+        self.static_tf.send_map_to_odom(tf_map_from_odom, self.odom_frame)
         if decision.scene_changed:
             det = self.core.scene_change
             self.get_logger().info(f"scene change in slot {slot} (frame difference {det.last_score:.4f}, recent "
@@ -240,7 +234,8 @@ class RobotNode(Node):
         totals = self.ledger.totals()
         extra = {"schedule_misses": self.schedule_misses, "no_frame": self.no_frame, "no_pose": self.no_pose,
                  "schedule_seq": self.schedules.newest.seq if self.schedules.newest else -1,
-                 "correction_seq": self.maps.seq, "odometry_calibration": self._calibration_text(),
+                 "correction_seq": self.maps.seq, "odometry_calibration": json.dumps(self.keys.calibration()),
+                 "stale_fix_images": self.core.stale_fix_images,
                  "map_from_odom": json.dumps([round(v, 4) for v in self.maps.map_from_odom()]),
                  "channel_unmeasured": self.gains.unmeasured,
                  "camera_info_changes": self.port.changes, "frames_uncalibrated": self.port.frames_withheld,
@@ -259,11 +254,6 @@ class RobotNode(Node):
         self._pub_diag.publish(diagnostics_msg(
             self, name=f"{self.get_name()}: uplink energy ledger", hardware_id="gsrmr_robot",
             values={**totals, **extra}, problems=self._problems()))
-
-    def _calibration_text(self) -> str:
-        o = self.odometry
-        return "off" if o is None else json.dumps({"gain": round(o.gain, 4), "slip_per_radps": round(o.slip, 4),
-                                                   "pairs_used": o.pairs_used, "pairs_skipped": o.pairs_skipped})
 
     def on_shutdown(self) -> None:
         """Log what the input checks refused (called by run_node on exit)."""

@@ -93,6 +93,10 @@ class RobotParameters(NodeParameters):
     odometry_calibration: bool = ros_parameter(
         True, "With localization server: scale the odometry's distances by a gain and a turn slip learned from the "
         "server's corrections (keys between fixes err less on wheels that slip)", read_only=True)
+    stale_fix_m: float = ros_parameter(
+        2.0, "With localization server: after driving this far without a new correction (and half as far without an "
+        "image), send an image at the first fair fade so that the server can fix the pose [m]; 0 = never",
+        min_value=0.0, max_value=100.0, read_only=True)
     correction_writers: tuple[str, ...] = ros_parameter(
         ("gsrmr_server",), "Nodes whose gsrmr/map_correction is taken", read_only=True)
     max_correction_step_m: float = ros_parameter(

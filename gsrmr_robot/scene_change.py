@@ -130,6 +130,11 @@ class ChangeProbe:
         waited = int(slot) - self._change_slot
         return 0 <= waited < len(self.fades) and gain >= mean_gain * float(self.fades[waited])
 
+    @property
+    def waiting(self) -> bool:
+        """An image is asked for (the wait has started and no image went since)."""
+        return self._change_slot is not None
+
     def image_sent(self) -> None:
         """An image went (for the change or not): nothing is waited for any more."""
         self._change_slot = None

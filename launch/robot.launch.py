@@ -44,7 +44,9 @@ def _nodes(context, config: str) -> list[Node]:
         Node(package="gsrmr", executable="gsrmr-robot", name="gsrmr_robot", namespace=namespace, output="screen",
              parameters=[link, mount, robot, {"jpeg_quality": ParameterValue(LaunchConfiguration("jpeg_quality"),
                                                                       value_type=int),
-                                              "odom_writers": ["gsrmr_limo_base"]}],
+                                              "odom_writers": ["gsrmr_limo_base"],
+                                              "localization": ParameterValue(LaunchConfiguration("localization"),
+                                                                             value_type=str)}],
              remappings=[("camera/image_raw", LaunchConfiguration("camera_image_topic")),
                          ("camera/camera_info", LaunchConfiguration("camera_info_topic"))],
              **_security(context, "gsrmr_robot")),
@@ -66,5 +68,8 @@ def generate_launch_description() -> LaunchDescription:
                                           "('' = off)"),
         DeclareLaunchArgument("cmd_vel_source", default_value="*",
                               description="the node the base takes cmd_vel from (a planner or twist_mux; * = any)"),
+        DeclareLaunchArgument("localization", default_value="server", choices=["server", "off"],
+                              description="map → odom: corrected by the server's localization (server), or "
+                                          "map_from_odom alone (off: another localizer, e.g. AMCL)"),
         OpaqueFunction(function=_nodes, kwargs={"config": config}),
     ])

@@ -173,15 +173,18 @@ def test_ros2_launch_server_arguments_and_ctrl_c(tmp_path):
     isolate_this_process()
     model = make_point_model(tmp_path, n=1000)
     run = start_ros2_launch(tmp_path, "gsrmr", "server.launch.py", f"model_path:={model}", "loss_threshold:=0.035",
-                            "mr_content:=sandbox", "method:=exact", f"record_dir:={tmp_path / 'record'}")
+                            "mr_content:=sandbox", "method:=exact", f"record_dir:={tmp_path / 'record'}",
+                            "localization:=false")
     try:
-        # three independent CLI calls at once (each mostly waits: interpreter start, discovery of its node)
-        with ThreadPoolExecutor(max_workers=3) as pool:
+        # four independent CLI calls at once (each mostly waits: interpreter start, discovery of its node)
+        with ThreadPoolExecutor(max_workers=4) as pool:
             showing = pool.submit(ros2, "launch", "gsrmr", "server.launch.py", "--show-args")
             threshold = pool.submit(ros2_until, "param", "get", "--no-daemon", "/gsrmr_scheduler", "loss_threshold",
                                     ok="value is", attempts=20)
             model_path = pool.submit(ros2_until, "param", "get", "--no-daemon", "/gsrmr_server", "model_path",
                                      ok="value is", attempts=20)
+            localization = pool.submit(ros2_until, "param", "get", "--no-daemon", "/gsrmr_server", "localization",
+                                       ok="value is", attempts=20)
         shown = showing.result()
         for name in ("model_path", "mr_content", "route_file", "loss_threshold", "method", "record_dir", "namespace"):
             assert f"'{name}'" in shown.stdout, shown.stdout
@@ -189,6 +192,8 @@ def test_ros2_launch_server_arguments_and_ctrl_c(tmp_path):
         assert got.stdout.strip() == "Double value is: 0.035", got.stdout + got.stderr
         got = model_path.result()
         assert got.stdout.strip() == f"String value is: {model}", got.stdout + got.stderr
+        got = localization.result()
+        assert got.stdout.strip() == "Boolean value is: False", got.stdout + got.stderr
         rc = run.ctrl_c()
     finally:
         if run.proc.poll() is None:
@@ -202,7 +207,9 @@ def test_every_launch_file_shows_its_arguments():
     """``ros2 launch gsrmr <file> --show-args`` (README) lists each file's arguments."""
     expected = {"sim.launch.py": ("model_path", "scene", "record_dir", "loss_threshold", "method", "laps",
                                   "serial_link", "namespace"),
-                "robot.launch.py": ("port", "camera_image_topic", "camera_info_topic", "jpeg_quality", "namespace")}
+                "robot.launch.py": ("port", "camera_image_topic", "camera_info_topic", "jpeg_quality", "namespace",
+                                    "localization"),
+                "server.launch.py": ("model_path", "loss_map_file", "localization", "record_dir")}
     with ThreadPoolExecutor(max_workers=len(expected)) as pool:  # independent CLI calls: at once
         shows = dict(zip(expected, pool.map(lambda name: ros2("launch", "gsrmr", name, "--show-args"), expected),
                          strict=True))

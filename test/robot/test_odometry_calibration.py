@@ -93,3 +93,15 @@ def test_short_pairs_and_resets_teach_nothing():
     assert not odo.learn(20, Pose2D())
     assert odo.pairs_used == 0 and (odo.gain, odo.slip) == (1.0, 0.0)
     assert not odo.learn(99, Pose2D())  # a slot without a key
+
+
+def test_raw_frame_joins_the_calibrated_pose_to_the_driver_odometry():
+    odo = CalibratedOdometry()
+    odo.gain, odo.slip = 0.95, 0.1  # as learned
+    raw = Pose2D(0.2, -0.1, 0.4)
+    for n in range(1, 60):
+        raw = raw.compose(Pose2D(0.006, 0.0, 0.01))
+        pose = odo.add(n * 20_000_000, raw, 0.5)
+        joined = odo.raw_frame().compose(raw)
+        assert joined.distance_m(pose) < 1e-9 and abs(joined.heading_error_rad(pose)) < 1e-9
+    assert pose.distance_m(raw) > 0.01  # the calibrated pose went less far

@@ -76,6 +76,9 @@ ROBOT_DECLARED = {
     "odometry_calibration": (True, None, True, "With localization server: scale the odometry's distances by a gain "
                              "and a turn slip learned from the server's corrections (keys between fixes err less on "
                              "wheels that slip)"),
+    "stale_fix_m": (2.0, (0.0, 100.0), True, "With localization server: after driving this far without a new "
+                    "correction (and half as far without an image), send an image at the first fair fade so that "
+                    "the server can fix the pose [m]; 0 = never"),
     "correction_writers": (["gsrmr_server"], None, True, "Nodes whose gsrmr/map_correction is taken"),
     "max_correction_step_m": (0.5, (0.01, 10.0), True, "A correction moving map → odom further than this from the one "
                               "in force is refused [m]"),
