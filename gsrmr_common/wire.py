@@ -1,31 +1,16 @@
-"""Wire formats shared by the robot, the server and the scheduler (pure: no rclpy import).
+"""Wire formats shared by the robot, the server and the scheduler (pure: no rclpy import), owned here so the two sides
+cannot disagree; :mod:`gsrmr_common.ros_wire` maps them to messages. Topics, types and layouts: README.md, "Wire
+layouts" (test/project/test_readme.py holds it to these fields).
 
-This module owns the rules of every record the robot and the workstation share, so they cannot disagree;
-:mod:`gsrmr_common.ros_wire` maps them to messages. Topics and layouts: README.md, "Wire layouts". Every upload is
-stamped with its slot's start, so the stamp names the slot (:class:`gsrmr_common.slot_clock.SlotClock`).
+Fields in wire order: :class:`ScheduleMsg` ``[first_slot, slot_s, seq, slots]``, then the blocks ``x``, ``power_w`` and,
+with the in-slot rule, ``gain_threshold``, which ``layout.dim`` labels after ``meta``; :class:`LedgerRow` ``[slot, x,
+scheduled_power_w, bits_sent, gain, power_w, energy_j, upload_all_bits, upload_all_energy_j, frame_stamp_s, round_slot,
+held_back, uplink_rate_bps, scene_change, correction_seq]``; :class:`LossSample` ``[slot, a_m, b_m, theta_rad, loss]``;
+:class:`ChannelSample` ``[slot, round_slot, gain]``; :class:`MRSlotInfo` ``[slot, source, a_m, b_m, theta_rad,
+content_time_s]``; :class:`MapCorrection` :data:`MAP_CORRECTION_FIELDS`.
 
-* pose key (:class:`PoseKey`): ``(a_m, b_m, theta_rad)`` in ``map``, three float64 = 192 bits; sent in image slots
-  too, so the server can measure the GS loss L_t at that pose;
-* image: a JPEG, ``format`` :data:`JPEG_FORMAT`, ``frame_id`` the camera optical frame;
-* schedule (:class:`ScheduleMsg`): ``[first_slot, slot_s, seq, slots]``, then ``x``, ``power_w`` and, with the
-  in-slot rule, ``gain_threshold`` (+inf sent as −1); ``layout.dim`` labels the blocks ``meta``, ``x``, ``power_w``,
-  ``gain_threshold``; ``first_slot`` is exact in float64 up to 2^53;
-* ledger row (:class:`LedgerRow`, units in the names): ``[slot, x, scheduled_power_w, bits_sent, gain, power_w,
-  energy_j, upload_all_bits, upload_all_energy_j, frame_stamp_s, round_slot, held_back, uplink_rate_bps,
-  scene_change, correction_seq]``;
-* loss sample (:class:`LossSample`): ``[slot, a_m, b_m, theta_rad, loss]``;
-* channel sample (:class:`ChannelSample`): ``[slot, round_slot, gain]``;
-* map correction (:class:`MapCorrection`): ``[seq, stamp_s, a_m, b_m, theta_rad, var_a_m2, var_b_m2,
-  var_theta_rad2]``;
-* MR slot info (:class:`MRSlotInfo`): ``[slot, source, a_m, b_m, theta_rad, content_time_s]``. ``source`` indexes
-  :data:`REAL_SOURCES`; the pose is the one the MR image was composed at (the slot's key, or the fallback estimate;
-  NaN ×3 for source ``none``); ``content_time_s`` is the MR content time, seconds since the first composed slot.
-  With the model, the MR content, the mount and the intrinsics a monitor can rebuild the slot's v and d
-  (:class:`gsrmr_server.scoring.SlotScorer`).
-
-Names that cross a boundary as strings (CSV cells, diagnostics JSON, the demo summary) are enums:
-:class:`Delivery`, :class:`RealSource`, :class:`UplinkFault`.
-"""
+Names that cross a boundary as strings (CSV cells, diagnostics JSON, the demo summary) are enums: :class:`Delivery`,
+:class:`RealSource` (``source``: on the wire an index of :data:`REAL_SOURCES`) and :class:`UplinkFault`."""
 
 from __future__ import annotations
 
@@ -36,7 +21,7 @@ import math
 import numpy as np
 
 POSE_KEY_BITS = 192
-JPEG_FORMAT = "rgb8; jpeg compressed bgr8"
+JPEG_FORMAT = "rgb8; jpeg compressed bgr8"  # an uploaded image's format; its frame_id is the camera optical frame
 MAP_FRAME = "map"
 SCHEDULE_META = ("first_slot", "slot_s", "seq", "slots")
 # Refuse uploads whose size or claimed dimensions are absurd before decoding them.
@@ -46,7 +31,8 @@ MAX_COMPRESSED_BYTES = 8 * 1024 * 1024
 
 @dataclass(frozen=True)
 class PoseKey:
-    """A pose key: robot pose in ``map`` (metres, radians) for absolute slot ``slot``."""
+    """A pose key: robot pose in ``map`` (metres, radians) for absolute slot ``slot``; sent in image slots too, so the
+    server can measure the GS loss L_t at that pose."""
 
     slot: int
     a_m: float
@@ -60,7 +46,8 @@ class PoseKey:
 
 @dataclass
 class ScheduleMsg:
-    """A schedule as sent on the wire: slots ``first_slot … first_slot + len(x) − 1``."""
+    """A schedule as sent on the wire: slots ``first_slot … first_slot + len(x) − 1`` (``first_slot`` is exact in
+    float64 up to 2^53)."""
 
     first_slot: int
     slot_s: float
@@ -186,8 +173,10 @@ MR_SLOT_INFO_TOPIC = "mr/slot_info"
 
 @dataclass(frozen=True)
 class MRSlotInfo:
-    """What the server composed slot ``slot``'s MR image from (see the module docstring): where r̂ came from,
-    the pose it was composed at (map, m, rad; NaN without one) and the MR content time [s]."""
+    """What the server composed slot ``slot``'s MR image from: where r̂ came from, the pose it was composed at (map,
+    m, rad: the slot's key or the fallback estimate; NaN ×3 for source ``none``) and the MR content time, seconds
+    since the first composed slot. With the model, the MR content, the mount and the intrinsics a monitor can rebuild
+    the slot's v and d (:class:`gsrmr_server.scoring.SlotScorer`)."""
 
     slot: int
     source: RealSource

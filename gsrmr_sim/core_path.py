@@ -1,24 +1,6 @@
-"""The slot path without nodes or DDS, for the soak and load benches (``bench/perf/soak.py``, ``bench/perf/load.py``
-core mode).
-
-The objects the nodes wire, wired the same way:
-
-* :class:`RobotSide` — :class:`~gsrmr_robot.uplink_core.UplinkCore` + :class:`~gsrmr_robot.uplink_core.PoseHistory`,
-  gathered as :meth:`RobotNode.run_slot <gsrmr_robot.robot_node.RobotNode.run_slot>` gathers them; the decision's
-  uploads as :class:`~gsrmr_sim.fault_relay.Upload` (stamp = slot start, what the robot publishes);
-* :func:`deliver` — uploads into an :class:`~gsrmr_server.uplink.UplinkAssembler` as the server node's
-  ``uplink/*`` callbacks do (slot from the stamp);
-* :class:`ServerSide` — :class:`~gsrmr_server.compose.MRComposer` → :class:`~gsrmr_server.slot_core.ServerCore`,
-  the assembler and (optionally) a :class:`~gsrmr_server.recording.RunRecorder`, built with the constructors
-  ``ServerNode.__init__`` uses, over the node's parameters (:class:`~gsrmr_server.server_params.ServerParameters`:
-  its defaults, which ``config/server.yaml`` repeats, unless overridden);
-  :meth:`ServerSide.process` is ``ServerNode.process_slot`` without the publishing, plus — given the true
-  frame — the simulation scorer's work on the slot (:func:`gsrmr_server.scoring.score_slot`, in this process);
-* :func:`point_model` — the untrained model both benches compose with.
-
-No rclpy context, node or DDS participant is created. (``rclpy`` is still *imported*, as a module:
-``gsrmr_server.recording`` → ``gsrmr_common.ros_wire`` → ``rclpy.qos``.)
-"""
+"""The slot path without nodes or DDS for the soak and load benches (``bench/perf/soak.py``, ``bench/perf/load.py``
+core mode): the robot's and the server's cores, wired as the nodes wire them. What it wires and what it leaves out:
+docs/reliability.md, "Load and soak"."""
 
 from __future__ import annotations
 

@@ -1,16 +1,6 @@
-"""The machine a bench ran on: CPUs, load average and two speed probes, printed in a bench table's header.
-
-``from gsrmr_sim.machine_probe import machine_line`` in every bench that prints it (``bench/perf/``,
-``bench/acceptance/``); no ROS.
-
-Cloud machines of one nominal size differ in speed from day to day (on 2026-11-25 the 2-core machine ran the
-renderer 2.5–3.2× slower than on 2026-11-24), so a table says how fast its machine was:
-
-* ``cpu_probe_s`` times a pure-Python loop of 10⁷ additions (one core; 0.35 s on a good hour of that day, 1.65 s on
-  a bad one);
-* ``render_probe_ms`` times one 320×240 render of the garden test model on one thread (the server's per-slot work;
-  the Python probe alone missed a slow renderer on a day its loop was fast).
-"""
+"""The machine a bench ran on, printed in a bench table's header: CPUs, load average and two speed probes, since a
+cloud machine's speed varies from day to day (no ROS). What the probes time and their usual values: docs/results.md,
+"The machine"."""
 
 from __future__ import annotations
 
@@ -38,7 +28,8 @@ def cpu_probe_s(repeats: int = 3) -> float:
 
 def render_probe_ms(repeats: int = 7) -> float:
     """Median wall time [ms] of ``render()`` of the garden test model (111,785 Gaussians) at 320×240 on one thread,
-    the first camera of the garden data (after one warm-up call)."""
+    the first camera of the garden data (after one warm-up call): the server's per-slot work, which the CPU probe
+    alone does not track."""
     cam = load_garden()[2][0]
     camera = Camera(cam.intrinsics.scaled(320, 240), cam.world_to_camera)
     model = garden_model()

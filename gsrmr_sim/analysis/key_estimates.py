@@ -1,27 +1,6 @@
-"""How well the scheduler knew the loss its round spent, after the run: key-slot estimates and slot bookings.
-
-Usage: ``gsrmr-key-estimates REPORT_DIR... [--per-run]``.
-
-A key slot has no measurement of its own: the scheduler's burst model
-(:class:`gsrmr_scheduler.loss_predictor.LossPredictor`) estimates the loss it left from the loss samples of the
-images around it, and the round's budget is spent by those estimates. For each ``gsrmr-demo`` report this replays
-the run's own slots (its ``x``, loss samples as the server measured them, corrected by the seed map's
-``sample_offset``, and what the server composed each slot from, ``source``) into a fresh burst model over the run's
-seed map, books every scored slot as the scheduler would, and compares the booked loss with the loss the slot left
-(``loss``, the scorer's; HINDSIGHT, computed after the run, never available live). Four bookings:
-
-* ``interpolated``: key slots by ℓ interpolated between the measurements, image slots at J whatever the server
-  composed (the scheduler before 2026-11-27, session 7);
-* ``stepped``: key slots as a step at the slots the run's robot found a scene change in (the ``scene_change`` column
-  of ``slots.csv``, else the robot's log; :meth:`~gsrmr_scheduler.loss_predictor.LossPredictor.note_change`);
-* ``… + composed``: a slot charged as the server composed it
-  (:meth:`gsrmr_scheduler.planner.budget.LossBudget.slot_loss`:
-  an image that missed its slot as the render used, a fallback at ``FALLBACK_LOSS_FACTOR`` × the key's estimate).
-  ``stepped + composed`` is the scheduler now.
-
-The figure per run is (Σ booked − Σ left) / the scored slots: how far the round's booked mean loss is off (negative:
-the round spent more than it thought). The table gives its mean, spread and extremes over the runs.
-"""
+"""gsrmr-key-estimates: how well the scheduler knew the loss its round spent, after the run (hindsight): each
+gsrmr-demo report's key-slot estimates and slot bookings, four ways, against the scorer's loss. The bookings and
+the table: docs/scheduling.md, "Reading recorded runs: the analysis tools"."""
 
 from __future__ import annotations
 
@@ -46,7 +25,7 @@ def change_slots(report: Path, rows: list[dict]) -> list[int]:
 
 
 def booking_errors(report: Path) -> dict[str, float]:
-    """{booking: (Σ booked − Σ left) over the scored slots / their number} for one report (module docstring)."""
+    """{booking: (Σ booked − Σ left) over the scored slots / their number} for one report (docs/scheduling.md)."""
     rows = [r for r in read_slots_csv(report / "slots.csv") if r.get("slot") is not None]
     planner = make_planner(scheduler_params(report), {})
     seed, offset = planner.forecast.model.seed_map, planner.forecast.sample_offset

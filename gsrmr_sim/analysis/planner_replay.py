@@ -1,26 +1,6 @@
-"""Planner study on recorded runs: replay demo reports through planner settings (:mod:`gsrmr_sim.replay`).
-
-Usage: ``gsrmr-planner-replay REPORT_DIR... [--vary horizon=50,100,200]
-[--set key=value ...]``. Each REPORT_DIR is a ``gsrmr-demo`` report (its ``slots.csv`` and
-``params/gsrmr_scheduler.yaml``). For every setting, every run is replayed with the scheduler's
-parameters of that run (``config/scheduler.yaml`` + the run's overrides) changed by ``--set`` and the
-varied key; the table gives the median and worst over the runs of mean MR loss, runs within L_th, regret
-(against each run's hindsight optimum, computed after the run) and the planner's CPU time per replan.
-Keys: the scheduler's parameters (:class:`~gsrmr_scheduler.scheduler_params.SchedulerParameters`: horizon, method,
-loss_margin, margin_quantile, explore_image_fraction, probe_gap_slots, round_slots, ...), the planner's knobs that
-are no parameter (:class:`~gsrmr_scheduler.planner.PlannerConfig`: refine_slots, round_start_m,
-margin_window_samples, startup_explore_samples) plus ``replan_every`` (slots between timer replans) and
-``measurement_delay`` (slots before an image's L_t reaches the planner). The planner is configured as the
-scheduler node configures it (:meth:`~gsrmr_scheduler.scheduler_params.SchedulerParameters.planner_config`), always
-without the oracle. The images the run's robot sent for a scene change (``gsrmr_robot.scene_change``; its log
-``logs/gsrmr_robot.log`` names the slots, which depend on its camera only) are replayed at the recorded gains with
-the robot's rule, unless ``--no-scene-changes``.
-
-``--rest-forecast`` (hindsight, after the runs) adds a table per setting: at every replan inside a round, the mean L
-the planner planned with (its forecast, the learned margin included) over the round's slots left within the horizon,
-over the recorded truth L of a key in those slots (``gs_truth_loss``), binned by the slots left in the round — where
-in the round the forecast runs high (budget kept for losses that did not come) or low.
-"""
+"""gsrmr-planner-replay: gsrmr-demo reports replayed through planner settings (gsrmr_sim.replay; no ROS), one row
+per setting, regret against each run's hindsight optimum. Keys, options and how to read the tables:
+docs/scheduling.md, "Reading recorded runs: the analysis tools"."""
 
 from __future__ import annotations
 

@@ -1,30 +1,6 @@
-"""The online planner's regret tail, replayed over many channel seeds (pure: no ROS; issue 28).
-
-Usage: ``gsrmr-planner-tail REPORT_DIR... [--seeds 1-20] [--late 0,0.3] [--per-run]
-[--set key=value ...]``.
-
-Each REPORT_DIR is a ``gsrmr-demo`` report (``slots.csv`` with its hindsight columns and
-``params/gsrmr_scheduler.yaml``; see ``gsrmr-planner-replay``). Channel seed k takes the world of report
-(k − 1) mod N — the robot's reported poses, the truth and measured L_t, each slot's JPEG size — and draws the
-channel afresh as the simulator does with ``--channel-seed k`` (:meth:`LinkBudget.gain` of the round slot at the
-reported position), so twenty seeds need only a few recorded rounds. Energies are recomputed at the new gains from
-the bits each slot carried (image + key, or the key alone).
-
-The replay is :func:`gsrmr_sim.replay.replay`'s live information flow (a plan every 5 slots and after a drift alarm,
-the robot's in-slot decision at the slot's gain, an image's L_t one slot later) plus the scheduler node's
-**publish timing** (``--late P``). The node calls ``plan(now_slot)`` with ``now_slot`` the slot in which it expects
-the plan to be done (now + the p90 of its plan times). A timer replan that runs just before a slot boundary gets
-``now_slot = k`` while it is still slot k − 1 and is published before slot k starts: the robot decides slot k with
-it. ``P`` is the probability of that per timer replan (drift replans come mid-slot, on a loss sample, and never
-are). Live, 0–31 of the 70–95 plans of a round were so (``scheduler_state/plan_stats.json``: ``slack_s`` > τ); a
-timer fires at one phase of the slot for the whole round, so a round has none or many. A planner whose schedule
-starts at ``now_slot + 1`` (before issue 28's fix) leaves slot k without an entry, and a robot that finds none
-uploads the image (``default_upload_image``), whatever the fade; the column "schedule misses" counts those slots.
-
-Per setting the table gives, over the seeds: median (worst) regret against each seed's hindsight optimum, mean MR
-loss median (worst) and the runs within L_th, the images, and the images sent into fades below 10 % of the mean
-gain ("deep") with the share of the energy they cost.
-"""
+"""gsrmr-planner-tail: the online planner's regret tail: gsrmr-demo reports' worlds replayed under many channel seeds
+with the scheduler node's publish timing (no ROS). The model and the columns: docs/scheduling.md, "Reading recorded
+runs: the analysis tools"."""
 
 from __future__ import annotations
 
@@ -78,7 +54,7 @@ def rechannel(rows: list[dict], slots: list[RecordedSlot], seed: int, budget: Li
 
 def replay_timed(slots: list[RecordedSlot], planner, *, loss_threshold: float, late: float, rng: np.random.Generator,
                  replan_every: int = 5, measurement_delay: int = 1) -> dict:
-    """The live loop over ``slots`` with the node's publish timing (module docstring); figures of the scored slots."""
+    """The live loop over ``slots`` with the node's publish timing (docs/scheduling.md); figures of the scored slots."""
     x = np.zeros(len(slots), np.int8)
     pending: list[tuple[int, RecordedSlot]] = []
     pose = None

@@ -1,19 +1,6 @@
-"""The plausibility rules replayed over recorded clean rounds: would they have refused anything? (the false alarms)
-
-Usage: ``gsrmr-plausibility-replay REPORT_DIR... [--link config/link.yaml]`` — each a
-``gsrmr-demo`` report (``reports/demo-*``). For every scored round's ``slots.csv`` it offers, in slot order:
-
-* the pose the server composed each slot at (the robot's key of the slot, or the server's fallback) to
-  :class:`gsrmr_common.plausibility.PoseTrack` (top speed 1.5 m/s, 0.3 m slack, 5 agreeing keys relocalise);
-* the gain the robot's ledger booked (the radio's measurement) to :class:`gsrmr_common.channel_band.GainBand` at
-  that pose (the link model of ``--link``), and the ratio to the path-loss prediction in dB;
-* the loss sample of each image slot (``gs_loss``) to the metric's range [0, ``MR_LOSS_MAX``];
-* with ``--seed-map`` (the scheduler's seed, e.g. the demo's cached ``loss_map_*.json``): the same samples to the
-  robust aggregation — how far (×) each lay from the scheduler's L_t model level (:class:`LossPredictor`, clipped
-  beyond ``MAX_LOG_DEVIATION``) and from its live loss-map cell (clipped beyond ``outlier_factor``).
-
-It prints one row per report (what each rule would have refused) and the totals. Pure: no ROS, no model.
-"""
+"""gsrmr-plausibility-replay: the plausibility rules replayed over recorded clean rounds (gsrmr-demo reports): what
+each would have refused, the false alarms (no ROS, no model). What it offers each rule: docs/scheduling.md, "Reading
+recorded runs: the analysis tools"; the rules: docs/security.md, "Plausibility, even from the right writer"."""
 
 from __future__ import annotations
 

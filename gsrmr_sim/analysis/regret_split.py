@@ -1,24 +1,5 @@
-"""Where a run's regret comes from, after the run: image placement against the budget left unspent.
-
-Usage: ``gsrmr-regret-split REPORT_DIR... [--loss-threshold 0.03] [--per-run]``.
-
-Each REPORT_DIR is a ``gsrmr-demo`` report (its ``slots.csv`` with the hindsight columns). Over the scored slots
-with every hindsight value, the run's regret (its energy over the hindsight optimum's at L_th, the demo's
-``regret``) is the product of two factors (:func:`gsrmr_sim.hindsight.regret_split`, hindsight: an evaluation,
-never available live):
-
-* ``placement``: the run's energy over the hindsight optimum's at the run's *own* mean loss — how well it placed
-  its images for the loss it ended with;
-* ``unspent``: the optimum at the run's own loss over the optimum at L_th — what ending the round below L_th cost.
-
-The table gives each factor's median and worst over the runs (``--per-run``: every run), with the run's mean
-loss, its images and the optimum's images at the run's loss.
-
-``--batch-bar BAR`` (e.g. 1.52, issue 25's bar on ``bench/acceptance/demo.py --runs 5 --seeds 1``) adds how often a
-batch of one run per channel seed would have its median regret at or under BAR: over every combination of one report
-per channel seed (the reports grouped by their ``summary.json`` ``channel_seed``) — what the runs say of a single
-batch's chance, since a median of five moves with the run each seed happens to get.
-"""
+"""gsrmr-regret-split: where each run's regret comes from, after the run (hindsight): image placement × budget left
+unspent, over gsrmr-demo reports. How to read it: docs/scheduling.md, "Reading recorded runs: the analysis tools"."""
 
 from __future__ import annotations
 
