@@ -80,7 +80,8 @@ def _copy_files(entries: list[dict], src: Path, dst: Path) -> None:
             if isinstance(rel, str) and (src / rel).is_file():
                 target = dst / rel
                 target.parent.mkdir(parents=True, exist_ok=True)
-                shutil.copy2(src / rel, target)
+                if target.resolve() != (src / rel).resolve():  # --out the dataset itself: nothing to copy
+                    shutil.copy2(src / rel, target)
 
 
 def _fail(message: str) -> int:

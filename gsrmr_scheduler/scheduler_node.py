@@ -1,10 +1,7 @@
-"""The scheduler node (``gsrmr-scheduler``): solves P_GS online and publishes the schedule.
-
-Topics, services and parameters: ``gsrmr-scheduler --help`` (:data:`~gsrmr_scheduler.scheduler_params.INTERFACE`);
-when it replans and what it takes from the graph: ``docs/scheduling.md`` and ``docs/security.md``. The logic lives in
-pure objects: the planner (:class:`~gsrmr_scheduler.planner.OnlinePlanner`), the intake of its inputs
-(:class:`~gsrmr_scheduler.intake.SchedulerIntake`), the replan log and the state on disk.
-"""
+"""The scheduler node (``gsrmr-scheduler``): solves P_GS online and publishes the schedule. Topics, services and
+parameters: ``gsrmr-scheduler --help``; when it replans and what it takes from the graph: ``docs/scheduling.md`` and
+``docs/security.md``. Its logic: :class:`~gsrmr_scheduler.planner.OnlinePlanner`,
+:class:`~gsrmr_scheduler.intake.SchedulerIntake`, the replan log and the state store."""
 
 from __future__ import annotations
 
