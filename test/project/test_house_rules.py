@@ -44,5 +44,6 @@ def test_module_docstrings_are_short():
 def test_results_are_one_page_and_no_machine_path_is_tracked():
     assert len((REPO / "docs" / "results.md").read_text().splitlines()) <= MAX_RESULTS_LINES
     assert (REPO / "CHANGELOG.md").is_file()
-    found = subprocess.run(["git", "grep", "-l", "/work/"], cwd=REPO, capture_output=True, text=True).stdout.split()
+    machine_path = "/" + "work/"  # spelled in two parts so this file does not match itself
+    found = subprocess.run(["git", "grep", "-l", machine_path], cwd=REPO, capture_output=True, text=True).stdout.split()
     assert found == [], f"a path of one machine in {found}"
