@@ -28,7 +28,15 @@ from gsrmr_sim.link_events import LinkEvent, parse_link_events
 from gsrmr_sim.models import LIVE_MAX_PSNR_DROP_DB, BuiltModel, live_model, live_recipe
 from gsrmr_sim.param_events import ParamEvent, swap_loss_map_event, swap_model_event, swap_summary
 from gsrmr_sim.pose_errors import key_pose_errors, read_truth
-from gsrmr_sim.report import copy_recording, link_summary, log, run_summary, summary_json, write_report
+from gsrmr_sim.report import (
+    copy_recording,
+    exit_status,
+    link_summary,
+    log,
+    run_summary,
+    summary_json,
+    write_report,
+)
 from gsrmr_sim.round_start import first_moving_slot as first_moving_slot  # re-exported: test_pipeline_units
 from gsrmr_sim.rounds import run_rounds, worlds_cache
 from gsrmr_sim.sim_stack import TRUTH_LOG, config_dir, robot_jpeg_quality, sim_stack
@@ -206,7 +214,7 @@ def rounds_demo(args: argparse.Namespace, *, scene_name: str, slots: int, slot_s
               f"it {r['update_cpu_s']:.0f} CPU-s")
     (out / "summary.json").write_text(summary_json(summary) + "\n")
     print(summary_json(summary), flush=True)
-    return 0
+    return exit_status(rounds)
 
 
 def _exit_on_sigterm(signum: int, _frame: object) -> None:
@@ -424,7 +432,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"  report: {out}")
     summary.pop("faults", None)
     print(summary_json(summary), flush=True)
-    return 0
+    return exit_status([summary])
 
 
 if __name__ == "__main__":

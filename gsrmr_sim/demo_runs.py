@@ -18,6 +18,7 @@ import time
 import numpy as np
 
 CHECKS_PREFIX = "input checks: "  # gsrmr_common.ros_admission.SUMMARY_PREFIX (this module imports no ROS)
+EXIT_UNMEASURED = 3  # gsrmr_sim.report.EXIT_UNMEASURED: the run ended but measured too little (its JSON says why)
 
 
 def input_checks(report_dir: Path) -> dict:
@@ -58,7 +59,8 @@ def run_figures(report_dir: Path) -> dict:
 
 
 def run_once(demo_args: list[str]) -> dict:
-    """One ``gsrmr-demo`` run; its summary (the last stdout line) plus the wall time."""
+    """One ``gsrmr-demo`` run; its summary (the last stdout line) plus the wall time and its ``exit_code``: 0, or
+    :data:`EXIT_UNMEASURED` (the summary's ``unmeasured`` says why). Any other failure raises."""
     exe = Path(sys.executable).parent / "gsrmr-demo"
     t0 = time.perf_counter()
     with subprocess.Popen([str(exe), *demo_args], stdout=subprocess.PIPE, text=True) as proc:
@@ -68,9 +70,9 @@ def run_once(demo_args: list[str]) -> dict:
             proc.terminate()
             proc.wait(timeout=60)
             raise
-    if proc.returncode:
+    if proc.returncode not in (0, EXIT_UNMEASURED):
         raise subprocess.CalledProcessError(proc.returncode, proc.args)
     summary = json.loads(out.strip().splitlines()[-1])
-    summary["wall_s"] = time.perf_counter() - t0
+    summary["wall_s"], summary["exit_code"] = time.perf_counter() - t0, proc.returncode
     summary.update(run_figures(Path(summary["report_dir"])))
     return summary

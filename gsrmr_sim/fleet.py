@@ -16,7 +16,16 @@ from typing import TYPE_CHECKING
 from gsrmr_sim.cpu_usage import CPU_GROUPS
 from gsrmr_sim.limo.odometry_errors import OdometryErrors, run_settings
 from gsrmr_sim.link_events import LinkEvent
-from gsrmr_sim.report import copy_recording, link_summary, log, run_summary, summarise, summary_json, write_report
+from gsrmr_sim.report import (
+    copy_recording,
+    exit_status,
+    link_summary,
+    log,
+    run_summary,
+    summarise,
+    summary_json,
+    write_report,
+)
 from gsrmr_sim.sim_stack import fleet_stack
 from gsrmr_sim.stack_runner import RobotRun, limo_link_path, run_round
 from gsrmr_sim.world.scene import load_scene
@@ -121,4 +130,4 @@ def fleet_demo(args: argparse.Namespace, *, slots: int, slot_s: float, out: Path
               f"robot → server ({fleet['link_uplink_mbit_mean']:.2f} Mbit/s mean) for {robots} robots")
     print(f"  reports: {out}/robot1 … robot{robots}")
     print(summary_json(fleet), flush=True)
-    return 0
+    return exit_status(per_robot)

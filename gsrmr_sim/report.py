@@ -9,6 +9,7 @@ import argparse
 import json
 import math
 from pathlib import Path
+import sys
 import time
 from typing import TYPE_CHECKING
 
@@ -38,6 +39,7 @@ def summarise(rows: list[dict], slot_s: float) -> dict:
 
     energy, upload_all = col("energy_j").sum(), col("energy_upload_all_j").sum()
     return {"slots": len(rows), "slots_on_time": int((col("latency_ms") <= 1e3 * slot_s).sum()),
+            "slots_scored": int(col("loss").size),
             "images_sent": int(sum(1 for r in rows if r["source"] == "image")),
             "energy_j": float(energy), "energy_upload_all_j": float(upload_all),
             "energy_ratio_vs_upload_all": float(upload_all / energy) if energy > 0 else math.nan,
@@ -49,15 +51,50 @@ def summarise(rows: list[dict], slot_s: float) -> dict:
             "faults": sum(1 for r in rows if r["faults"])}
 
 
+#: the share of a round's composed slots the scorer must score for its figures to stand (README, "Main job")
+MIN_SCORED_SHARE = 0.99
+
+
+def unmeasured(summary: dict) -> str | None:
+    """Why a run measured too little to stand for a result (``None``: it measured enough): the scorer scored under
+    :data:`MIN_SCORED_SHARE` of the composed slots, or the hindsight optimum had no slot (no regret)."""
+    slots, scored = summary["slots"], summary["slots_scored"]
+    if slots == 0:
+        return "the round composed no slot"
+    if scored < MIN_SCORED_SHARE * slots:
+        return (f"the scorer scored {scored} of the round's {slots} composed slots (under "
+                f"{MIN_SCORED_SHARE:.0%}): its mean loss and PSNR measure too little of the round")
+    if not summary.get("hindsight_slots"):
+        return "no slot has every hindsight value: the regret is not measured"
+    return None
+
+
+#: gsrmr-demo's exit status when a round measured too little (:func:`unmeasured`)
+EXIT_UNMEASURED = 3
+
+
+def exit_status(summaries: list[dict]) -> int:
+    """0, or :data:`EXIT_UNMEASURED` with each reason on stderr when a summary (a round's, a robot's) says
+    :func:`unmeasured` (its ``unmeasured`` key)."""
+    failed = [s for s in summaries if s.get("unmeasured")]
+    for summary in failed:
+        where = ", ".join(f"{k} {summary[k]}" for k in ("robot", "round") if k in summary)
+        print(f"gsrmr-demo: not measured{f' ({where})' if where else ''}: {summary['unmeasured']}", file=sys.stderr,
+              flush=True)
+    return EXIT_UNMEASURED if failed else 0
+
+
 def run_summary(args: argparse.Namespace, rows: list[dict], slot_s: float, built: BuiltModel,
                 channel_seed: int | None) -> dict:
     """The summary of one robot's round (the demo's JSON without hosts, link and report folder): headline
     figures, the model, the settings and the hindsight optimum."""
-    return {"scene": args.scene, "loss_threshold": args.loss_threshold, **summarise(rows, slot_s),
+    summary = {"scene": args.scene, "loss_threshold": args.loss_threshold, **summarise(rows, slot_s),
             "model_gaussians": built.model.num_gaussians, "model_heldout_psnr_db": built.heldout_psnr_db,
             "model_compacted": not args.no_compact, "channel_seed": channel_seed, "oracle": args.oracle,
             "method": args.method, "loss_map_seed": "round-2 survey (oracle)" if args.oracle else "mapping round",
             **hindsight_summary(rows, args.loss_threshold)}
+    summary["unmeasured"] = unmeasured(summary)
+    return summary
 
 
 def link_summary(link_log: dict, rows: list[dict], uplink_mbit: float) -> dict:

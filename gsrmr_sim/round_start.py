@@ -1,7 +1,8 @@
 """Where the scored round starts in a server's ``slots.csv`` rows (``gsrmr-demo``, one robot or a fleet).
 
-Round 2 starts when the robot sets off: the robot's ledger says so (:func:`first_round_row`), else the first pose key
-that moved (:func:`first_moving_slot`), else the simulated radio's own log (:func:`radio_round_row`).
+Round 2 starts when the robot sets off: the robot's ledger says so (:func:`first_round_row`), else the simulated
+radio's own log (:func:`radio_round_row`); a stack without a radio, the first pose key that moved
+(:func:`first_moving_slot`).
 """
 
 from __future__ import annotations
@@ -14,15 +15,17 @@ RADIO_ROUND_START = re.compile(r"round clock of the channel starts at slot (\d+)
 RADIO_GRACE_SLOTS = 20  # the server's rows must reach this far past the radio's start before its log is used
 
 
-def first_round_row(rows: list[dict]) -> int | None:
+def first_round_row(rows: list[dict], *, moved_key_fallback: bool = True) -> int | None:
     """Index of the row of the round's first slot: where the radio's ``round_slot`` (through the robot's
     ledger) is 0 — the slot the channel's fading index starts from, so runs with one channel seed score
-    the same fading; without round slots (no radio), the first slot whose pose key moved."""
+    the same fading; without round slots, the first slot whose pose key moved if ``moved_key_fallback`` (a stack
+    without a simulated radio). With a radio the fallback must stay off: a map → odom correction moves the key of a
+    robot that is still parked."""
     for i, r in enumerate(rows):
         k = r.get("round_slot")
         if k is not None and k >= 0:
             return max(0, i - int(k))
-    return first_moving_slot(rows)
+    return first_moving_slot(rows) if moved_key_fallback else None
 
 
 def first_moving_slot(rows: list[dict]) -> int | None:

@@ -19,6 +19,8 @@ if TYPE_CHECKING:
     from gsrmr_sim.supervisor import ProcessStack
 
 SCORES_NAME = "scores.csv"
+#: written by the scorer when its first MR image has arrived: its subscriptions are matched (the runner waits for it)
+SCORER_READY_NAME = "scorer.ready"
 
 
 class ScoresWriter:
@@ -47,6 +49,10 @@ class ScoresWriter:
     def close(self) -> None:
         """Close the file."""
         self._file.close()
+
+    def mark_ready(self) -> None:
+        """Write ``<folder>/scorer.ready``: the scorer receives the server's MR images."""
+        (self.path.parent / SCORER_READY_NAME).touch()
 
 
 def read_scores(folder: str | os.PathLike[str]) -> dict[int, dict[str, Any]]:

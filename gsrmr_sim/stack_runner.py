@@ -24,7 +24,7 @@ from gsrmr_sim.link_events import LinkEvent
 from gsrmr_sim.netns import TwoHosts
 from gsrmr_sim.param_events import ParamEvent
 from gsrmr_sim.round_start import first_round_row, radio_round_row
-from gsrmr_sim.scores import await_scores, join_scores
+from gsrmr_sim.scores import SCORER_READY_NAME, await_scores, join_scores
 from gsrmr_sim.sim_stack import ProcessSpec, environment, mock_limo_link
 from gsrmr_sim.supervisor import ProcessStack
 
@@ -74,6 +74,11 @@ class RobotRun:
     def planned(self) -> bool:
         """Its scheduler has planned (its ``schedule.json`` exists), or it has no scheduler state to tell."""
         return self.scheduler_state is None or (self.scheduler_state / "schedule.json").exists()
+
+    @property
+    def scorer_ready(self) -> bool:
+        """Its scorer receives the server's MR images (``scorer.ready`` exists), or it has no scorer."""
+        return SCORER not in self.processes or (self.record_dir / SCORER_READY_NAME).exists()
 
     @property
     def report_dir(self) -> Path:
@@ -158,7 +163,7 @@ def run_round(specs: Sequence[ProcessSpec], *, run_dir: Path, slots: int, timeou
         log(f"starting {len(specs)} processes{of_robots} in ROS domain {domain}")
         warm_s = WARM_TIMEOUT_S + WARM_TIMEOUT_PER_ROBOT_S * (len(runs) - 1) if warm_timeout_s is None \
             else warm_timeout_s
-        _start_and_set_off(stack, specs, runs, placement, warm_s)
+        _start_and_set_off(stack, specs, runs, placement, warm_s, log)
         if net is not None and link_log is not None:
             link_log["start"] = net.link_bytes()
         meter = CpuMeter({proc.pid for proc in stack.procs.values()})
@@ -199,20 +204,28 @@ def run_round(specs: Sequence[ProcessSpec], *, run_dir: Path, slots: int, timeou
 
 
 def _start_and_set_off(stack: ProcessStack, specs: Sequence[ProcessSpec], runs: Mapping[str, RobotRun],
-                       placement: Mapping[str, dict], warm_s: float) -> None:
+                       placement: Mapping[str, dict], warm_s: float, log: Callable[[str], None]) -> None:
     """Start every process but the route followers (each mock LIMO's pty before its driver opens it), wait until
-    every server has composed :data:`WARM_ROWS` slots and every scheduler has planned (at most ``warm_s``), then
-    start the route followers. Without the plan, the round's first slots go by the robot's default (an image at the
-    power its channel asks for, however deep the fade): a scheduler whose kernels compile afresh plans about 0.7 s
-    into the round, and two such images at 18 mW double a round's energy (regret 3.2 against 1.6)."""
+    every server has composed :data:`WARM_ROWS` slots, every scheduler has planned and every scorer receives the MR
+    images (at most ``warm_s``; what was not ready then is logged), then start the route followers. Without the plan,
+    the round's first slots go by the robot's default (an image at the power its channel asks for, however deep the
+    fade): a scheduler whose kernels compile afresh plans about 0.7 s into the round, and two such images at 18 mW
+    double a round's energy (regret 3.2 against 1.6). A scorer at its low priority starts seconds after the rest when
+    another session keeps a core busy: without the wait, the round's first slots go unscored."""
     for spec in specs:
         if spec.executable != ROUTE_FOLLOWER:
             name = process_name(spec)
             stack.start(name, spec, wait_for_path=mock_limo_link(spec), **placement.get(name, {}))
     warm = time.monotonic() + warm_s
-    while time.monotonic() < warm and not all(len(run.rows_so_far()) >= WARM_ROWS and run.planned
-                                              for run in runs.values()):
+    checks = {"composed": lambda run: len(run.rows_so_far()) >= WARM_ROWS, "planned": lambda run: run.planned,
+              "scorer ready": lambda run: run.scorer_ready}
+    while not all(check(run) for check in checks.values() for run in runs.values()):
         stack.check()
+        if time.monotonic() > warm:
+            log(f"set off after {warm_s:.0f} s with " + "; ".join(
+                f"{run.label} not {what}" for run in runs.values() for what, check in checks.items()
+                if not check(run)))
+            break
         time.sleep(0.2)
     for spec in specs:
         if spec.executable == ROUTE_FOLLOWER:
@@ -244,13 +257,13 @@ def _follow_round(stack: ProcessStack, runs: Mapping[str, RobotRun], *, slots: i
                 continue
             rows = run.rows_so_far()
             if first[name] is None:
-                first[name] = first_round_row(rows)
-            if first[name] is None and RADIO in run.processes:  # neither the radio's round slots nor a moved key
+                first[name] = first_round_row(rows, moved_key_fallback=RADIO not in run.processes)
+            if first[name] is None and RADIO in run.processes:  # no round slot reached the server
                 first[name] = radio_round_row(rows, stack.log(run.processes[RADIO]))
                 if first[name] is not None:
                     from_radio.add(name)
-                    log(f"{run.label}: its server saw no round slot and no moved pose key: the round starts at the "
-                        f"simulated radio's first round slot")
+                    log(f"{run.label}: its server saw no round slot: the round starts at the simulated radio's first "
+                        f"round slot")
             if first[name] is not None:
                 done[name] = len(rows) - first[name]
         meter.take()

@@ -29,10 +29,10 @@ import sys
 from gsrmr_sim.demo_runs import run_once
 from gsrmr_sim.machine_probe import machine_line
 
-COLUMNS = ("slots", "slots_on_time", "images_sent", "energy_ratio_vs_upload_all", "energy_upload_all_j", "mean_loss",
-           "psnr_db", "psnr_slot_mean_db", "ssim", "regret", "hindsight_images", "latency_ms_p50", "latency_ms_p95",
-           "latency_ms_p99", "plan_ms_p50", "plan_ms_max", "replans_late", "writers_refused", "implausible",
-           "writer_alarms")
+COLUMNS = ("slots", "slots_on_time", "slots_scored", "images_sent", "energy_ratio_vs_upload_all", "energy_upload_all_j",
+           "mean_loss", "psnr_db", "psnr_slot_mean_db", "ssim", "regret", "hindsight_images", "latency_ms_p50",
+           "latency_ms_p95", "latency_ms_p99", "plan_ms_p50", "plan_ms_max", "replans_late", "writers_refused",
+           "implausible", "writer_alarms")
 # with gsrmr-demo --hosts 2: what crossed the rate-limited uplink (veth counters) and the limiter's drops
 LINK_COLUMNS = ("link_uplink_mbit_mean", "link_uplink_bytes", "link_uplink_dropped_packets")
 

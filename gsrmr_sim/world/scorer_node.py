@@ -74,6 +74,7 @@ class ScorerNode(Node):
         self._pending_model: str | None = None
         self._pending_intrinsics: Intrinsics | None = None
         self._size_warned = False
+        self._ready = False  # the first MR image has arrived (scorer.ready written)
         self._wake = threading.Event()
         self._stop = threading.Event()
         self.add_on_set_parameters_callback(self._validate)
@@ -126,6 +127,9 @@ class ScorerNode(Node):
             return
         self.backlog.add_image(stamp_ns, mr_u8, time.monotonic())
         self._wake.set()
+        if not self._ready and self.writer is not None:
+            self._ready = True
+            self.writer.mark_ready()
 
     def on_slot_info(self, msg: Float64MultiArray) -> None:
         """``mr/slot_info``: what the server composed the slot from."""

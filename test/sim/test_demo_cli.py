@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from gsrmr_scheduler.loss_map import LossMap
-from gsrmr_sim import demo, rounds
+from gsrmr_sim import demo, demo_runs, report, rounds
 from gsrmr_sim.link_events import parse_link_events
 import gsrmr_sim.netns as netns
 from gsrmr_sim.report import link_summary, summary_json, write_report
@@ -101,6 +101,9 @@ def test_round_starts_where_the_radio_round_slot_is_zero_else_where_the_key_move
     assert first_round_row([row(None)] * 5 + [row(-1)] * 2 + [row(2), row(3)]) == 5
     assert first_round_row([row(None)] * 3 + [row(None, -0.9)]) == 3  # no round slots: the first moved key
     assert first_round_row([row(None)] * 4) is None
+    # with a radio, a key moved by a map → odom correction while parked does not start the round
+    assert first_round_row([row(-1)] * 3 + [row(-1, -0.9)], moved_key_fallback=False) is None
+    assert first_round_row([row(-1)] * 3 + [row(-1, -0.9)]) == 3  # without a radio it would
 
 
 def test_truth_frames_round_trip_by_capture_stamp_and_prune(tmp_path):
@@ -189,7 +192,8 @@ def fake_rows(n: int) -> list[dict]:
     return [{"slot": 500 + k, "x": k % 2, "power_w": 0.2 if k % 2 else None, "stamp_s": 50.0 + 0.1 * k,
              "source": "image" if k % 2 else "render", "energy_j": 0.01 if k % 2 else 0.001,
              "energy_upload_all_j": 0.01, "latency_ms": 40.0, "loss": 0.02, "psnr_db": 30.0, "ssim": 0.9,
-             "faults": ""} for k in range(n)]
+             "faults": "", "energy_image_j": 0.01, "energy_key_j": 0.001, "image_truth_loss": 0.01,
+             "gs_truth_loss": 0.03} for k in range(n)]
 
 
 def test_outside_model_and_loss_map_are_run_and_recorded(tmp_path, capsys, monkeypatch):
@@ -219,6 +223,25 @@ def test_outside_model_and_loss_map_are_run_and_recorded(tmp_path, capsys, monke
     assert (summary["model_source"], summary["loss_map_seed"]) == ("--model", "--loss-map")
     assert summary["model_gaussians"] == 20 and summary["model_compacted"] is None
     assert summary["slots"] == 6 and summary["images_sent"] == 3
+
+
+@pytest.mark.parametrize("unscored", [0, 1, 6])
+def test_a_round_the_scorer_did_not_score_exits_3_and_says_why(tmp_path, capsys, monkeypatch, unscored):
+    model, lm = tiny_model(tmp_path / "model.ply"), tiny_loss_map(tmp_path / "map.json")
+    rows = fake_rows(6)
+    for row in rows[:unscored]:
+        row.update(loss=None, psnr_db=None, ssim=None, image_truth_loss=None, gs_truth_loss=None)
+    monkeypatch.setattr(demo, "run_stack", lambda **_k: RobotRun("", "", tmp_path / "no_recording", rows=rows))
+    code = demo.main(["--model", str(model), "--loss-map", str(lm), "--out", str(tmp_path / "r"), "--slots", "6"])
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out.strip().splitlines()[-1])
+    assert summary["slots_scored"] == 6 - unscored
+    if unscored == 0:
+        assert code == 0 and summary["unmeasured"] is None and "not measured" not in captured.err
+    else:  # one of six is under 99 %; none scored also leaves the hindsight without slots
+        assert code == report.EXIT_UNMEASURED == demo_runs.EXIT_UNMEASURED
+        assert f"the scorer scored {6 - unscored} of the round's 6 composed slots" in summary["unmeasured"]
+        assert "gsrmr-demo: not measured: the scorer scored" in captured.err
 
 
 def test_outside_model_alone_is_surveyed_into_the_cache_not_beside_it(tmp_path, capsys, monkeypatch):

@@ -27,7 +27,7 @@ from gsrmr_server.server_params import ServerParameters
 from gsrmr_server.slot_core import build_composer, build_server_core
 from gsrmr_server.slot_row import SCORE_COLUMNS, SlotScore
 from gsrmr_server.uplink import SlotUploads
-from gsrmr_sim.scores import SCORES_NAME, ScoresWriter, await_scores, join_scores, read_scores
+from gsrmr_sim.scores import SCORER_READY_NAME, SCORES_NAME, ScoresWriter, await_scores, join_scores, read_scores
 from gsrmr_sim.sim_stack import SCORER_NICE, WORLD_NICE, sim_stack
 from gsrmr_sim.truth_frames import TruthFrameWriter
 from gsrmr_sim.world import Round2Record, load_scene, record_round2, with_resolution
@@ -246,6 +246,7 @@ def test_scorer_node_scores_each_published_slot_and_follows_a_model_change(round
         folder = _scorer_node(ctx, scene, record.mount, model_a, tmp_path / "folder", truth_dir=str(tmp_path / "truth"))
         info = camera_info_from_intrinsics(record.intrinsics, 0, CAMERA_OPTICAL_FRAME)
         outs = []
+        assert not (tmp_path / "topic" / SCORER_READY_NAME).exists()  # the runner waits until the images arrive
         for t in range(4):
             out = slot(t)
             outs.append(out)
@@ -266,6 +267,7 @@ def test_scorer_node_scores_each_published_slot_and_follows_a_model_change(round
                 assert topic.set_parameters([Parameter("model_path", value=str(model_b))])[0].successful
             assert topic.score_ready(flush=True) == 1
         assert folder.score_ready(flush=True) == 4
+        assert (tmp_path / "topic" / SCORER_READY_NAME).exists()
         want_a, want_b = library(model_a), library(model_b)
         expected = [want_a.score(o.info, o.mr_u8, frames[t]) for t, o in enumerate(outs)]
         assert [SlotScore(**r) for r in read_scores(tmp_path / "folder").values()] == expected
