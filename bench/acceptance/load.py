@@ -10,7 +10,7 @@ in its own session; ``build`` one session of two CPU-bound threads (``python -c`
 512×512 numpy matrices with one BLAS thread, as ``make -j2`` keeps two compilers busy); ``update`` a
 ``gsrmr-update`` of ``--update-model`` (default: the newest ``.cache/gsrmr/sandbox-*/model-compact-*.ply`` of the
 repo) on ``--update-dataset`` (default: its sibling ``round1``), restarted whenever it ends before the run does.
-Every run is ``gsrmr-demo --channel-seed SEED DEMO_ARGS`` (a full round: ~50 s with the model cached).
+Every run is ``gsrmr-demo DEMO_ARGS --channel-seed SEED`` (``--seed``, default 3: the same channel every run).
 
 Prints a Markdown table: a row per run and per load "median (worst)" (worst: the lowest for slots on time, slots
 scored and the energy ratio, the highest otherwise). Columns: slots on time / slots; the JSON's ``slots_missed``,
