@@ -7,7 +7,8 @@ with the in-slot rule, ``gain_threshold``, which ``layout.dim`` labels after ``m
 scheduled_power_w, bits_sent, gain, power_w, energy_j, upload_all_bits, upload_all_energy_j, frame_stamp_s, round_slot,
 held_back, uplink_rate_bps, scene_change, correction_seq]``; :class:`LossSample` ``[slot, a_m, b_m, theta_rad, loss]``;
 :class:`ChannelSample` ``[slot, round_slot, gain]``; :class:`MRSlotInfo` ``[slot, source, a_m, b_m, theta_rad,
-content_time_s]``; :class:`MapCorrection` :data:`MAP_CORRECTION_FIELDS`.
+content_time_s, level]`` (``level`` an index of :data:`COMPOSE_LEVELS`); :class:`MapCorrection`
+:data:`MAP_CORRECTION_FIELDS`.
 
 Names that cross a boundary as strings (CSV cells, diagnostics JSON, the demo summary) are enums: :class:`Delivery`,
 :class:`RealSource` (``source``: on the wire an index of :data:`REAL_SOURCES`) and :class:`UplinkFault`."""
@@ -166,7 +167,9 @@ class LossSample:
         return cls(int(arr[0]), float(arr[1]), float(arr[2]), float(arr[3]), float(arr[4]))
 
 
-MR_SLOT_INFO_FIELDS = ("slot", "source", "a_m", "b_m", "theta_rad", "content_time_s")
+MR_SLOT_INFO_FIELDS = ("slot", "source", "a_m", "b_m", "theta_rad", "content_time_s", "level")
+#: The server's composition levels, best first (``level`` of :class:`MRSlotInfo`; gsrmr_server.compose_levels).
+COMPOSE_LEVELS = ("full", "half", "quarter")
 #: Topic (relative: in the server's namespace) of the per-slot :class:`MRSlotInfo`, published after ``mr/image``.
 MR_SLOT_INFO_TOPIC = "mr/slot_info"
 
@@ -184,12 +187,15 @@ class MRSlotInfo:
     b_m: float
     theta_rad: float
     content_time_s: float
+    level: int = 0  # composition level: an index of COMPOSE_LEVELS (0 = the full-size render)
 
     @classmethod
-    def of(cls, slot: int, source: RealSource, pose: PoseKey | None, content_time_s: float) -> MRSlotInfo:
-        """The record of a slot composed from ``source`` at ``pose`` (None: no pose) and ``content_time_s``."""
+    def of(cls, slot: int, source: RealSource, pose: PoseKey | None, content_time_s: float,
+           level: int = 0) -> MRSlotInfo:
+        """The record of a slot composed from ``source`` at ``pose`` (None: no pose), ``content_time_s`` and
+        composition ``level``."""
         a, b, th = (pose.a_m, pose.b_m, pose.theta_rad) if pose is not None else (math.nan,) * 3
-        return cls(int(slot), RealSource(source), float(a), float(b), float(th), float(content_time_s))
+        return cls(int(slot), RealSource(source), float(a), float(b), float(th), float(content_time_s), int(level))
 
     @property
     def pose(self) -> PoseKey | None:
@@ -200,23 +206,28 @@ class MRSlotInfo:
     def to_data(self) -> list[float]:
         """Flat float64 list for ``Float64MultiArray.data`` (:data:`MR_SLOT_INFO_FIELDS` order)."""
         return [float(self.slot), float(REAL_SOURCES.index(self.source)), self.a_m, self.b_m, self.theta_rad,
-                self.content_time_s]
+                self.content_time_s, float(self.level)]
 
     @classmethod
     def from_data(cls, data: list[float] | np.ndarray) -> MRSlotInfo:
-        """Parse ``Float64MultiArray.data``; ValueError unless 6 values with a finite slot, a known source,
-        a finite content time and a pose that is finite (NaN ×3 only for source ``none``)."""
+        """Parse ``Float64MultiArray.data``; ValueError unless 7 values (6: a server without levels, level 0) with
+        a finite slot, a known source, a finite content time, a pose that is finite (NaN ×3 only for source
+        ``none``) and a level of :data:`COMPOSE_LEVELS`."""
         arr = np.asarray(data, dtype=np.float64)
+        if arr.shape == (len(MR_SLOT_INFO_FIELDS) - 1,):
+            arr = np.append(arr, 0.0)
         if arr.shape != (len(MR_SLOT_INFO_FIELDS),) or not np.all(np.isfinite(arr[[0, 1, 5]])):
             raise ValueError(f"MR slot info: expected {len(MR_SLOT_INFO_FIELDS)} values {MR_SLOT_INFO_FIELDS} "
                              "with a finite slot, source and content time")
+        if arr[6] not in range(len(COMPOSE_LEVELS)):
+            raise ValueError(f"MR slot info: level {arr[6]} is not an index of {list(COMPOSE_LEVELS)}")
         if arr[1] not in range(len(REAL_SOURCES)):
             raise ValueError(f"MR slot info: source {arr[1]} is not an index of {[str(s) for s in REAL_SOURCES]}")
         source = REAL_SOURCES[int(arr[1])]
         pose = arr[2:5]
         if not (np.all(np.isfinite(pose)) or (source == RealSource.NONE and np.all(np.isnan(pose)))):
             raise ValueError("MR slot info: the pose must be finite (NaN ×3 only for source none)")
-        return cls(int(arr[0]), source, float(pose[0]), float(pose[1]), float(pose[2]), float(arr[5]))
+        return cls(int(arr[0]), source, float(pose[0]), float(pose[1]), float(pose[2]), float(arr[5]), int(arr[6]))
 
 
 MAP_CORRECTION_FIELDS = ("seq", "stamp_s", "a_m", "b_m", "theta_rad", "var_a_m2", "var_b_m2", "var_theta_rad2")

@@ -179,7 +179,7 @@ class SchedulerNode(Node):
             return
         if self.intake.slot_info(info, self._now_slot()):
             with self._lock:
-                self.planner.record_composed(info.slot, str(info.source))
+                self.planner.record_composed(info.slot, str(info.source), info.level)
 
     def _on_loss(self, msg: Float64MultiArray, _gid: bytes = b"") -> None:
         try:

@@ -115,6 +115,13 @@ class SchedulerParameters(NodeParameters):
         "−1 = the seed loss map's sample_offset (measured by its survey; 0 without one); 0 = samples as measured "
         "(their JPEG bias then acts as a reserve: docs/scheduling.md)", min_value=-1.0, max_value=1.0,
         read_only=True)
+    half_level_extra_loss: float = ros_parameter(
+        0.013, "Extra MR loss of a key slot the server composed at its half level (its render at half size; the "
+        "level comes on mr/slot_info): charged in the loss budget, and the recent mean added to the forecast of "
+        "key slots (bench/perf/compose_levels.py measures it)", min_value=0.0, max_value=1.0, read_only=True)
+    quarter_level_extra_loss: float = ros_parameter(
+        0.041, "The same for the quarter level (its render at a quarter of the width and height)", min_value=0.0,
+        max_value=1.0, read_only=True)
     margin_quantile: float = ros_parameter(
         0.6, "Learned margin: predictions × this quantile of measured / predicted L over the last 30 image "
         "slots (0 = off)", min_value=0.0, max_value=1.0, read_only=True)
@@ -204,7 +211,8 @@ class SchedulerParameters(NodeParameters):
             loss_sample_offset=(self.loss_sample_offset if self.loss_sample_offset != -1.0
                                 else loss_map.sample_offset or 0.0),
             burst_time_constant_slots=self.burst_time_constant_slots, margin_quantile=self.margin_quantile,
-            round_slots=self.round_slots)
+            round_slots=self.round_slots, half_level_extra_loss=self.half_level_extra_loss,
+            quarter_level_extra_loss=self.quarter_level_extra_loss)
 
 
 #: What ``gsrmr-scheduler --help`` prints.

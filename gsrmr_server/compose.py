@@ -9,9 +9,10 @@ the MR image with the uploaded image and the one with Φ(s_t): the sample the sc
 from __future__ import annotations
 
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import time
 
+import cv2
 import numpy as np
 
 from gsrmr_common.camera import Camera, CameraMount, Intrinsics, camera_from_pose
@@ -22,7 +23,7 @@ from gsrmr_server.mr.blend import mr_image
 from gsrmr_server.mr.content import VirtualViewSource
 from gsrmr_server.uplink import SlotUploads
 from gsrmr_splat.model import GaussianModel
-from gsrmr_splat.render import render
+from gsrmr_splat.render import RenderOutput, render
 
 
 @dataclass
@@ -75,8 +76,10 @@ class MRComposer:
         return model
 
     def compose(self, uploads: SlotUploads, best_pose: PoseKey | None, time_s: float,
-                measure_loss: bool = True) -> ComposedSlot:
-        """Compose slot ``uploads.slot``; never raises on bad uploads (they become faults)."""
+                measure_loss: bool = True, render_scale: float = 1.0) -> ComposedSlot:
+        """Compose slot ``uploads.slot``; never raises on bad uploads (they become faults). ``render_scale`` < 1
+        renders Φ at that fraction of the width and height and enlarges it (colour bilinear, depth and opacity
+        nearest), for a slot short of time (:mod:`gsrmr_server.compose_levels`); the virtual view stays full size."""
         t0 = time.perf_counter()
         faults = list(uploads.faults)
         k = self.intrinsics
@@ -100,7 +103,12 @@ class MRComposer:
         camera = camera_from_pose(pose.a_m, pose.b_m, pose.theta_rad, self.mount, k)
         cast = self._cast_beside(camera, time_s)
         cpu0 = time.thread_time()
-        out = render(self.model, camera, self.background_rgb, threads=self.render_threads)
+        if render_scale < 1.0:
+            small = k.scaled(max(1, round(k.width * render_scale)), max(1, round(k.height * render_scale)))
+            out = enlarged(render(self.model, camera_from_pose(pose.a_m, pose.b_m, pose.theta_rad, self.mount, small),
+                                  self.background_rgb, threads=self.render_threads), k.width, k.height)
+        else:
+            out = render(self.model, camera, self.background_rgb, threads=self.render_threads)
         t_render = time.perf_counter()
         render_cpu_ms = 1e3 * (time.thread_time() - cpu0)  # this thread's CPU (wall − this = time waited)
         real_depth = np.where(out.alpha > 0.5, out.depth, np.inf).astype(np.float32)
@@ -126,6 +134,15 @@ class MRComposer:
                    "loss": 1e3 * (t_end - t_virtual),
                    "total": 1e3 * (t_end - t0)}
         return ComposedSlot(uploads.slot, mr, r_hat, v, d, source, pose, gs_loss, faults, timings, gs_mr)
+
+
+def enlarged(out: RenderOutput, width_px: int, height_px: int) -> RenderOutput:
+    """A render made at a fraction of the size, enlarged to ``width_px`` × ``height_px``: colour bilinear (pixel
+    centres kept, as ``cv2.resize`` maps them), depth and opacity nearest (an edge's depth is not blended)."""
+    size = (int(width_px), int(height_px))
+    return replace(out, rgb=cv2.resize(out.rgb, size, interpolation=cv2.INTER_LINEAR),
+                   alpha=cv2.resize(out.alpha, size, interpolation=cv2.INTER_NEAREST),
+                   depth=cv2.resize(out.depth, size, interpolation=cv2.INTER_NEAREST))
 
 
 def refusal_fault(jpeg: bytes, width_px: int, height_px: int) -> UplinkFault:

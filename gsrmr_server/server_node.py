@@ -49,6 +49,7 @@ from gsrmr_common.slot_clock import ComposeCursor, SlotClock
 from gsrmr_common.tf_tree import CAMERA_OPTICAL_FRAME
 from gsrmr_common.wire import MAP_CORRECTION_TOPIC, MR_SLOT_INFO_TOPIC, RealSource, UplinkFault
 from gsrmr_server.compose import to_u8
+from gsrmr_server.compose_levels import DeadlineLevels
 from gsrmr_server.localizer import LocalizerConfig, ServerLocalizer, correction_record
 from gsrmr_server.map_correction import TRACKING
 from gsrmr_server.model_swap import ModelSwap
@@ -82,6 +83,7 @@ class ServerNode(Node):
         self.clock = SlotClock(p.slot_s)
         self.cursor = ComposeCursor(self.clock)
         self.stats = ServerStats(p.slot_s)
+        self.levels = DeadlineLevels(max_level=p.max_compose_level)  # each slot's level from its time left
         self._lock = threading.Lock()
         self.checked = ServerInputs(self.clock, p.max_speed_mps, self._lock)  # plausibility checks, per-slot books
         self.uplink = self.checked.uplink
@@ -191,8 +193,11 @@ class ServerNode(Node):
             if swapped is not None:
                 self.composer.model = swapped.model
             plan, uploads, best = self.checked.take(slot)
+        chosen_ns = self.get_clock().now().nanoseconds
+        self.levels.max_level = self.params.max_compose_level
+        level = self.levels.choose((start_ns + self.params.slot_s * 1e9 - chosen_ns) / 1e6)
         out = self.core.process(uploads, best, time_s=self.cursor.round_time_s(slot), stamp_s=start_ns / 1e9,
-                                ledger=plan.ledger, scheduled_x=plan.scheduled_x)
+                                ledger=plan.ledger, scheduled_x=plan.scheduled_x, level=level)
         count_composition_faults(self.uplink, uploads, out)
         if swapped is not None:
             self.get_logger().info(f"model swapped in at slot {slot}: {swapped.path} "
@@ -200,18 +205,20 @@ class ServerNode(Node):
         if out.loss_sample is not None:  # first: the scheduler replans on it, for the robot's next slot
             self._pub_loss.publish(loss_sample_to_msg(out.loss_sample))
         self._pub_mr.publish(image_to_msg(out.mr_u8, start_ns, CAMERA_OPTICAL_FRAME))
-        latency_ms = (self.get_clock().now().nanoseconds - start_ns) / 1e6
+        published_ns = self.get_clock().now().nanoseconds
+        latency_ms, compose_ms = (published_ns - start_ns) / 1e6, (published_ns - chosen_ns) / 1e6
+        self.levels.observe(level.level, compose_ms)
         self._pub_info.publish(mr_slot_info_to_msg(out.info))
         compressed = compressed_to_msg(out.jpeg, start_ns, CAMERA_OPTICAL_FRAME)
         self._pub_mr_c.publish(compressed)
         self.stats.record(latency_ms, out.composed.source, out.composed.timings_ms)
-        if self.localizer is not None:
-            self._localize(out, uploads, plan.ledger, start_ns, latency_ms, swapped)
+        if self.localizer is not None:  # shed first: in a degraded or late slot it registers nothing
+            self._localize(out, uploads, plan.ledger, start_ns, latency_ms if not level.degraded else 1e9, swapped)
         if self.recorder is not None:
             if out.composed.source == RealSource.IMAGE and uploads.key is not None and uploads.jpeg is not None:
                 self.recorder.write_received(uploads.jpeg, uploads.key, start_ns)  # training data for an update
-            self.recorder.write_slot(replace(out.row, latency_ms=latency_ms), compressed, self._cmd,
-                                     stamp_ns=start_ns)
+            self.recorder.write_slot(replace(out.row, latency_ms=latency_ms, compose_ms=compose_ms), compressed,
+                                     self._cmd, stamp_ns=start_ns)
 
     def _localize(self, out, uploads, ledger, start_ns: int, latency_ms: float, swapped) -> None:
         """Hand an image slot's decoded image and key to the localizer (off the slot path; shed when this slot ran

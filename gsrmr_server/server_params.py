@@ -20,7 +20,8 @@ from gsrmr_common.node_help import Endpoint, NodeInterface, ParameterGroup
 from gsrmr_common.node_params import NodeParameters, ros_parameter
 from gsrmr_common.writer_admission import writer_list_problem
 
-LIVE_PARAMETERS = frozenset({"process_delay_s", "measure_loss", "jpeg_quality", "max_backlog_slots", "model_path"})
+LIVE_PARAMETERS = frozenset({"process_delay_s", "measure_loss", "max_compose_level", "jpeg_quality",
+                             "max_backlog_slots", "model_path"})
 #: The read-only lists of node names allowed to write the server's input topics (relative: in its namespace; * any).
 WRITER_LISTS = ("robot_writers", "schedule_writers", "cmd_vel_writers")
 
@@ -43,6 +44,10 @@ class ServerParameters(NodeParameters):
         (0.5, 0.55, 0.6), "Colour where the GS model has no density (its training background), linear RGB in "
         "[0, 1]", read_only=True)
     measure_loss: bool = ros_parameter(True, "Render Φ(s_t) in image slots and publish the measured GS loss")
+    max_compose_level: int = ros_parameter(
+        2, "Cheapest composition level a slot short of time may take: 0 = always the full-size render, 1 = the render "
+        "at half size, 2 = at a quarter (enlarged; the loss sample and the localizer are skipped in such slots)",
+        min_value=0, max_value=2)
     record_dir: str = ros_parameter("", "Write slots.csv and MCAP here ('' = off)", read_only=True)
     jpeg_quality: int = ros_parameter(85, "JPEG quality of mr/image/compressed", min_value=1, max_value=100)
     max_backlog_slots: int = ros_parameter(

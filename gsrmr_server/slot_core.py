@@ -17,6 +17,7 @@ from gsrmr_common.jpeg import encode_jpeg
 from gsrmr_common.link_model import BANDWIDTH_HZ, NOISE_W, SLOT_S, required_power_w
 from gsrmr_common.wire import POSE_KEY_BITS, LedgerRow, LossSample, MRSlotInfo, PoseKey
 from gsrmr_server.compose import ComposedSlot, MRComposer, to_u8
+from gsrmr_server.compose_levels import LevelChoice
 from gsrmr_server.mr.content import AgentsView, load_mr_content
 from gsrmr_server.server_params import ServerParameters
 from gsrmr_server.slot_row import SlotRow
@@ -71,11 +72,15 @@ class ServerCore:
         return e if math.isfinite(e) else None
 
     def process(self, uploads: SlotUploads, best_pose: PoseKey | None, *, time_s: float, stamp_s: float,
-                ledger: LedgerRow | None = None, scheduled_x: int | None = None) -> SlotOutcome:
+                ledger: LedgerRow | None = None, scheduled_x: int | None = None,
+                level: LevelChoice | None = None) -> SlotOutcome:
         """Slot ``uploads.slot``: ``best_pose`` is the fallback pose, ``time_s`` the MR content time (moving
         agents; seconds since the first composed slot), ``stamp_s`` the slot start, ``ledger`` the robot's row
-        for the slot, ``scheduled_x`` what the schedule said (recorded when no ledger row came)."""
-        result = self.composer.compose(uploads, best_pose, time_s, measure_loss=self.measure_loss)
+        for the slot, ``scheduled_x`` what the schedule said (recorded when no ledger row came), ``level`` the
+        composition level chosen for it (None: full size; a degraded level measures no loss sample)."""
+        degraded = level is not None and level.degraded
+        result = self.composer.compose(uploads, best_pose, time_s, measure_loss=self.measure_loss and not degraded,
+                                       render_scale=level.render_scale if level is not None else 1.0)
         sample = None
         if result.gs_loss is not None and result.pose is not None:
             p = result.pose
@@ -101,8 +106,11 @@ class ServerCore:
             uplink_rate_bps=ledger.uplink_rate_bps if ledger and math.isfinite(ledger.uplink_rate_bps) else None,
             scene_change=ledger.scene_change if ledger else None,
             frame_stamp_s=ledger.frame_stamp_s if ledger and math.isfinite(ledger.frame_stamp_s) else None,
-            correction_seq=ledger.correction_seq if ledger else None)
-        info = MRSlotInfo.of(result.slot, result.source, result.pose, time_s)
+            correction_seq=ledger.correction_seq if ledger else None,
+            level=level.level if level is not None else None,
+            time_left_ms=level.time_left_ms if level is not None else None,
+            predicted_ms=level.predicted_ms if level is not None else None)
+        info = MRSlotInfo.of(result.slot, result.source, result.pose, time_s, level.level if level is not None else 0)
         return SlotOutcome(result, to_u8(result.mr), row, sample, info, self.jpeg_quality)
 
 

@@ -48,6 +48,10 @@ class SlotRow:
     scene_change: int | None = None  # 1: the robot's scene-change test fired on this slot's frame (its ledger)
     frame_stamp_s: float | None = None  # capture stamp of the frame the key stands for [s, ROS time] (its ledger)
     correction_seq: int | None = None  # the map → odom correction the key was made with (its ledger; 0: none)
+    level: int | None = None  # composition level (gsrmr_server.compose_levels: 0 full, 1 half, 2 quarter size)
+    time_left_ms: float | None = None  # time before τ when the level was chosen (negative: already late)
+    predicted_ms: float | None = None  # the level's predicted time, choice → m̂ published
+    compose_ms: float | None = None  # the time it took, choice → m̂ published
 
 
 SLOT_ROW_COLUMNS = tuple(f.name for f in fields(SlotRow))

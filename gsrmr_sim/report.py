@@ -18,6 +18,7 @@ from matplotlib.figure import Figure
 import numpy as np
 
 from gsrmr_common.metrics import pooled_psnr_db
+from gsrmr_server.compose_levels import LEVEL_NAMES
 from gsrmr_server.recording import TOPIC_MR_IMAGE, read_mcap, read_slots_csv, write_slots_csv
 from gsrmr_sim.hindsight import hindsight_summary
 from gsrmr_sim.scores import join_scores
@@ -38,7 +39,10 @@ def summarise(rows: list[dict], slot_s: float) -> dict:
         return np.array([r[name] for r in rows if r[name] is not None], dtype=np.float64)
 
     energy, upload_all = col("energy_j").sum(), col("energy_upload_all_j").sum()
-    return {"slots": len(rows), "slots_on_time": int((col("latency_ms") <= 1e3 * slot_s).sum()),
+    on_time = int((col("latency_ms") <= 1e3 * slot_s).sum())
+    levels = [r.get("level") for r in rows]
+    return {"slots": len(rows), "slots_on_time": on_time, "slots_missed": len(rows) - on_time,
+            "slots_degraded": {name: sum(1 for v in levels if v == k) for k, name in enumerate(LEVEL_NAMES) if k},
             "slots_scored": int(col("loss").size),
             "images_sent": int(sum(1 for r in rows if r["source"] == "image")),
             "energy_j": float(energy), "energy_upload_all_j": float(upload_all),

@@ -1,6 +1,6 @@
 """The loss budget of the next plan (pure): :class:`LossBudget` books the slots that passed — what the robot did (its
-ledger, else the plan's x), at the pose it reported, as the server composed them — with their estimated MR loss, and
-gives each block of a plan the Σ loss it may leave (:meth:`LossBudget.caps`).
+ledger, else the plan's x), at the pose it reported, as the server composed them (source and level) — with their
+estimated MR loss, and gives each block of a plan the Σ loss it may leave (:meth:`LossBudget.caps`).
 
 Why rounds, and why slots are charged as composed: docs/scheduling.md, "The live loop", items 4 and 9.
 """
@@ -31,9 +31,14 @@ class LossBudget:
     that arrive until ``refine_slots`` newer slots are booked, then it is frozen."""
 
     def __init__(self, key_loss: KeyLoss, *, image_slot_loss: float = 0.0, round_slots: int = 0,
-                 round_start_m: float = 0.05, refine_slots: int = 300) -> None:
+                 round_start_m: float = 0.05, refine_slots: int = 300,
+                 level_extra_loss: tuple[float, ...] = (0.0, 0.0, 0.0), level_window_slots: int = 50) -> None:
         if not (image_slot_loss >= 0 and math.isfinite(image_slot_loss)):
             raise ValueError("loss budget: image_slot_loss must be a finite loss >= 0")
+        if not all(0 <= e <= 1 for e in level_extra_loss) or level_window_slots < 1:
+            raise ValueError("loss budget: level_extra_loss must be losses in [0, 1], level_window_slots >= 1")
+        self.level_extra_loss = tuple(float(e) for e in level_extra_loss)
+        self.level_window_slots = int(level_window_slots)
         if round_slots < 0 or refine_slots < 0 or not round_start_m >= 0:
             raise ValueError("loss budget: round_slots, round_start_m and refine_slots must be >= 0")
         self.key_loss = key_loss
@@ -43,7 +48,7 @@ class LossBudget:
         self.slots_done = 0  # slots booked so far
         self._actual_x: dict[int, int] = {}  # slot → what the robot did (its ledger)
         self._reported: dict[int, Pose2D] = {}  # slot → the pose it reported
-        self._composed: dict[int, str] = {}  # slot → what the server composed it from (its mr/slot_info source)
+        self._composed: dict[int, tuple[str, int]] = {}  # slot → its mr/slot_info (source, composition level)
         self._done: deque[tuple[int, int, Pose2D | None]] = deque()  # (slot, x, pose) still re-estimated
         self._frozen_spent = 0.0  # Σ estimated loss of the slots no longer re-estimated
         self._accounted_up_to: int | None = None  # last slot booked (or planned from)
@@ -76,10 +81,12 @@ class LossBudget:
             elif math.hypot(pose[0] - self._home[0], pose[1] - self._home[1]) > self.round_start_m:
                 self._round_start, self._round_frozen, self._round_frozen_n = slot, 0.0, 0
 
-    def record_composed(self, slot: int, source: str) -> None:
-        """What the server composed ``slot`` from (``image``, ``render``, ``fallback`` or ``none``: its
-        ``mr/slot_info``): the slot is charged by it (:meth:`slot_loss`), booked or not."""
-        self._composed[int(slot)] = str(source)
+    def record_composed(self, slot: int, source: str, level: int = 0) -> None:
+        """What the server composed ``slot`` from (``image``, ``render``, ``fallback`` or ``none``) and at which
+        composition level (0 = full size; its ``mr/slot_info``): the slot is charged by them (:meth:`slot_loss`),
+        booked or not."""
+        level = int(level) if 0 <= int(level) < len(self.level_extra_loss) else len(self.level_extra_loss) - 1
+        self._composed[int(slot)] = (str(source), level)
         if len(self._composed) > 2 * HISTORY_SLOTS:
             for old in [k for k in self._composed if k < slot - HISTORY_SLOTS]:
                 del self._composed[old]
@@ -142,12 +149,21 @@ class LossBudget:
         ``key_loss`` for a key — as the server composed it when it said: an image it did not have in time but
         rendered at the key (``render``) counts as a key, a slot composed without its upload at the server's pose
         estimate (``fallback``) or from nothing (``none``) at :data:`FALLBACK_LOSS_FACTOR` × the key's estimate."""
-        source = self._composed.get(slot)
+        source, level = self._composed.get(slot, (None, 0))
+        extra = self.level_extra_loss[level]  # a render below full size: the level's measured extra loss
         if source in _MISSED_SOURCES:
-            return FALLBACK_LOSS_FACTOR * self.key_loss(slot, pose)
+            return FALLBACK_LOSS_FACTOR * self.key_loss(slot, pose) + extra
         if x and source in _KEY_SOURCES:
-            return self.key_loss(slot, pose)
-        return self.image_slot_loss if x else self.key_loss(slot, pose)
+            return self.key_loss(slot, pose) + extra
+        return self.image_slot_loss if x else self.key_loss(slot, pose) + extra
+
+    def level_loss_now(self, slot: int) -> float:
+        """The extra loss a key slot composed now is expected to carry: the mean of the level's extra loss over the
+        slots composed in the last ``level_window_slots`` before ``slot`` (0 when none was reported). A server
+        that runs short of CPU degrades its renders; the plan then prices its key slots higher and buys images."""
+        recent = [self.level_extra_loss[level] for k, (_, level) in self._composed.items()
+                  if slot - self.level_window_slots <= k < slot]
+        return math.fsum(recent) / len(recent) if recent else 0.0
 
     @property
     def loss_spent(self) -> float:

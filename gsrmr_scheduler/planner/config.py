@@ -50,6 +50,8 @@ class PlannerConfig:
     refine_slots: int = 300  # booked slots whose loss estimate still follows new measurements
     round_slots: int = 0  # T of an operating round whose mean must meet L_th (0 = a running mean)
     round_start_m: float = 0.05  # a round starts when the reported pose first moves this far from where it stood
+    half_level_extra_loss: float = 0.0  # extra MR loss of a key slot the server composed at its half level …
+    quarter_level_extra_loss: float = 0.0  # … and at its quarter level (bench/perf/compose_levels.py)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "solver_options", MappingProxyType(dict(self.solver_options)))
@@ -100,6 +102,8 @@ class PlannerConfig:
             (self.refine_slots >= 0, "refine_slots must be >= 0"),
             (self.round_slots >= 0, "round_slots must be >= 0"),
             (self.round_start_m >= 0, "round_start_m must be >= 0"),
+            (0 <= self.half_level_extra_loss <= 1 and 0 <= self.quarter_level_extra_loss <= 1,
+             "half_level_extra_loss and quarter_level_extra_loss must be losses in [0, 1]"),
         )
         return next((why for ok, why in checks if not ok), None)
 

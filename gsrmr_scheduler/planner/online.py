@@ -101,7 +101,9 @@ class OnlinePlanner:
                                      margin_window_samples=config.margin_window_samples, model=loss_model)
         self.budget = LossBudget(self.forecast.key_loss, image_slot_loss=config.image_slot_loss,
                                  round_slots=config.round_slots, round_start_m=config.round_start_m,
-                                 refine_slots=config.refine_slots)
+                                 refine_slots=config.refine_slots,
+                                 level_extra_loss=(0.0, config.half_level_extra_loss,
+                                                   config.quarter_level_extra_loss))
         self.link_cap = LinkCap(config.slot_s)
         self.pricing = InSlotPricing(link.rician_k, explore_image_fraction=config.explore_image_fraction,
                                      probe_gap_slots=config.probe_gap_slots,
@@ -170,11 +172,11 @@ class OnlinePlanner:
         if x:
             self.pricing.record_image(slot)
 
-    def record_composed(self, slot: int, source: str) -> None:
+    def record_composed(self, slot: int, source: str, level: int = 0) -> None:
         """What the server composed ``slot`` from (its ``mr/slot_info`` source: ``image``, ``render``, ``fallback``,
         ``none``): an image it did not have in time is charged as the render it used instead
         (:meth:`~.budget.LossBudget.record_composed`)."""
-        self.budget.record_composed(slot, source)
+        self.budget.record_composed(slot, source, level)
 
     def record_pose(self, slot: int, a_m: float, b_m: float, theta_rad: float) -> None:
         """The pose the robot reported for ``slot`` (its pose key): key slots are charged at it."""
@@ -255,6 +257,7 @@ class OnlinePlanner:
         poses = self.route.predict(pose, h, cfg.slot_s)
         slots = np.arange(first, first + h)
         raw, losses = self.forecast.predict(slots, poses)
+        losses = losses + self.budget.level_loss_now(first)  # a server short of CPU renders its keys coarser
         gains = self.gains(first, poses)
         j = cfg.image_slot_loss
         key_cost = np.maximum(losses - j, 0.0)  # Σ x·J + (1−x)·L ≤ cap ⇔ Σ (1−x)(L − J) ≤ cap − n·J

@@ -144,6 +144,37 @@ def test_a_slot_is_charged_as_the_server_composed_it_not_as_the_robot_sent_it():
     assert FALLBACK_LOSS_FACTOR > 1.0
 
 
+def test_a_key_slot_composed_below_full_size_is_charged_its_level_and_the_plan_buys_images_for_it():
+    """The server's mr/slot_info says the level: a render at half or a quarter of the size costs the measured extra
+    loss in the budget, an image slot (r̂ the JPEG) does not; the recent levels raise the forecast of key slots."""
+    key, extra = 0.02, (0.0, 0.01, 0.04)
+    budget = LossBudget(lambda _slot, _pose: key, image_slot_loss=0.005, level_extra_loss=extra, level_window_slots=4)
+    for slot, (x, source, level) in enumerate([(0, "render", 0), (0, "render", 1), (0, "render", 2),
+                                                (1, "image", 2), (0, "fallback", 1), (1, "render", 2)]):
+        budget.record_action(slot, x)
+        budget.record_composed(slot, source, level)
+    budget.account_until(6, _schedule(0, [0, 0, 0, 1, 0, 1]))
+    from gsrmr_scheduler.planner.budget import FALLBACK_LOSS_FACTOR
+
+    assert budget.loss_spent == pytest.approx(key + (key + 0.01) + (key + 0.04) + 0.005
+                                              + (FALLBACK_LOSS_FACTOR * key + 0.01) + (key + 0.04))
+    assert budget.level_loss_now(6) == pytest.approx((0.04 + 0.04 + 0.01 + 0.04) / 4)  # slots 2–5
+    assert budget.level_loss_now(100) == 0.0 and LossBudget(lambda *_: key).level_loss_now(6) == 0.0
+    budget.record_composed(7, "render", 9)  # a level past the table: the cheapest's charge
+    assert budget.slot_loss(7, 0, None) == pytest.approx(key + 0.04)
+    with pytest.raises(ValueError):
+        LossBudget(lambda *_: key, level_extra_loss=(0.0, -0.1, 0.0))
+    config = replace(BASE, half_level_extra_loss=0.01, quarter_level_extra_loss=0.04)
+    calm, starved = _planner(config), _planner(config)
+    for slot in range(80, 100):
+        starved.record_composed(slot, "render", 2)
+    calm_plan, starved_plan = calm.plan(100, (0.0, 0.0, 0.0)), starved.plan(100, (0.0, 0.0, 0.0))
+    assert starved_plan.predicted_loss == pytest.approx(calm_plan.predicted_loss + 0.04)
+    assert starved_plan.images > calm_plan.images
+    with pytest.raises(ValueError, match="level_extra_loss"):
+        replace(BASE, quarter_level_extra_loss=2.0)
+
+
 def test_budget_refines_recent_estimates_and_freezes_old_ones():
     estimate = {k: 0.02 for k in range(100)}
     budget = LossBudget(lambda slot, _pose: estimate[slot], refine_slots=2)

@@ -35,6 +35,7 @@ SERVER_DECLARED = {
     "mr_content": ("sandbox", None, True),
     "background_rgb": ([0.5, 0.55, 0.6], None, True),
     "measure_loss": (True, None, False),
+    "max_compose_level": (2, (0, 2), False),
     "record_dir": ("", None, True),
     "jpeg_quality": (85, (1, 100), False),
     "max_backlog_slots": (30, (1, 100_000), False),
@@ -72,6 +73,8 @@ SCHEDULER_DECLARED = {
     "oracle_channel": (False, None, True),
     "image_slot_loss": (-1.0, (-1.0, 1.0), True),
     "loss_sample_offset": (-1.0, (-1.0, 1.0), True),
+    "half_level_extra_loss": (0.013, (0.0, 1.0), True),
+    "quarter_level_extra_loss": (0.041, (0.0, 1.0), True),
     "margin_quantile": (0.6, (0.0, 1.0), True),
     "burst_time_constant_slots": (25.0, (0.1, 1e6), True),
     "probe_gap_slots": (20, (0, 100_000), True),
@@ -113,7 +116,8 @@ def test_nested_link_budget_and_camera_mount_default_to_theirs():
 
 def test_live_and_read_only_parameters():
     assert ServerParameters.read_only_names() == set(SERVER_DECLARED) - LIVE_PARAMETERS
-    assert {"process_delay_s", "measure_loss", "jpeg_quality", "max_backlog_slots", "model_path"} == LIVE_PARAMETERS
+    assert {"process_delay_s", "measure_loss", "max_compose_level", "jpeg_quality", "max_backlog_slots",
+            "model_path"} == LIVE_PARAMETERS
     live = set(SCHEDULER_DECLARED) - SchedulerParameters.read_only_names()
     assert live == PLANNING_PARAMETERS | {"replan_period_s", "loss_map_file"}
 

@@ -43,7 +43,8 @@ def make_row(k: int) -> dict:
             "gs_loss": 0.02 * k if k % 2 else None, "energy_upload_all_j": 0.5 + k, "channel_gain": 1e-6 * (k + 1),
             "energy_image_j": 0.4 + k, "energy_key_j": 1e-3 * k, "gs_truth_loss": 0.03, "image_truth_loss": 0.01,
             "scored": k % 2, "round_slot": k - 1, "held_back": k % 2, "uplink_rate_bps": 1e6 + k,
-            "scene_change": int(k == 1), "frame_stamp_s": CLOCK.start_ns(slot) / 1e9 - 0.03, "correction_seq": k // 3}
+            "scene_change": int(k == 1), "frame_stamp_s": CLOCK.start_ns(slot) / 1e9 - 0.03, "correction_seq": k // 3,
+            "level": k % 3, "time_left_ms": 70.0 - k, "predicted_ms": 20.5 + k, "compose_ms": 21.25 + k}
 
 
 def make_image(k: int) -> np.ndarray:

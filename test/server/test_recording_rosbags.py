@@ -59,7 +59,8 @@ def make_row(k: int) -> dict:
             "energy_upload_all_j": 0.5 + k, "channel_gain": 1e-6 * (k + 1), "energy_image_j": 0.4 + k,
             "energy_key_j": 1e-3 * k, "gs_truth_loss": 0.03, "image_truth_loss": 0.01, "scored": k % 2,
             "round_slot": k - 1, "held_back": 0, "uplink_rate_bps": 2e6, "scene_change": int(k == 2),
-            "frame_stamp_s": CLOCK.start_ns(slot) / 1e9 - 0.04, "correction_seq": k // 2}
+            "frame_stamp_s": CLOCK.start_ns(slot) / 1e9 - 0.04, "correction_seq": k // 2, "level": k % 3,
+            "time_left_ms": 65.0 - k, "predicted_ms": 19.5 + k, "compose_ms": 20.75 + k}
 
 
 def make_image(k: int) -> np.ndarray:

@@ -8,6 +8,7 @@ copy of that code (:func:`_score_as_the_server_did`), kept only in this test.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -127,16 +128,19 @@ def test_the_scorer_gives_what_the_servers_scoring_gave_bit_for_bit(world, hinds
 
 def test_mr_slot_info_carries_source_pose_and_content_time_and_refuses_nonsense():
     key = PoseKey(7, 1.5, -0.25, 0.125)
-    info = MRSlotInfo.of(7, RealSource.FALLBACK, key, 3.2)
-    assert info.to_data() == [7.0, float(REAL_SOURCES.index(RealSource.FALLBACK)), 1.5, -0.25, 0.125, 3.2]
+    info = MRSlotInfo.of(7, RealSource.FALLBACK, key, 3.2, level=1)
+    assert info.to_data() == [7.0, float(REAL_SOURCES.index(RealSource.FALLBACK)), 1.5, -0.25, 0.125, 3.2, 1.0]
     assert MRSlotInfo.from_data(info.to_data()) == info and info.pose == key
+    assert MRSlotInfo.from_data(info.to_data()[:6]) == replace(info, level=0)  # a server without levels
     blind = MRSlotInfo.of(8, RealSource.NONE, None, 0.0)
-    assert blind.pose is None and MRSlotInfo.from_data(blind.to_data()).pose is None
+    assert blind.pose is None and MRSlotInfo.from_data(blind.to_data()).pose is None and blind.level == 0
     msg = mr_slot_info_to_msg(info)
-    assert [(d.label, d.size) for d in msg.layout.dim] == [("mr_slot_info", 6)]
+    assert [(d.label, d.size) for d in msg.layout.dim] == [("mr_slot_info", 7)]
     for bad in ([7.0, 9.0, 0.0, 0.0, 0.0, 0.0],  # no such source
                 [7.0, 1.0, float("nan"), 0.0, 0.0, 0.0],  # a render needs a pose
                 [7.0, 1.0, 0.0, 0.0, 0.0],  # too short
+                [7.0, 1.0, 0.0, 0.0, 0.0, 0.0, 3.0],  # no such level
+                [7.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.5],
                 [float("inf"), 1.0, 0.0, 0.0, 0.0, 0.0]):
         with pytest.raises(ValueError):
             MRSlotInfo.from_data(bad)
