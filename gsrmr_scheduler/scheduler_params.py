@@ -116,11 +116,11 @@ class SchedulerParameters(NodeParameters):
         "(their JPEG bias then acts as a reserve: docs/scheduling.md)", min_value=-1.0, max_value=1.0,
         read_only=True)
     half_level_extra_loss: float = ros_parameter(
-        0.013, "Extra MR loss of a key slot the server composed at its half level (its render at half size; the "
+        0.003, "Extra MR loss of a key slot the server composed at its half level (its render at half size; the "
         "level comes on mr/slot_info): charged in the loss budget, and the recent mean added to the forecast of "
         "key slots (bench/perf/compose_levels.py measures it)", min_value=0.0, max_value=1.0, read_only=True)
     quarter_level_extra_loss: float = ros_parameter(
-        0.041, "The same for the quarter level (its render at a quarter of the width and height)", min_value=0.0,
+        0.020, "The same for the quarter level (its render at a quarter of the width and height)", min_value=0.0,
         max_value=1.0, read_only=True)
     margin_quantile: float = ros_parameter(
         0.6, "Learned margin: predictions × this quantile of measured / predicted L over the last 30 image "

@@ -26,10 +26,10 @@ def test_the_best_level_that_fits_is_chosen_and_the_cheapest_when_none_does():
     levels.observe(0, 40.0)
     assert [levels.predicted_ms(k) for k in range(3)] == pytest.approx([40.0 * r for r in PRIOR_COST_RATIOS])
     assert levels.choose(60.0).name == "full"
-    assert levels.choose(44.0).name == "half"  # 40 + 5 > 44 ≥ 20 + 5
+    assert levels.choose(44.0).name == "half"  # 40 + 5 > 44 ≥ 28 + 5
     choice = levels.choose(10.0)  # nothing fits: the cheapest, still composed (missing is the last resort)
     assert (choice.name, choice.degraded, choice.render_scale) == ("quarter", True, 0.25)
-    assert choice.time_left_ms == 10.0 and choice.predicted_ms == pytest.approx(12.0)
+    assert choice.time_left_ms == 10.0 and choice.predicted_ms == pytest.approx(26.0)
     assert levels.choose(-30.0).level == 2  # already late
     assert DeadlineLevels(max_level=0).choose(-30.0).level == 0  # the selection off: always full size
 
@@ -37,7 +37,7 @@ def test_the_best_level_that_fits_is_chosen_and_the_cheapest_when_none_does():
 def test_a_slower_slot_of_one_level_slows_every_level_and_nonsense_is_ignored():
     levels = DeadlineLevels(alpha=0.5)
     levels.observe(0, 40.0)
-    levels.observe(1, 18.0)  # its own time replaces the prior (20)
+    levels.observe(1, 18.0)  # its own time replaces the prior (28)
     assert levels.predicted_ms(1) == 18.0 and levels.predicted_ms(0) == 40.0
     levels.observe(1, 36.0)  # the CPU share halved: half's mean 18 → 27 (×1.5), full's follows
     assert levels.predicted_ms(1) == pytest.approx(27.0) and levels.predicted_ms(0) == pytest.approx(60.0)
@@ -78,5 +78,5 @@ def test_a_degraded_image_slot_measures_no_loss_sample_and_the_row_says_its_leve
     assert (out.row.level, out.row.time_left_ms, out.row.predicted_ms) == (0, 95.0, 80.0)
     assert out.composed.source == RealSource.IMAGE and out.loss_sample is not None
     out = core.process(uploads, None, time_s=0.0, stamp_s=0.3, level=short)
-    assert (out.row.level, out.row.time_left_ms) == (2, 30.0) and out.row.predicted_ms == pytest.approx(24.0)
+    assert (out.row.level, out.row.time_left_ms) == (2, 30.0) and out.row.predicted_ms == pytest.approx(52.0)
     assert out.composed.source == RealSource.IMAGE and out.loss_sample is None  # shed: a coarse Φ would bias L_t
