@@ -220,7 +220,8 @@ def test_loss_samples_are_taken_once_per_image_slot_the_ledger_names(scheduler):
 
 def test_the_server_s_slot_info_reaches_the_budget_and_a_far_slot_is_refused(scheduler):
     """``mr/slot_info`` from the server (a ``loss_writers`` node) says what each slot was composed from: the budget
-    charges the slot by it (an image that missed its slot as the render used); a slot far from now is refused, and
+    charges the slot by it (an image that missed its slot as the render used, a render below full size with its
+    level's extra loss); a slot far from now is refused, and
     so is what a node not in ``loss_writers`` says (it could make the planner over-charge and send images)."""
     from std_msgs.msg import Float64MultiArray
 
@@ -238,10 +239,10 @@ def test_the_server_s_slot_info_reaches_the_budget_and_a_far_slot_is_refused(sch
         now = node.clock.slot_at(node.get_clock().now().nanoseconds)
         pose = PoseKey(now - 2, -1.0, -1.1, 0.0)
         forged.publish(mr_slot_info_to_msg(MRSlotInfo.of(now - 3, RealSource.NONE, pose, 1.0)))
-        pub.publish(mr_slot_info_to_msg(MRSlotInfo.of(now - 2, RealSource.FALLBACK, pose, 1.0)))
+        pub.publish(mr_slot_info_to_msg(MRSlotInfo.of(now - 2, RealSource.FALLBACK, pose, 1.0, level=1)))
         pub.publish(mr_slot_info_to_msg(MRSlotInfo.of(now - 500, RealSource.RENDER, pose, 1.0)))
         assert spin_until(lambda: node.intake.implausible.get("slot_info_slot") == 1
-                          and node.planner.budget._composed.get(now - 2) == "fallback")
+                          and node.planner.budget._composed.get(now - 2) == ("fallback", 1))  # and its level
         assert now - 500 not in node.planner.budget._composed
         # refused by its name ("unlisted"), or as "unknown" should the graph not name its writer within the hold
         refused = node.inputs.gate.refused
