@@ -213,16 +213,17 @@ class ServerNode(Node):
         self._pub_mr_c.publish(compressed)
         self.stats.record(latency_ms, out.composed.source, out.composed.timings_ms)
         if self.localizer is not None:  # shed first: in a degraded or late slot it registers nothing
-            self._localize(out, uploads, plan.ledger, start_ns, latency_ms if not level.degraded else 1e9, swapped)
+            late = level.degraded or latency_ms > LATE_FRACTION * 1e3 * self.params.slot_s
+            self._localize(out, uploads, plan.ledger, start_ns, late, swapped)
         if self.recorder is not None:
             if out.composed.source == RealSource.IMAGE and uploads.key is not None and uploads.jpeg is not None:
                 self.recorder.write_received(uploads.jpeg, uploads.key, start_ns)  # training data for an update
             self.recorder.write_slot(replace(out.row, latency_ms=latency_ms, compose_ms=compose_ms), compressed,
                                      self._cmd, stamp_ns=start_ns)
 
-    def _localize(self, out, uploads, ledger, start_ns: int, latency_ms: float, swapped) -> None:
+    def _localize(self, out, uploads, ledger, start_ns: int, late: bool, swapped) -> None:
         """Hand an image slot's decoded image and key to the localizer (off the slot path; shed when this slot ran
-        late) and publish the correction a fix gives."""
+        late or was degraded) and publish the correction a fix gives."""
         now_s = self.get_clock().now().nanoseconds / 1e9
         if swapped is not None:
             self.localizer.swap_model(swapped.path)
@@ -231,7 +232,7 @@ class ServerNode(Node):
         if out.composed.source == RealSource.IMAGE and uploads.key is not None and ledger is not None:
             self.localizer.offer(to_u8(out.composed.real_estimate), uploads.key, ledger.correction_seq,
                                  self.camera.intrinsics, start_ns / 1e9, now_s,
-                                 late=latency_ms > LATE_FRACTION * 1e3 * self.params.slot_s)
+                                 late=late)
         correction = self.localizer.poll(now_s)
         if correction is not None:
             self._pub_correction.publish(map_correction_to_msg(correction_record(correction)))
