@@ -1,6 +1,5 @@
 """Where each slot's pose key comes from (pure): the odometry poses by stamp, calibrated by the server's fixes, put in
-``map`` by the ``map → odom`` in force, and whether that correction has gone stale. Design: docs/nodes.md, "The
-server localizes the robot"."""
+``map`` by the ``map → odom`` in force. Design: docs/nodes.md, "The server localizes the robot"."""
 
 from __future__ import annotations
 
@@ -16,15 +15,12 @@ class KeyPoses:
     Args:
         maps: ``map → odom`` (the parameter and the server's corrections).
         calibrate: Calibrate the odometry by the fixes (:class:`CalibratedOdometry`); else raw odometry.
-        stale_fix_m: :meth:`MapSource.stale`'s distance (0: a correction never goes stale).
     """
 
-    def __init__(self, maps: MapSource, calibrate: bool, stale_fix_m: float = 0.0) -> None:
+    def __init__(self, maps: MapSource, calibrate: bool) -> None:
         self.maps = maps
         self.history = PoseHistory()  # odometry poses (calibrated when calibrating) by stamp
         self.odometry = CalibratedOdometry() if calibrate else None
-        self.stale_fix_m = float(stale_fix_m)
-        self._last_key: Pose2D | None = None
 
     def odom(self, stamp_ns: int, raw: Pose2D, omega_radps: float | None, arrival_ns: int) -> None:
         """One odometry pose of the base driver (``odom → base_link``) and its turn rate [rad/s]."""
@@ -44,24 +40,18 @@ class KeyPoses:
                 self.odometry.key_made(slot, sample[0])
         if sample is None:
             return None, tf_map_from_odom
-        key = map_from_odom.compose(sample[1])
-        if self._last_key is not None:
-            self.maps.moved(key.distance_m(self._last_key))
-        self._last_key = key
-        return key, tf_map_from_odom
+        return map_from_odom.compose(sample[1]), tf_map_from_odom
+
+    def odom_at(self, stamp_ns: int, tolerance_ns: int) -> Pose2D | None:
+        """The odometry pose (``odom → base_link``) nearest ``stamp_ns``, None when none is within ``tolerance_ns``
+        (a localizer's estimate older than the history, or from before the odometry started)."""
+        sample = self.history.sample_at(int(stamp_ns))
+        return sample[1] if sample is not None and abs(sample[0] - stamp_ns) <= tolerance_ns else None
 
     def correction_applied(self, fix_slot: int) -> None:
         """The correction from a fix of ``fix_slot``'s key is in force: it teaches the calibration."""
         if self.odometry is not None:
             self.odometry.learn(fix_slot, self.maps.map_from_odom())
-
-    def fix_stale(self) -> bool:
-        """Whether an image should go so that the server can fix the robot (:meth:`MapSource.stale`)."""
-        return self.maps.stale(self.stale_fix_m)
-
-    def image_sent(self) -> None:
-        """An image went this slot."""
-        self.maps.image_sent()
 
     def position(self) -> tuple[float, float] | None:
         """The robot's newest (x, y) in ``map`` [m]."""

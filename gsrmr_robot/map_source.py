@@ -1,14 +1,17 @@
 """Where the robot's ``map → odom`` comes from (pure): its ``map_from_odom`` parameter, corrected by the server's
-numbered corrections (:class:`~gsrmr_common.wire.MapCorrection`), each checked before it is applied. Design:
-docs/nodes.md, "The server localizes the robot"."""
+numbered corrections (:class:`~gsrmr_common.wire.MapCorrection`), each checked before it is applied, or replaced by
+another localizer's (AMCL, slam_toolbox). Design: docs/nodes.md, "The server localizes the robot"."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 import math
+from typing import Any
 
 from gsrmr_common.plausibility import Implausible
-from gsrmr_common.pose2d import Pose2D
+from gsrmr_common.pose2d import Pose2D, yaw_from_quaternion
+from gsrmr_common.tf_tree import MAP_FRAME
 from gsrmr_common.wire import MapCorrection
 from gsrmr_common.writer_admission import SeqTracker
 
@@ -39,8 +42,6 @@ class MapSource:
         self.stamp_s = -math.inf  # of the newest fix in the correction in force
         self.variance = (math.inf, math.inf, math.inf)
         self._seq = SeqTracker()
-        self.driven_since_correction_m = 0.0  # odometry distance since the correction in force was applied …
-        self.driven_since_image_m = 0.0  # … and since the last image went (its fix may still come)
 
     def map_from_odom(self) -> Pose2D:
         """The pose of ``odom`` in ``map`` now."""
@@ -71,23 +72,41 @@ class MapSource:
             self.implausible[reason] += 1
             return reason
         self.correction, self.seq, self.stamp_s = x, c.seq, c.stamp_s
-        self.driven_since_correction_m = 0.0
         self.variance = (c.var_a_m2, c.var_b_m2, c.var_theta_rad2)
         return None
 
-    def moved(self, distance_m: float) -> None:
-        """The robot drove ``distance_m`` (odometry) since the last call."""
-        if math.isfinite(distance_m) and distance_m > 0:
-            self.driven_since_correction_m += distance_m
-            self.driven_since_image_m += distance_m
+    def set_external(self, map_from_odom: Pose2D, stamp_s: float,
+                     variance: tuple[float, float, float] = (math.nan,) * 3) -> str | None:
+        """``map → odom`` from another localizer (its own filter and its own jumps: no step or total limit), put in
+        force as the next numbered correction. Returns why it is refused (counted ``correction_malformed``: a
+        non-finite pose or stamp), or None."""
+        pose = Pose2D.of(map_from_odom)
+        if not (all(math.isfinite(v) for v in pose) and math.isfinite(stamp_s)):
+            self.implausible["correction_malformed"] += 1
+            return "correction_malformed"
+        self.correction = pose.wrapped().compose(self.parameter.inverse())
+        self.seq, self.stamp_s, self.variance = self.seq + 1, float(stamp_s), tuple(float(v) for v in variance)
+        return None
 
-    def image_sent(self) -> None:
-        """An image went: the server may fix the robot from it."""
-        self.driven_since_image_m = 0.0
 
-    def stale(self, max_driven_m: float) -> bool:
-        """Whether the keys' correction is stale: the robot drove more than ``max_driven_m`` since the correction in
-        force (or since the start, before any) and more than half that since the last image (whose fix would have
-        come by then). ``max_driven_m`` ≤ 0: never."""
-        return (max_driven_m > 0 and self.driven_since_correction_m > max_driven_m
-                and self.driven_since_image_m > 0.5 * max_driven_m)
+def map_from_odom_of(map_from_base: Pose2D, odom_from_base: Pose2D) -> Pose2D:
+    """``map → odom`` from the base's pose in ``map`` (a localizer's estimate) and in ``odom`` (the odometry at the
+    same stamp): ``map_from_base ∘ odom_from_base⁻¹`` (m, rad)."""
+    return Pose2D.of(map_from_base).compose(Pose2D.of(odom_from_base).inverse())
+
+
+def planar_pose(position: Any, orientation: Any) -> Pose2D:
+    """(x, y, yaw) of a ROS position/translation and quaternion (m, rad; z, roll and pitch dropped)."""
+    return Pose2D(float(position.x), float(position.y),
+                  yaw_from_quaternion(orientation.x, orientation.y, orientation.z, orientation.w))
+
+
+def map_to_odom_edges(transforms: Iterable[Any], odom_frame: str) -> list[tuple[int, Pose2D]]:
+    """The ``map → odom_frame`` edges of a ``TFMessage``'s transforms, as (stamp ns, planar pose of odom in map);
+    frame names compared without a leading ``/`` (ROS 1 writers)."""
+    out = []
+    for t in transforms:
+        if t.header.frame_id.lstrip("/") == MAP_FRAME and t.child_frame_id.lstrip("/") == odom_frame.lstrip("/"):
+            stamp_ns = t.header.stamp.sec * 1_000_000_000 + t.header.stamp.nanosec
+            out.append((stamp_ns, planar_pose(t.transform.translation, t.transform.rotation)))
+    return out

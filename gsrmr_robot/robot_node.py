@@ -47,6 +47,7 @@ from gsrmr_common.ros_wire import (
 from gsrmr_common.slot_clock import SlotClock, SlotTicker
 from gsrmr_common.wire import MapCorrection
 from gsrmr_robot.dds_profile import use_uplink_profile
+from gsrmr_robot.external_localizer import ExternalLocalizer
 from gsrmr_robot.image_acks import ImageAcks
 from gsrmr_robot.key_poses import KeyPoses
 from gsrmr_robot.robot_params import INTERFACE, RobotParameters
@@ -108,8 +109,9 @@ class RobotNode(Node):
         self.schedules, self.gains, self.maps = (self.workstation.schedules, self.workstation.gains,
                                                  self.workstation.maps)
         # the key is map → odom ∘ the (calibrated) odometry pose at the capture time of its frame
-        server = p.localization == "server"
-        self.keys = KeyPoses(self.maps, server and p.odometry_calibration, p.stale_fix_m if server else 0.0)
+        self.keys = KeyPoses(self.maps, p.localization == "server" and p.odometry_calibration)
+        self.localizer = ExternalLocalizer(self, self.inputs, p, self.maps, self.keys, self._lock, self.implausible,
+                                           self.odom_frame)  # localization pose or tf: another localizer's
         self.acks = ImageAcks(self, self._pub_img, p.image_readers, self.backlog, self._lock)
         # 5 ms tick: slot starts are detected with ≤ 5 ms jitter without a drifting periodic timer.
         # run each slot 1 ms after it starts (polling the clock at 200 Hz cost ~5 % of a core)
@@ -208,11 +210,9 @@ class RobotNode(Node):
             decision = self.core.run_slot(SlotInputs(slot, frame, frame_stamp_ns, pose,
                                                      sched.lookup(slot) if sched is not None else None, gain,
                                                      sched.threshold(slot) if sched is not None else None,
-                                                     round_slot, queued, self.backlog.rate_bps, self.maps.seq,
-                                                     self.keys.fix_stale()))
-            if decision.x == 1:
-                self.keys.image_sent()
-        self.static_tf.send_map_to_odom(tf_map_from_odom, self.odom_frame)
+                                                     round_slot, queued, self.backlog.rate_bps, self.maps.seq))
+        if self.params.localization in ("server", "off"):  # else the other localizer publishes it
+            self.static_tf.send_map_to_odom(tf_map_from_odom, self.odom_frame)
         if decision.scene_changed:
             det = self.core.scene_change
             self.get_logger().info(f"scene change in slot {slot} (frame difference {det.last_score:.4f}, recent "
@@ -235,7 +235,7 @@ class RobotNode(Node):
         extra = {"schedule_misses": self.schedule_misses, "no_frame": self.no_frame, "no_pose": self.no_pose,
                  "schedule_seq": self.schedules.newest.seq if self.schedules.newest else -1,
                  "correction_seq": self.maps.seq, "odometry_calibration": json.dumps(self.keys.calibration()),
-                 "stale_fix_images": self.core.stale_fix_images,
+                 "localizer_unmatched": self.localizer.unmatched,
                  "map_from_odom": json.dumps([round(v, 4) for v in self.maps.map_from_odom()]),
                  "channel_unmeasured": self.gains.unmeasured,
                  "camera_info_changes": self.port.changes, "frames_uncalibrated": self.port.frames_withheld,

@@ -27,8 +27,11 @@ LIVE_PARAMETERS = frozenset({"jpeg_quality", "uplink_width_px", "default_upload_
 #: topic, or — ``image_readers`` — whose acknowledgements the hold-back waits for.
 WRITER_LISTS = ("schedule_writers", "channel_writers", "camera_writers", "odom_writers", "image_readers",
                 "correction_writers")
-#: Where map → odom comes from: the server's corrections of ``map_from_odom``, or the parameter alone.
-LOCALIZATION_SOURCES = ("server", "off")
+#: Where map → odom comes from: the server's corrections of ``map_from_odom``; another localizer's base pose in
+#: ``map`` (AMCL's ``amcl_pose``) or its ``map → odom`` on ``/tf``; or the parameter alone.
+LOCALIZATION_SOURCES = ("server", "pose", "tf", "off")
+#: The other localizer's pose of ``base_link`` in ``map`` (``localization`` pose); slam_toolbox: remap to ``pose``.
+LOCALIZER_POSE_TOPIC = "amcl_pose"
 
 
 @dataclass(frozen=True)
@@ -88,17 +91,16 @@ class RobotParameters(NodeParameters):
         max_value=10.0, read_only=True)
     localization: str = ros_parameter(
         "server", "Where map → odom comes from: server = map_from_odom corrected by the server's gsrmr/map_correction "
-        "(the server localizes the robot from its images), off = map_from_odom alone (another localizer sets it)",
-        read_only=True, constraints="one of: server, off")
+        "(the server localizes the robot from its images); pose = another localizer's base pose in map on amcl_pose "
+        "(AMCL; slam_toolbox: remap amcl_pose:=pose) with the odometry at its stamp; tf = that localizer's map → odom "
+        "on /tf (needs tf2_msgs: a ROS 2 install); off = map_from_odom alone", read_only=True,
+        constraints="one of: server, pose, tf, off")
     odometry_calibration: bool = ros_parameter(
         True, "With localization server: scale the odometry's distances by a gain and a turn slip learned from the "
         "server's corrections (keys between fixes err less on wheels that slip)", read_only=True)
-    stale_fix_m: float = ros_parameter(
-        2.0, "With localization server: after driving this far without a new correction (and half as far without an "
-        "image), send an image at the first fair fade so that the server can fix the pose [m]; 0 = never",
-        min_value=0.0, max_value=100.0, read_only=True)
     correction_writers: tuple[str, ...] = ros_parameter(
-        ("gsrmr_server",), "Nodes whose gsrmr/map_correction is taken", read_only=True)
+        ("gsrmr_server", "amcl", "slam_toolbox"), "Nodes whose map → odom is taken: gsrmr/map_correction "
+        "(localization server), amcl_pose (pose) or map → odom on /tf (tf)", read_only=True)
     max_correction_step_m: float = ros_parameter(
         0.5, "A correction moving map → odom further than this from the one in force is refused [m]", min_value=0.01,
         max_value=10.0, read_only=True)
@@ -135,12 +137,15 @@ INTERFACE = NodeInterface(
                 Endpoint("gsrmr/schedule", "std_msgs/msg/Float64MultiArray", "the plan (x_t, p_t), latched"),
                 Endpoint("radio/channel_gain", "std_msgs/msg/Float64MultiArray", "the radio's gain per slot"),
                 Endpoint("gsrmr/map_correction", "std_msgs/msg/Float64MultiArray", "the server's map → odom "
-                         "correction (localization server)")),
+                         "correction (localization server)"),
+                Endpoint(LOCALIZER_POSE_TOPIC, "geometry_msgs/msg/PoseWithCovarianceStamped", "another localizer's "
+                         "base_link in map (localization pose)"),
+                Endpoint("/tf", "tf2_msgs/msg/TFMessage", "another localizer's map → odom (localization tf)")),
     publishes=(Endpoint("uplink/pose_key", "geometry_msgs/msg/Vector3Stamped", "(a_m, b_m, theta_rad) in map"),
                Endpoint("uplink/image_raw/compressed", "sensor_msgs/msg/CompressedImage", "JPEG, image slots"),
                Endpoint("uplink/camera_info", "sensor_msgs/msg/CameraInfo", "the uploaded pinhole camera, latched"),
                Endpoint("gsrmr/ledger", "std_msgs/msg/Float64MultiArray", "one energy-ledger row per slot"),
-               Endpoint("/tf", "tf2_msgs/msg/TFMessage", "map → odom, corrected (with tf2_ros)"),
+               Endpoint("/tf", "tf2_msgs/msg/TFMessage", "map → odom (localization server or off; with tf2_ros)"),
                Endpoint("/tf_static", "tf2_msgs/msg/TFMessage", "base_link → camera (with tf2_ros)"),
                Endpoint("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray")),
     parameters=(ParameterGroup(RobotParameters), ParameterGroup(CameraMountParameters, MOUNT_PREFIX),

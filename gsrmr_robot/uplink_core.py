@@ -98,7 +98,6 @@ class SlotInputs:
     uplink_queued: bool = False  # the last image is still unacknowledged (gsrmr_robot.uplink_backlog): hold back
     uplink_rate_bps: float = float("nan")  # the robot's estimate of the uplink throughput (for the ledger)
     correction_seq: int = 0  # the map → odom correction the pose was made with (for the ledger)
-    fix_stale: bool = False  # that correction is stale (MapSource.stale): an image at the first fair fade
 
 
 @dataclass(frozen=True)
@@ -133,8 +132,6 @@ class UplinkCore:
     slot's and the rule sent only the key, an image goes in the first of the next ``change_wait_slots`` slots (that
     one included) whose measured gain is fair (:class:`~gsrmr_robot.scene_change.ChangeProbe`), so the server
     measures the change then instead of at the schedule's next image. An image sent for any reason ends the wait.
-    A stale ``map → odom`` correction (``SlotInputs.fix_stale``) asks for an image the same way, so that the server
-    can fix the robot's pose.
     """
 
     def __init__(self, link: LinkBudget, slot_s: float, jpeg_quality: int = 80,
@@ -147,8 +144,6 @@ class UplinkCore:
         self.scene_change = scene_change
         self.change_probe = ChangeProbe(link.rician_k, change_wait_slots)
         self.change_images = 0  # images sent for a scene change the rule would not have sent
-        self.stale_fix_images = 0  # … for a stale correction
-        self._wait_for_fix = False  # the change probe's wait was started by a stale correction
 
     def run_slot(self, inputs: SlotInputs) -> SlotDecision:
         """The upload of one slot; every slot is booked in the ledger, whatever was sent."""
@@ -168,10 +163,6 @@ class UplinkCore:
         changed = self.scene_change is not None and self.scene_change.update(inputs.frame, inputs.frame_stamp_ns)
         if changed:
             self.change_probe.changed(inputs.slot)
-            self._wait_for_fix = False
-        elif inputs.fix_stale and not self.change_probe.waiting:
-            self.change_probe.changed(inputs.slot)  # the keys drift: let the server fix the robot
-            self._wait_for_fix = True
         if (x == 0 and inputs.entry is not None and inputs.frame is not None and self.change_probe.wants_image(
                 inputs.slot, gain, self.link.mean_gain(pose[:2] if pose is not None else None))):
             x = 1  # the view changed: let the server measure it now (UplinkCore's docstring, "Scene changes")
@@ -191,8 +182,7 @@ class UplinkCore:
             x = 0
         elif x == 1:
             self.change_probe.image_sent()
-            self.change_images += int(for_change and not self._wait_for_fix)
-            self.stale_fix_images += int(for_change and self._wait_for_fix)
+            self.change_images += int(for_change)
         frame = inputs.frame
         # Encoded in key slots too: the ledger books what an image would have cost (upload-all baseline).
         jpeg = encode_jpeg(frame, self.jpeg_quality) if frame is not None else None

@@ -124,7 +124,8 @@ class ReplanLog:
             # the image fraction the last plan was held to because the robot held images back (-1: none)
             "link_image_cap": -1 if planner.last_image_cap is None else round(planner.last_image_cap, 4),
             "images_held_back": planner.link_cap.images_held_back(),
-            "image_delivery_ratio": ratio_text(planner.link_cap.delivery_ratio())}
+            "image_delivery_ratio": ratio_text(planner.link_cap.delivery_ratio()),
+            **planner.fix_age.diagnostic_values(next_slot - 1)}
         if lp is not None:
             values.update({"loss_level_ratio": round(math.exp(lp.level), 4), "loss_margin_factor": round(lp.margin, 4),
                            "loss_burst_factor": round(lp.burst_factor, 4)})

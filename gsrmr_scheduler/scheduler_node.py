@@ -141,7 +141,7 @@ class SchedulerNode(Node):
             return
         with self._lock:
             self.planner.record_action(row.slot, x, row.held_back, row.uplink_rate_bps, row.upload_all_bits,
-                                       row.scene_change)
+                                       row.scene_change, row.correction_seq)
         if waiting is not None:
             self._take_loss(waiting)
 

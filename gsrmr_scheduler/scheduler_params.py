@@ -131,6 +131,11 @@ class SchedulerParameters(NodeParameters):
     probe_gap_slots: int = ros_parameter(
         20, "In-slot rule: after this many slots without an image any fade at or above the median one sends an "
         "image (0 = off)", min_value=0, max_value=100_000, read_only=True)
+    stale_fix_m: float = ros_parameter(
+        2.0, "In-slot rule: once the robot's keys drove this far since the newest map → odom correction their ledger "
+        "rows name (and half as far since an image), take ever poorer fades, up to the median one, so that the "
+        "server can fix the robot's pose from an image [m]; 0 = never", min_value=0.0, max_value=100.0,
+        read_only=True)
     round_slots: int = ros_parameter(
         0, "Slots of an operating round (T) whose mean loss must meet L_th: the round starts when the reported "
         "pose first moves (0 = no rounds: a running mean)", min_value=0, max_value=10_000_000, read_only=True)
@@ -207,6 +212,7 @@ class SchedulerParameters(NodeParameters):
             oracle_channel=self.oracle_channel, trust_loss_map=self.oracle_channel,
             in_slot_decision=self.in_slot_decision, explore_image_fraction=self.explore_image_fraction,
             startup_explore_samples=STARTUP_EXPLORE_SAMPLES, probe_gap_slots=self.probe_gap_slots,
+            stale_fix_m=self.stale_fix_m,
             image_slot_loss=(self.image_slot_loss if self.image_slot_loss >= 0 else loss_map.image_loss or 0.0),
             loss_sample_offset=(self.loss_sample_offset if self.loss_sample_offset != -1.0
                                 else loss_map.sample_offset or 0.0),

@@ -48,7 +48,8 @@ def _nodes(context, config: str) -> list[Node]:
                                               "localization": ParameterValue(LaunchConfiguration("localization"),
                                                                              value_type=str)}],
              remappings=[("camera/image_raw", LaunchConfiguration("camera_image_topic")),
-                         ("camera/camera_info", LaunchConfiguration("camera_info_topic"))],
+                         ("camera/camera_info", LaunchConfiguration("camera_info_topic")),
+                         ("amcl_pose", LaunchConfiguration("localizer_pose_topic"))],
              **_security(context, "gsrmr_robot")),
     ]
 
@@ -68,8 +69,12 @@ def generate_launch_description() -> LaunchDescription:
                                           "('' = off)"),
         DeclareLaunchArgument("cmd_vel_source", default_value="*",
                               description="the node the base takes cmd_vel from (a planner or twist_mux; * = any)"),
-        DeclareLaunchArgument("localization", default_value="server", choices=["server", "off"],
-                              description="map → odom: corrected by the server's localization (server), or "
-                                          "map_from_odom alone (off: another localizer, e.g. AMCL)"),
+        DeclareLaunchArgument("localization", default_value="server", choices=["server", "pose", "tf", "off"],
+                              description="map → odom: corrected by the server's localization (server), from "
+                                          "another localizer's pose (pose: AMCL, slam_toolbox) or its /tf (tf), or "
+                                          "map_from_odom alone (off)"),
+        DeclareLaunchArgument("localizer_pose_topic", default_value="amcl_pose",
+                              description="with localization:=pose, that localizer's PoseWithCovarianceStamped of "
+                                          "base_link in map (slam_toolbox: pose)"),
         OpaqueFunction(function=_nodes, kwargs={"config": config}),
     ])

@@ -42,6 +42,7 @@ class PlannerConfig:
     explore_image_fraction: float = 0.0  # in-slot rule: an image at least in this best fraction of fades
     startup_explore_samples: int = 0  # in-slot rule: images in the better half of fades until this many L_t
     probe_gap_slots: int = 0  # in-slot rule: this long without an image → any fade ≥ the median one (0 = off)
+    stale_fix_m: float = 0.0  # in-slot rule: the robot's pose fix is stale after this far [m] (FixAge; 0 = off)
     image_slot_loss: float = 0.0  # J: the MR loss an image slot leaves (its JPEG)
     loss_sample_offset: float = 0.0  # subtracted from every loss sample: its JPEG's bias (LossMap.sample_offset)
     burst_time_constant_slots: float = 25.0  # burst model: how fast a measured burst fades into the average
@@ -94,6 +95,7 @@ class PlannerConfig:
             (0 <= self.explore_image_fraction <= 1, "explore_image_fraction must be in [0, 1]"),
             (self.startup_explore_samples >= 0, "startup_explore_samples must be >= 0"),
             (self.probe_gap_slots >= 0, "probe_gap_slots must be >= 0"),
+            (self.stale_fix_m >= 0, "stale_fix_m must be >= 0"),
             (self.image_slot_loss >= 0, "image_slot_loss must be a loss >= 0"),
             (abs(self.loss_sample_offset) <= 1, "loss_sample_offset must be in [-1, 1]"),
             (self.burst_time_constant_slots > 0, "burst_time_constant_slots must be > 0"),

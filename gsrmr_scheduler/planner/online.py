@@ -17,6 +17,7 @@ from gsrmr_scheduler.loss_map import LossMap
 from gsrmr_scheduler.planner.budget import LossBudget
 from gsrmr_scheduler.planner.config import PlannerConfig
 from gsrmr_scheduler.planner.drift import DriftMonitor
+from gsrmr_scheduler.planner.fix_age import FixAge
 from gsrmr_scheduler.planner.forecast import LossForecast, SlotLossModel
 from gsrmr_scheduler.planner.link_cap import LinkCap, cap_planned_images
 from gsrmr_scheduler.planner.pricing import InSlotPricing
@@ -109,6 +110,7 @@ class OnlinePlanner:
                                      probe_gap_slots=config.probe_gap_slots,
                                      startup_explore_samples=config.startup_explore_samples)
         self.drift = DriftMonitor(config.drift_threshold, config.drift_window_samples)
+        self.fix_age = FixAge(config.stale_fix_m)
         self.last_image_cap: float | None = None  # the image fraction the last plan was held to (None: no cap)
         self.last_price: float | None = None  # λ of the last plan's in-slot rule (J per unit of loss)
         self.seq = 0  # of the last schedule
@@ -159,13 +161,15 @@ class OnlinePlanner:
 
     # ------------------------------------------------------------------ what happened
     def record_action(self, slot: int, x: int, held_back: int = 0, uplink_rate_bps: float = math.nan,
-                      image_bits: float = math.nan, scene_change: int = 0) -> None:
+                      image_bits: float = math.nan, scene_change: int = 0, correction_seq: int = 0) -> None:
         """What the robot did in ``slot`` (1 = image), from its ledger: key slots are charged by it.
         ``held_back`` = 1: an image was asked for and the robot sent the key, its last image still queued;
         ``uplink_rate_bps``: the robot's estimate of the uplink throughput (from its image acknowledgements);
         ``image_bits``: the size of this slot's frame as a JPEG; ``scene_change`` = 1: the robot's scene-change
-        test fired on this slot's frame (the key slots around it are estimated as a step there)."""
+        test fired on this slot's frame (the key slots around it are estimated as a step there);
+        ``correction_seq``: the ``map → odom`` correction the slot's key was made with (:class:`~.fix_age.FixAge`)."""
         self.budget.record_action(slot, x)
+        self.fix_age.ledger(slot, x, correction_seq)
         if scene_change:
             self.forecast.note_change(slot)
         self.link_cap.record(slot, x, held_back, uplink_rate_bps, image_bits)
@@ -181,6 +185,7 @@ class OnlinePlanner:
     def record_pose(self, slot: int, a_m: float, b_m: float, theta_rad: float) -> None:
         """The pose the robot reported for ``slot`` (its pose key): key slots are charged at it."""
         self.budget.record_pose(slot, (a_m, b_m, theta_rad))
+        self.fix_age.key(slot, Pose2D(a_m, b_m, theta_rad))
 
     def observe(self, slot: int, a_m: float, b_m: float, theta_rad: float, loss: float) -> bool:
         """An image slot's measured L_t (the server's loss sample, corrected by ``loss_sample_offset``: the loss
@@ -228,7 +233,8 @@ class OnlinePlanner:
            an image slot leaves the loss J = ``image_slot_loss``, so Σ x·J + (1 − x)·L ≤ cap becomes the knapsack
            Σ (1 − x)(L − J) ≤ cap − n·J;
         5. each block solved with :func:`gsrmr_scheduler.solve.solve` (``method``, ``solver_options``);
-        6. with ``in_slot_decision`` (and no oracle) per-slot gain thresholds (:class:`~.pricing.InSlotPricing`);
+        6. with ``in_slot_decision`` (and no oracle) per-slot gain thresholds (:class:`~.pricing.InSlotPricing`),
+           taking ever poorer fades where the robot's pose fix grows stale (:class:`~.fix_age.FixAge`);
            without, the solved images held to what the uplink carries (:class:`~.link_cap.LinkCap`).
 
         Args:
@@ -264,6 +270,9 @@ class OnlinePlanner:
         self.last_image_cap = image_cap = self.link_cap.image_cap()
         priced = cfg.in_slot_decision and not cfg.oracle_channel
         explore = self.pricing.explore(slots, self.forecast.samples) if priced else None
+        stale = self.fix_age.explore(poses, pose) if priced else None
+        if stale is not None:  # the robot's pose fix grows stale: buy an image the server can fix it from
+            explore = np.maximum(explore, stale)
         out = _Blocks(np.zeros(h, np.int8), np.zeros(h), np.full(h, np.inf) if priced else None)
         mean_budget = None  # the first block's mean loss budget per slot (the reply reports it)
         for part, cap in self.budget.caps(first, h, cfg.loss_target):

@@ -1,26 +1,22 @@
-"""The robot's key poses (gsrmr_robot.key_poses, map_source's staleness, UplinkCore's stale-fix image): keys are
-map → odom ∘ the calibrated odometry pose of the frame's stamp, TF's map → odom joins the driver's odom frame, and a
-correction gone stale asks for one image at the first fair fade. Pure, no ROS."""
+"""The robot's key poses (gsrmr_robot.key_poses, map_source, map_source's external pose helpers): keys are map → odom ∘
+the calibrated odometry pose of the frame's stamp, TF's map → odom joins the driver's odom frame, and another
+localizer's pose or TF edge becomes map → odom."""
 
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
-import numpy as np
-
-from gsrmr_common.link_model import LinkBudget
 from gsrmr_common.plausibility import Implausible
-from gsrmr_common.pose2d import Pose2D
-from gsrmr_common.wire import MapCorrection
+from gsrmr_common.pose2d import Pose2D, quaternion_from_yaw
 from gsrmr_robot.key_poses import KeyPoses
-from gsrmr_robot.map_source import CorrectionLimits, MapSource
-from gsrmr_robot.uplink_core import SlotInputs, UplinkCore
+from gsrmr_robot.map_source import CorrectionLimits, MapSource, map_from_odom_of, map_to_odom_edges
 
 MS = 1_000_000
 
 
-def _keys(calibrate: bool = True, stale_fix_m: float = 1.0) -> KeyPoses:
-    return KeyPoses(MapSource(Pose2D(1.0, 0.5, 0.2), CorrectionLimits(), Implausible()), calibrate, stale_fix_m)
+def _keys(calibrate: bool = True) -> KeyPoses:
+    return KeyPoses(MapSource(Pose2D(1.0, 0.5, 0.2), CorrectionLimits(), Implausible()), calibrate)
 
 
 def _drive(keys: KeyPoses, metres: float, start_ns: int = 0, speed_mps: float = 0.3) -> int:
@@ -48,33 +44,35 @@ def test_the_key_is_map_to_odom_of_the_pose_at_the_frame_stamp_and_tf_joins_the_
     assert keys.key(1, None, 2_000 * MS, 500 * MS)[0] is None  # odometry 2 s old: no key
 
 
-def test_a_correction_goes_stale_after_driving_and_an_image_restarts_the_wait_for_its_fix():
-    keys = _keys(stale_fix_m=1.0)
-    stamp = _drive(keys, 0.9)
-    assert not keys.fix_stale()
-    stamp = _drive(keys, 0.3, stamp)
-    assert keys.fix_stale()  # 1.2 m with no correction and no image
-    keys.image_sent()
-    stamp = _drive(keys, 0.3, stamp)
-    assert not keys.fix_stale()  # its fix may still come
-    stamp = _drive(keys, 0.3, stamp)
-    assert keys.fix_stale()  # half the distance again without one: ask again
-    assert keys.maps.offer(MapCorrection(1, stamp / 1e9, 0.01, 0.0, 0.0, 1e-5, 1e-5, 1e-6), b"server") is None
-    assert not keys.fix_stale()
-    assert not _keys(stale_fix_m=0.0).fix_stale()
+def test_another_localizers_pose_becomes_map_to_odom_with_the_odometry_at_its_stamp():
+    keys = _keys(calibrate=False)
+    stamp = _drive(keys, 0.6)  # 0.6 m along odom's x, 50 Hz
+    assert keys.odom_at(stamp + 30 * MS, 50 * MS).distance_m(Pose2D(0.6, 0.0, 0.0)) < 1e-9
+    assert keys.odom_at(stamp + 80 * MS, 50 * MS) is None  # no odometry sample near the stamp
+    truth = Pose2D(3.0, -1.0, 0.7)  # map → odom of the other localizer
+    odom = keys.odom_at(stamp - 200 * MS, 50 * MS)  # its pose is 200 ms old: the odometry then
+    map_from_base = truth.compose(odom)
+    assert keys.maps.set_external(map_from_odom_of(map_from_base, odom), stamp / 1e9 - 0.2) is None
+    assert keys.maps.seq == 1 and keys.maps.map_from_odom().distance_m(truth) < 1e-9
+    assert abs(keys.maps.map_from_odom().theta_rad - 0.7) < 1e-12
+    key, _ = keys.key(99, stamp, stamp, 500 * MS)
+    assert key.distance_m(truth.compose(Pose2D(0.6, 0.0, 0.0))) < 1e-9
+    # a jump far beyond a server correction's limits is the other localizer's to make; a NaN is refused
+    assert keys.maps.set_external(Pose2D(40.0, 0.0, 3.0), stamp / 1e9) is None and keys.maps.seq == 2
+    assert keys.maps.set_external(Pose2D(math.nan, 0.0, 0.0), stamp / 1e9) == "correction_malformed"
+    assert keys.maps.seq == 2 and keys.maps.implausible["correction_malformed"] == 1
 
 
-def test_a_stale_fix_sends_one_image_at_the_first_fair_fade():
-    core = UplinkCore(LinkBudget(), 0.1, change_wait_slots=3)
-    frame = np.full((24, 32, 3), 128, np.uint8)
-    mean = core.link.mean_gain((0.0, 0.0))
-    good, deep = 1.2 * core.change_probe.fades[0] * mean, 0.9 * core.change_probe.fades[-1] * mean
+def test_map_to_odom_edges_are_picked_from_a_tf_message_by_frame_names():
+    def tf(parent: str, child: str, sec: int, x: float, yaw: float) -> SimpleNamespace:
+        q = quaternion_from_yaw(yaw)
+        return SimpleNamespace(
+            header=SimpleNamespace(frame_id=parent, stamp=SimpleNamespace(sec=sec, nanosec=5)),
+            child_frame_id=child,
+            transform=SimpleNamespace(translation=SimpleNamespace(x=x, y=2.0, z=0.1),
+                                      rotation=SimpleNamespace(x=q[0], y=q[1], z=q[2], w=q[3])))
 
-    def slot(k: int, gain: float, stale: bool) -> int:
-        return core.run_slot(SlotInputs(k, frame, k, Pose2D(), (0, 0.01), measured_gain=gain,
-                                        gain_threshold=math.inf, fix_stale=stale)).x
-
-    assert slot(0, good, False) == 0
-    assert slot(1, deep, True) == 0  # stale, but a deep fade: wait
-    assert slot(2, good, True) == 1 and core.stale_fix_images == 1 and core.change_images == 0
-    assert slot(3, good, False) == 0  # one image per wait
+    edges = map_to_odom_edges([tf("odom", "base_link", 1, 9.0, 0.0), tf("/map", "odom", 2, 1.5, 0.4),
+                               tf("map", "odom_other", 3, 7.0, 0.0)], "odom")
+    assert len(edges) == 1 and edges[0][0] == 2_000_000_005
+    assert edges[0][1].distance_m(Pose2D(1.5, 2.0, 0.0)) < 1e-12 and abs(edges[0][1].theta_rad - 0.4) < 1e-12

@@ -71,15 +71,15 @@ ROBOT_DECLARED = {
                        "is refused"),
     # the server's localization: where map → odom comes from and which corrections are taken
     "localization": ("server", None, True, "Where map → odom comes from: server = map_from_odom corrected by the "
-                     "server's gsrmr/map_correction (the server localizes the robot from its images), off = "
-                     "map_from_odom alone (another localizer sets it)"),
+                     "server's gsrmr/map_correction (the server localizes the robot from its images); pose = another "
+                     "localizer's base pose in map on amcl_pose (AMCL; slam_toolbox: remap amcl_pose:=pose) with the "
+                     "odometry at its stamp; tf = that localizer's map → odom on /tf (needs tf2_msgs: a ROS 2 "
+                     "install); off = map_from_odom alone"),
     "odometry_calibration": (True, None, True, "With localization server: scale the odometry's distances by a gain "
                              "and a turn slip learned from the server's corrections (keys between fixes err less on "
                              "wheels that slip)"),
-    "stale_fix_m": (2.0, (0.0, 100.0), True, "With localization server: after driving this far without a new "
-                    "correction (and half as far without an image), send an image at the first fair fade so that "
-                    "the server can fix the pose [m]; 0 = never"),
-    "correction_writers": (["gsrmr_server"], None, True, "Nodes whose gsrmr/map_correction is taken"),
+    "correction_writers": (["gsrmr_server", "amcl", "slam_toolbox"], None, True, "Nodes whose map → odom is taken: "
+                           "gsrmr/map_correction (localization server), amcl_pose (pose) or map → odom on /tf (tf)"),
     "max_correction_step_m": (0.5, (0.01, 10.0), True, "A correction moving map → odom further than this from the one "
                               "in force is refused [m]"),
     "max_correction_step_deg": (20.0, (0.1, 180.0), True, "… or turning it more than this [deg]"),

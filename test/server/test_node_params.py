@@ -78,6 +78,7 @@ SCHEDULER_DECLARED = {
     "margin_quantile": (0.6, (0.0, 1.0), True),
     "burst_time_constant_slots": (25.0, (0.1, 1e6), True),
     "probe_gap_slots": (20, (0, 100_000), True),
+    "stale_fix_m": (2.0, (0.0, 100.0), True),
     "round_slots": (0, (0, 10_000_000), True),
     # issue 28: the known-writer lists, live changes off unless started so, pose-key check, replan rate limit
     "live_parameter_changes": (False, None, True),
@@ -226,13 +227,14 @@ def test_planner_config_is_the_one_mapping_of_the_scheduler_parameters():
         "slot_s": 0.2, "loss_threshold": 0.025, "horizon": 60, "method": "ranking",
         "solver_options": '{"time_limit_s": 0.5}', "image_bits": 50_000.0, "pose_bits": 200.0, "drift_threshold": 0.03,
         "drift_window": 4, "loss_margin": 0.1, "in_slot_decision": False, "explore_image_fraction": 0.2,
-        "margin_quantile": 0.5, "burst_time_constant_slots": 12.0, "probe_gap_slots": 8, "round_slots": 288})
+        "margin_quantile": 0.5, "burst_time_constant_slots": 12.0, "probe_gap_slots": 8, "round_slots": 288,
+        "stale_fix_m": 1.5})
     c = p.planner_config(seed)
     assert (c.slot_s, c.loss_threshold, c.horizon_slots, c.method, dict(c.solver_options), c.image_bits,
             c.pose_bits, c.drift_threshold, c.drift_window_samples, c.loss_margin, c.in_slot_decision,
             c.explore_image_fraction, c.margin_quantile, c.burst_time_constant_slots, c.probe_gap_slots,
-            c.round_slots) == (0.2, 0.025, 60, "ranking", {"time_limit_s": 0.5}, 50_000.0, 200.0, 0.03, 4, 0.1, False,
-                               0.2, 0.5, 12.0, 8, 288)
+            c.round_slots, c.stale_fix_m) == (0.2, 0.025, 60, "ranking", {"time_limit_s": 0.5}, 50_000.0, 200.0, 0.03,
+                                              4, 0.1, False, 0.2, 0.5, 12.0, 8, 288, 1.5)
     assert c.image_slot_loss == 0.0067 and p.planner_config(LossMap()).image_slot_loss == 0.0
     assert p.with_values({"image_slot_loss": 0.01}).planner_config(seed).image_slot_loss == 0.01
     # loss_sample_offset: −1 by default, the seed map's (0 without one); 0 = samples as measured; else as given

@@ -187,6 +187,12 @@ CONDITIONAL: dict[tuple[str, Grant], tuple[str, Callable[[dict], bool | None]]] 
     ("/gsrmr_robot", ("topic", "subscribe", "/gsrmr/map_correction")):
         ("the server's corrections: localization server (config/robot.yaml's default)",
          lambda specs: _params(specs["gsrmr_robot"]).get("localization", "server") == "server"),
+    ("/gsrmr_robot", ("topic", "subscribe", "/amcl_pose")):
+        ("another localizer's pose: localization pose",
+         lambda specs: _params(specs["gsrmr_robot"]).get("localization", "server") == "pose"),
+    ("/gsrmr_robot", ("topic", "subscribe", "/tf")):
+        ("another localizer's map → odom: localization tf (where tf2_msgs imports)",
+         lambda specs: _params(specs["gsrmr_robot"]).get("localization", "server") == "tf"),
     ("/gsrmr_limo_base", ("topic", "publish", "/tf")):
         ("odom → base_link with publish_tf, where tf2_ros or tf2_msgs imports",
          lambda specs: bool(_params(specs["gsrmr_limo_base"]).get("publish_tf"))
@@ -462,7 +468,7 @@ def test_launch_keystore_runs_every_node_in_its_policy_enclave(name, monkeypatch
     Node(**secured[0])  # launch_ros takes them (an unknown keyword is a TypeError)
     if name == "robot.launch.py":
         robot = next(node for node in secured if node["name"] == "gsrmr_robot")
-        targets = {dst.perform(context) for _src, dst in robot["remappings"]}
+        targets = {dst.perform(context) for src, dst in robot["remappings"] if src.startswith("camera/")}
         granted = {g for (fqn, g), _ in CONDITIONAL.items() if fqn == "/gsrmr_robot" and "/color/" in g[2]}
         assert {("topic", "subscribe", t) for t in targets} == granted
 
