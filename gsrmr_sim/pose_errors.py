@@ -15,8 +15,9 @@ KEY_SOURCES = ("image", "render")
 
 
 def read_truth(path: str | Path) -> np.ndarray:
-    """The mock base's truth log (``stamp_ns,x_m,y_m,yaw_rad``) as N×4 float64, sorted by stamp (stamps in s)."""
-    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    """The mock base's truth log (``stamp_ns,x_m,y_m,yaw_rad``, further columns ignored) as N×4 float64, sorted by
+    stamp (stamps in s)."""
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, usecols=(0, 1, 2, 3))
     if data.size == 0:
         return np.zeros((0, 4))
     data[:, 0] *= 1e-9

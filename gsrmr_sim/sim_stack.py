@@ -119,7 +119,8 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
     Each process says which machine it belongs to (``host``): the robot (base, camera, robot node and the
     simulated world that stands in for the robot's hardware and surroundings) or the server (server,
     scheduler, and the simulation's scorer, which scores every MR image against the truth into
-    ``record_dir/scores.csv``). ``truth_dir`` routes the scorer's ground-truth frames through that folder (the
+    ``record_dir/scores.csv``); the mock base and the simulated radio log there too (:data:`TRUTH_LOG`,
+    :data:`CHANNEL_LOG`). ``truth_dir`` routes the scorer's ground-truth frames through that folder (the
     simulation backplane, :mod:`gsrmr_sim.truth_frames`) instead of over DDS, as two hosts need.
 
     ``channel_seed`` overrides ``config/link.yaml``'s for the simulated radio (and the scheduler, which
@@ -156,7 +157,9 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
                     {"scene": scene, "round": 2, "clock_from_motion": True, "truth_dir": truth_dir}, nice=WORLD_NICE),
         ProcessSpec("gsrmr-route-follower", "gsrmr_route_follower", [],
                     {"scene": scene, "laps": laps, "odom_topic": GROUND_TRUTH_TOPIC}, nice=WORLD_NICE),
-        ProcessSpec("gsrmr-sim-channel", "gsrmr_sim_channel", [link], seed, nice=WORLD_NICE),
+        ProcessSpec("gsrmr-sim-channel", "gsrmr_sim_channel", [link],
+                    {**seed, **({"publish_log": str(Path(record_dir) / CHANNEL_LOG)} if record_dir else {})},
+                    nice=WORLD_NICE),
         ProcessSpec("gsrmr-robot", "gsrmr_robot", [link, robot],
                     {"map_from_odom": [a0, b0, t0], "localization": "server" if localization else "off", **mount}),
         ProcessSpec("gsrmr-server", "gsrmr_server", [link, server], host="server",
@@ -185,8 +188,11 @@ def sim_stack(*, scene: str = "sandbox", model_path: str, record_dir: str = "", 
     return specs
 
 
-#: The mock base's true poses, in the record folder (``stamp_ns,x_m,y_m,yaw_rad``): the hindsight pose errors.
+#: The mock base's true poses, in the record folder (``stamp_ns,x_m,y_m,yaw_rad,tick_late_ms``): the hindsight pose
+#: errors, and how late the base ran (:mod:`gsrmr_sim.world_lateness`).
 TRUTH_LOG = "truth_poses.csv"
+#: The simulated radio's publish log, in the record folder (``slot,round_slot,slot_start_ns,published_ns``).
+CHANNEL_LOG = "channel_publish.csv"
 
 ROBOT_NAMESPACE_PREFIX = "robot"
 

@@ -15,19 +15,20 @@ Every run is ``gsrmr-demo DEMO_ARGS --channel-seed SEED`` (``--seed``, default 3
 Prints a Markdown table: a row per run and per load "median (worst)" (worst: the lowest for slots on time, slots
 scored and the energy ratio, the highest otherwise). Columns: slots on time / slots; the JSON's ``slots_missed``,
 ``slots_degraded`` (by level) and ``slots_scored`` where it has them; mean MR loss, whether it is within L_th,
-regret, energy ratio vs upload-all, images sent; ``world age p95``: the 95th percentile over the scored slots of
-slot start − capture stamp of the camera frame the robot used (``slots.csv``), i.e. how far behind the simulated
-world's camera (a niced process, not a deployment node) ran, plus the JSON's ``cpu`` world cores where present;
-``load cores``: CPU the load's sessions took over the demo's wall time. A demo that exits non-zero (3: its scorer
-scored too few slots) or has no mean loss is a row with its exit code and last stderr line: it keeps the timing
-columns (on time … scored, world) and blanks loss … images, which its median row takes from the other runs.
+regret, energy ratio vs upload-all, images sent; then how late the simulated world (niced processes, not deployment
+nodes) ran, over the scored slots (:mod:`gsrmr_sim.world_lateness`): ``camera age p95`` slot start − capture stamp
+of the frame the robot used, plus the JSON's ``cpu`` world cores where present; ``base late p95`` the mock base's
+50 Hz ticks behind their schedule; ``channel gain p95`` the radio's publish time of the slot's gain − slot start
+(negative: ahead; the radio aims at −39) and how many slots the robot booked with no measured gain. ``load
+cores``: CPU the load's sessions took over the demo's wall time. A demo that exits non-zero (3: its scorer scored too
+few slots) or has no mean loss is a row with its exit code and last stderr line: it keeps the timing columns (on
+time … scored, camera … channel) and blanks loss … images, which its median row takes from the other runs.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import csv
 import ctypes
 import json
 import math
@@ -41,10 +42,9 @@ import sys
 import tempfile
 import time
 
-import numpy as np
-
 from gsrmr_sim.cpu_usage import cpu_seconds_by_group
 from gsrmr_sim.machine_probe import machine_line
+from gsrmr_sim.world_lateness import world_lateness
 
 REPO = Path(__file__).resolve().parents[2]
 LOADS = ("idle", "busy1", "busy2", "build", "update")
@@ -58,7 +58,8 @@ BUILD = ("import threading, numpy as np\n"
          "    t.start()\n")
 ONE_BLAS_THREAD = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
 HEADER = ("load", "run", "slots on time", "missed", "degraded", "scored", "mean loss", "≤ L_th", "regret",
-          "energy ratio", "images", "world age p95 ms", "load cores", "wall s", "note")
+          "energy ratio", "images", "camera age p95 ms", "base late p95 ms", "channel gain p95 ms vs slot start",
+          "load cores", "wall s", "note")
 
 
 def _exit_on_sigterm(signum: int, _frame: object) -> None:
@@ -195,23 +196,15 @@ def run_demo(demo_args: list[str], loads: list[Load], workdir: Path) -> dict:
         summary = summary if isinstance(summary, dict) else {}
     summary["wall_s"] = wall_s
     if "report_dir" in summary:
-        try:
-            summary["world_age_p95_ms"] = frame_age_p95_ms(Path(summary["report_dir"]) / "slots.csv")
-        except (OSError, KeyError, ValueError) as e:
-            summary["note"] = f"slots.csv: {e}"[:120]
+        lateness, problems = world_lateness(Path(summary["report_dir"]))
+        summary.update(lateness)
+        if problems:
+            summary["note"] = "; ".join(problems)[:160]
     loss = summary.get("mean_loss")
     if proc.returncode or not isinstance(loss, (int, float)) or math.isnan(loss):
         last = errs[-1] if errs else (lines[-1] if lines else "")
         summary["error"] = f"exit {proc.returncode}: {last[:200]}"
     return summary
-
-
-def frame_age_p95_ms(slots_csv: Path) -> float:
-    """95th percentile of slot start − the used camera frame's capture stamp [ms] over the scored slots."""
-    with open(slots_csv, newline="") as f:
-        ages = [1e3 * (float(r["stamp_s"]) - float(r["frame_stamp_s"])) for r in csv.DictReader(f)
-                if r.get("scored") == "1" and r.get("frame_stamp_s")]
-    return float(np.percentile(ages, 95)) if ages else math.nan
 
 
 def _num(v: object, fmt: str) -> str:
@@ -224,10 +217,14 @@ def _within(s: dict) -> str:
     return "yes" if s["mean_loss"] <= s["loss_threshold"] else "no"
 
 
-def _world(s: dict) -> str:
+def _world(s: dict) -> list[str]:
+    """The simulated world's cells: camera age (and world cores), base lateness, channel gain (and no-gain slots)."""
     cpu = s.get("cpu") if isinstance(s.get("cpu"), dict) else {}
     extra = f"; world {cpu['world_cores']:.2f} cores" if isinstance(cpu.get("world_cores"), (int, float)) else ""
-    return _num(s.get("world_age_p95_ms"), ".0f") + extra
+    no_gain = s.get("channel_no_gain_slots")
+    no_gain = f"; {no_gain} no gain" if isinstance(no_gain, int) else ""
+    return [_num(s.get("world_age_p95_ms"), ".0f") + extra, _num(s.get("base_late_p95_ms"), ".1f"),
+            _num(s.get("channel_gain_p95_ms"), ".0f") + no_gain]
 
 
 def _cells(s: dict, note: str) -> list[str]:
@@ -244,7 +241,7 @@ def _cells(s: dict, note: str) -> list[str]:
     else:
         measured = [_num(s["mean_loss"], ".4f"), _within(s), _num(s.get("regret"), ".3g"),
                     _num(s.get("energy_ratio_vs_upload_all"), ".3g"), _num(s.get("images_sent"), ".0f")]
-    return [*timing, *measured, _world(s), _num(s.get("load_cores"), ".2f"), _num(s["wall_s"], ".0f"),
+    return [*timing, *measured, *_world(s), _num(s.get("load_cores"), ".2f"), _num(s["wall_s"], ".0f"),
             "; ".join(filter(None, [note, s.get("note", "")]))]
 
 
@@ -266,6 +263,7 @@ def summary_row(name: str, runs: list[dict]) -> str:
     by_level = [s["slots_degraded"] for s in timed if isinstance(s.get("slots_degraded"), dict)]
     degraded = "; ".join(f"{k}: {_median_worst([d.get(k, 0) for d in by_level], max, '.0f')}"
                          for k in sorted({k for d in by_level for k in d}))
+    no_gain = _median_worst([s.get("channel_no_gain_slots") for s in timed], max, ".0f")
     cells = [on_time, _median_worst([s.get("slots_missed") for s in timed], max, ".0f"), degraded,
              _median_worst([s.get("slots_scored") for s in timed], min, ".0f"),
              _median_worst([s["mean_loss"] for s in ok], max, ".4f"),
@@ -274,6 +272,9 @@ def summary_row(name: str, runs: list[dict]) -> str:
              _median_worst([s.get("energy_ratio_vs_upload_all") for s in ok], min, ".3g"),
              _median_worst([s.get("images_sent") for s in ok], max, ".0f"),
              _median_worst([s.get("world_age_p95_ms") for s in timed], max, ".0f"),
+             _median_worst([s.get("base_late_p95_ms") for s in timed], max, ".1f"),
+             "; ".join(filter(None, [_median_worst([s.get("channel_gain_p95_ms") for s in timed], max, ".0f"),
+                                     no_gain and f"{no_gain} no gain"])),
              _median_worst([s.get("load_cores") for s in runs], max, ".2f"),
              _median_worst([s["wall_s"] for s in runs], max, ".0f"),
              f"{len(runs) - len(ok)} of {len(runs)} failed: loss … images of {len(ok)}" if len(ok) < len(runs) else ""]

@@ -80,6 +80,7 @@ class MockLimo:
         self.odometry = odometry  # what its wheel odometry and IMU get wrong (None: nothing)
         self._imu_offset_rad = 0.0
         self._pose_stamp_ns = 0
+        self._tick_late_s: float | None = None  # the latest ticks' lateness (take_tick_lateness_s)
         self._vel = kin.BodyVelocity()
         self._cmd: proto.MotionCommand | None = None
         self._cmd_t = -math.inf
@@ -130,6 +131,13 @@ class MockLimo:
         what a motion-capture system would stamp it with (0 before the first tick: the start pose)."""
         with self._lock:
             return self._pose_stamp_ns, Pose2D(self._x, self._y, self._yaw)
+
+    def take_tick_lateness_s(self) -> float | None:
+        """The largest lateness [s] of the integration ticks since the last call: how long after its place in the
+        ``1/rate_hz`` schedule each tick ran (None: no tick since)."""
+        with self._lock:
+            late, self._tick_late_s = self._tick_late_s, None
+        return late
 
     def true_velocity(self) -> kin.BodyVelocity:
         """Velocity applied over the current tick (base_link frame)."""
@@ -201,6 +209,8 @@ class MockLimo:
             now = time.monotonic()
             self._scheduled_faults(now)
             if now >= next_t:
+                with self._lock:
+                    self._tick_late_s = max(self._tick_late_s or 0.0, now - next_t)
                 self._tick(now - last_t, now)
                 last_t = now
                 next_t += period
@@ -365,7 +375,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="odometry errors (gsrmr_sim.limo.odometry_errors.OdometryErrors fields; '' = perfect)")
     p.add_argument("--odometry-seed", type=int, default=0, help="seed of the IMU bias and random walk")
     p.add_argument("--truth-log", default="", metavar="CSV",
-                   help=f"also write every true pose published on {GROUND_TRUTH_TOPIC} here (stamp_ns,x_m,y_m,yaw_rad)")
+                   help=f"also write every true pose published on {GROUND_TRUTH_TOPIC} here (stamp_ns,x_m,y_m,yaw_rad,"
+                        "tick_late_ms: the ticks' largest lateness since the last row, nan: no tick)")
     p.add_argument("--ros", action=argparse.BooleanOptionalAction, default=True,
                    help=f"publish the true pose on {GROUND_TRUTH_TOPIC} (relative to the node's namespace)")
     return p

@@ -39,7 +39,7 @@ class GroundTruthPublisher(Node):
             Path(truth_log).parent.mkdir(parents=True, exist_ok=True)
         self._log = open(truth_log, "w", buffering=1 << 16) if truth_log else None  # noqa: SIM115 (closed on exit)
         if self._log is not None:
-            self._log.write("stamp_ns,x_m,y_m,yaw_rad\n")
+            self._log.write("stamp_ns,x_m,y_m,yaw_rad,tick_late_ms\n")
         self._pub = self.create_publisher(Odometry, GROUND_TRUTH_TOPIC, 10)
         self.create_timer(1.0 / mock.rate_hz, self._tick)
         self.get_logger().info(f"mock LIMO on {mock.link_path}; true pose on {self._pub.topic_name}")
@@ -63,7 +63,8 @@ class GroundTruthPublisher(Node):
         msg.twist.twist.angular.z = v.wz_radps
         self._pub.publish(msg)
         if self._log is not None:
-            self._log.write(f"{stamp_ns},{x!r},{y!r},{yaw!r}\n")
+            late_s = self.mock.take_tick_lateness_s()  # its ticks' since the last row (nan: none)
+            self._log.write(f"{stamp_ns},{x!r},{y!r},{yaw!r},{math.nan if late_s is None else 1e3 * late_s!r}\n")
 
     def on_shutdown(self) -> None:
         """Close the truth log (called by run_node on exit)."""

@@ -8,6 +8,7 @@ On hardware the radio's driver publishes the same message from its own measureme
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -35,6 +36,8 @@ class SimChannelParameters(NodeParameters):
     lead_s: float = ros_parameter(0.04, "Publish slot t's gain this long before t starts [s]", min_value=0.0,
                                   max_value=0.05, read_only=True)
     odom_topic: str = ros_parameter(GROUND_TRUTH_TOPIC, "True pose (nav_msgs/Odometry, map)", read_only=True)
+    publish_log: str = ros_parameter("", "Also write every gain published here (CSV: slot, round_slot, slot_start_ns, "
+                                     "published_ns; empty: nowhere)", read_only=True)
 
 
 #: What ``gsrmr-sim-channel --help`` prints.
@@ -59,6 +62,11 @@ class ChannelNode(Node):
         self.next_slot: int | None = None
         self.published = 0
         self.pub = self.create_publisher(Float64MultiArray, CHANNEL_TOPIC, 10)
+        self._log = None  # how late each gain left (p.publish_log): gsrmr_sim.world_lateness
+        if p.publish_log:
+            Path(p.publish_log).parent.mkdir(parents=True, exist_ok=True)
+            self._log = open(p.publish_log, "w", buffering=1 << 16)  # noqa: SIM115 (closed on exit)
+            self._log.write("slot,round_slot,slot_start_ns,published_ns\n")
         self.create_subscription(Odometry, odom_topic, self._on_odom, qos_profile_sensor_data)
         # wake once per slot, 1 ms after slot t's lead point (polling at 200 Hz cost 11 % of a core)
         aligned_timer(self, self.clock, (1_000_000 - self.lead_ns) / 1e9, self._tick)
@@ -82,8 +90,16 @@ class ChannelNode(Node):
             if not started and self.truth.round_start_slot is not None:
                 self.get_logger().info(f"robot moving: round clock of the channel starts at slot {sample.slot}")
             self.pub.publish(channel_sample_to_msg(sample))
+            if self._log is not None:
+                self._log.write(f"{sample.slot},{sample.round_slot},{self.clock.start_ns(sample.slot)},"
+                                f"{self.get_clock().now().nanoseconds}\n")
             self.published += 1
             self.next_slot += 1
+
+    def on_shutdown(self) -> None:
+        """Close the publish log (called by run_node on exit)."""
+        if self._log is not None:
+            self._log.close()
 
 
 @console_main

@@ -27,3 +27,9 @@ def test_keys_are_compared_at_their_frames_stamps_and_fallbacks_are_left_out(tmp
     assert e["pose_error_slots"] == 2 and e["pose_error_m_median"] == pytest.approx(0.005, abs=1e-9)
     assert e["pose_error_deg_p95"] == pytest.approx(0.5 * 0.95, abs=1e-6)
     assert key_pose_errors(rows, None)["pose_error_slots"] == 0
+
+
+def test_the_truth_log_reads_with_its_tick_lateness_column(tmp_path):
+    log = tmp_path / "truth.csv"
+    log.write_text("stamp_ns,x_m,y_m,yaw_rad,tick_late_ms\n20000000,0.5,0.0,0.1,0.25\n0,0.0,0.0,0.1,nan\n")
+    assert read_truth(log).tolist() == [[0.0, 0.0, 0.0, 0.1], [0.02, 0.5, 0.0, 0.1]]
