@@ -101,6 +101,9 @@ def await_scores(stack: ProcessStack, scorers: Mapping[str, tuple[str | os.PathL
             log(f"scorer: {total - left}/{total} composed slots of the round scored")
             last_log = now
         time.sleep(0.5)
+    # once more: a scorer that exited after the read above flushed its last rows as it went (read, flush, exit,
+    # poll: 6 of 288 slots counted missing that its file holds)
+    missing = {name: wanted[name] - set(read_scores(scorers[name][0])) for name in scorers}
     for name, slots in missing.items():
         if slots:
             log(f"{name}: {len(slots)} of the round's {len(wanted[name])} composed slots have no score after "

@@ -180,6 +180,23 @@ def test_await_scores_stops_the_others_then_waits_for_every_slot_or_gives_up(tmp
     writer.close()
 
 
+def test_await_scores_reads_the_rows_a_scorer_flushed_as_it_exited(tmp_path):
+    """The race of a bench run (idle, 1 of 3): the wait read the file, the scorer flushed its last 6 rows and
+    exited, and the poll saw it gone: 6 slots were reported missing that the file held."""
+    stack = _Stack(["gsrmr_sim_scorer"])
+    writer = ScoresWriter(tmp_path)
+    writer.write(SlotScore(10, 0.01, 30.0, 0.9))
+    scorer = stack.procs["gsrmr_sim_scorer"]
+
+    def poll() -> int:  # the exit: the last rows land just before the poll that sees it
+        writer.write(SlotScore(11, 0.01, 30.0, 0.9))
+        writer.close()
+        return 0
+
+    scorer.poll = poll
+    assert await_scores(stack, {"gsrmr_sim_scorer": (tmp_path, [10, 11])}, stall_s=30) == {"gsrmr_sim_scorer": []}
+
+
 def test_the_scorer_runs_beside_the_server_with_what_the_server_composes_with():
     specs = {s.name: s for s in sim_stack(model_path="/m.ply", record_dir="/rec", truth_dir="/truth",
                                            overrides={"gsrmr_server": {"mr_content": "/other.yaml",
