@@ -147,3 +147,18 @@ def ros_processes(tmp_path: Path) -> Iterator[ProcessHarness]:
         yield harness
     finally:
         harness.close()
+
+
+@pytest.fixture
+def ros_context(monkeypatch):
+    """An rclpy context in a ROS domain of its own, discovery on this host only (rclpy imported here: pure tests run
+    without ROS)."""
+    import rclpy
+
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=next_domain_id())
+    try:
+        yield ctx
+    finally:
+        rclpy.shutdown(context=ctx)

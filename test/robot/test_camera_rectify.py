@@ -11,7 +11,6 @@ from __future__ import annotations
 from functools import cache
 import time
 
-from conftest import next_domain_id
 import cv2
 import numpy as np
 import pytest
@@ -183,16 +182,6 @@ def test_the_uplink_camera_info_is_the_rectified_pinhole_camera(model):
 # ------------------------------------------------------------------ the node, over DDS
 
 
-@pytest.fixture
-def ros_context(monkeypatch):
-    """An rclpy context in a domain of its own."""
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=next_domain_id())
-    try:
-        yield ctx
-    finally:
-        rclpy.shutdown(context=ctx)
 
 
 def camera_info_msg(calib: CameraCalibration, stamp) -> CameraInfo:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import time
 
-from conftest import next_domain_id
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 import pytest
@@ -22,16 +21,6 @@ TRUTH = Pose2D(2.0, -1.0, 0.5)  # map → odom of the localizer
 ODOM = Pose2D(0.4, 0.1, 0.2)  # the base in odom (parked)
 
 
-@pytest.fixture
-def ros_context(monkeypatch):
-    """An rclpy context in a domain of its own."""
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=next_domain_id())
-    try:
-        yield ctx
-    finally:
-        rclpy.shutdown(context=ctx)
 
 
 def _pose_msg(pose: Pose2D, stamp, frame: str = "map") -> PoseWithCovarianceStamped:

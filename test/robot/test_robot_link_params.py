@@ -8,7 +8,6 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from conftest import next_domain_id
 import pytest
 import rclpy
 from rclpy.exceptions import InvalidParameterValueException
@@ -164,16 +163,6 @@ def test_link_yaml_is_read_through_the_same_table(tmp_path):
         link_budget(str(bad))
 
 
-@pytest.fixture
-def ros_context(monkeypatch):
-    """An rclpy context in a domain of its own (nothing is spun)."""
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=next_domain_id())
-    try:
-        yield ctx
-    finally:
-        rclpy.shutdown(context=ctx)
 
 
 def test_robot_node_declares_the_table_and_checks_changes(ros_context):
